@@ -1,0 +1,110 @@
+// NgpModel: one complete Instant-NGP radiance field with per-time-step
+// embeddings: hash grid + density/colour MLPs + embedding tables + occupancy
+// grid, plus the scene normalisation and rendering conventions (box size,
+// background, step rule) it was trained with.
+//
+// A model is a value type (copyable), which is how a frozen θ_{t-1} snapshot
+// is taken. It has no internal locking: concurrent const use (rendering) is
+// safe; mutation (training, AddTimeStep) needs exclusive access. The serving
+// layer shares published models as std::shared_ptr<const NgpModel>.
+#ifndef CLNERF_CORE_NGP_MODEL_H_
+#define CLNERF_CORE_NGP_MODEL_H_
+
+#include <cstdint>
+#include <random>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "core/hash_grid.h"
+#include "core/network.h"
+#include "core/occupancy_grid.h"
+#include "core/ray_marcher.h"
+#include "core/scene.h"
+
+namespace clnerf {
+
+struct ModelOptions {
+  HashGridOptions grid;
+  NetworkOptions network;
+  OccupancyGridOptions occupancy;
+  MarchOptions march;
+  absl::Status Validate() const;
+};
+
+// Trainable parameters, in three flat blocks.
+struct ModelParams {
+  std::vector<float> grid;  // Hash tables (HashGrid layout).
+  std::vector<float> mlp;   // Both MLPs (Network layout).
+  std::vector<float> emb;   // Embedding rows, one per time step.
+};
+
+class NgpModel {
+ public:
+  // Creates a randomly initialised model for `num_time_steps` steps.
+  static absl::StatusOr<NgpModel> Create(const ModelOptions& options, const Normalization& norm,
+                                         SceneKind kind, const Eigen::Vector3f& background,
+                                         int num_time_steps, uint64_t seed);
+
+  const ModelOptions& options() const { return options_; }
+  const Normalization& normalization() const { return norm_; }
+  SceneKind kind() const { return kind_; }
+  const Eigen::Vector3f& background() const { return background_; }
+  float bound() const { return norm_.bound; }
+  const HashGrid& grid() const { return grid_; }
+  const Network& network() const { return network_; }
+  const OccupancyGrid& occupancy() const { return occupancy_; }
+  OccupancyGrid& mutable_occupancy() { return occupancy_; }
+  const ModelParams& params() const { return params_; }
+  ModelParams& mutable_params() { return params_; }
+  int num_time_steps() const { return num_time_steps_; }
+
+  // Appends one embedding row (for a new time step) initialised from `seed`.
+  void AddTimeStep(uint64_t seed);
+  // Resets all weights, embeddings and the occupancy grid (re-init).
+  void Reinitialize(uint64_t seed);
+
+  // Bytes of the deployed model: parameters + occupancy bits + embeddings.
+  size_t num_bytes() const;
+  size_t num_params() const;
+  // False if any parameter is NaN/Inf.
+  bool AllFinite() const;
+
+  // Density sigma at model-space points (n x 3, inside the box) for time
+  // step t (geometry embedding). Parallel over points.
+  void Density(const float* points_model, int n, int time_step, float* sigma) const;
+
+  // Occupancy refresh as in upstream: evaluates densities at jittered cell
+  // positions chosen by the grid, using a random time step's geometry code.
+  void UpdateOccupancy(int iteration, std::mt19937_64* rng);
+
+  // Maps a model-space point to the hash-grid input [0, 1]^3.
+  Eigen::Vector3f ToGridInput(const Eigen::Vector3f& p) const {
+    return (p.array() + bound()) / (2.0f * bound());
+  }
+  // Transforms a world-space camera into model space.
+  Camera ToModelCamera(const Camera& world) const;
+
+  // For checkpoints.
+  static absl::StatusOr<NgpModel> FromParts(const ModelOptions& options, const Normalization& norm,
+                                            SceneKind kind, const Eigen::Vector3f& background,
+                                            int num_time_steps, ModelParams params);
+
+ private:
+  NgpModel(const ModelOptions& options, const Normalization& norm, SceneKind kind,
+           const Eigen::Vector3f& background, int num_time_steps);
+
+  ModelOptions options_;
+  Normalization norm_;
+  SceneKind kind_ = SceneKind::kBounded;
+  Eigen::Vector3f background_ = Eigen::Vector3f::Ones();
+  HashGrid grid_;
+  Network network_;
+  OccupancyGrid occupancy_;
+  ModelParams params_;
+  int num_time_steps_ = 1;
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_NGP_MODEL_H_

@@ -1,0 +1,186 @@
+// ProceduralScene: an analytic scene generator for tests and continual-
+// learning benchmarks, plus writers that store any Scene in the NeRF-synthetic
+// ("Blender") format.
+//
+// The world is a set of spheres and axis-aligned boxes standing on a finite,
+// thin, checkerboard floor slab ([-1.2, 1.2]^2, top face at z = -0.5), lit by
+// one directional light (diffuse + ambient, hard shadows), with z up. All
+// content lies inside [-1.5, 1.5]^3 world units, the NeRF-synthetic convention,
+// so the Blender normalisation (scale 1/3) maps it into [-0.5, 0.5]^3. Images
+// are rendered by analytic ray casting with n x n stratified, jittered
+// subsamples per pixel; alpha is the fraction of subsamples that hit anything,
+// and colours are composited onto a white background.
+//
+// Time steps: at each step t > 0 the world changes deterministically from the
+// world at t - 1: with `change_lighting` the light's direction, colour and
+// intensity change; with `change_geometry` one object is removed, one new
+// object is added and one existing object is recoloured. Every time step gets
+// its own train and test cameras (the camera ring is rotated per step) with
+// camera.time_step = t. Everything is a pure function of the options (seed
+// included): the same options give bit-identical images.
+//
+// Cameras sit on an upper-hemisphere spiral at `camera_radius` looking at the
+// origin. They are built as Blender/OpenGL camera-to-world matrices and stored
+// in the OpenCV convention via ConvertPose(..., kOpenGL), like every loader.
+//
+// Alpha: Scene/View has no alpha channel, so GenerateProceduralDataset returns
+// the Scene together with per-view alpha (ViewAlphas). The Blender writers take
+// an optional ViewAlphas; without it they write alpha = 1 everywhere.
+//
+// Thread safety: all functions are pure (they share no state) and may be
+// called concurrently. Generation renders views in parallel with OpenMP when
+// the library is built with it.
+#ifndef CLNERF_CORE_PROCEDURAL_SCENE_H_
+#define CLNERF_CORE_PROCEDURAL_SCENE_H_
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "core/camera.h"
+#include "core/image.h"
+#include "core/scene.h"
+#include "Eigen/Core"
+
+namespace clnerf {
+
+struct ProceduralSceneOptions {
+  // Scene name stored in Scene::name.
+  std::string name = "procedural";
+  // Seed for object layout, colours, camera jitter and anti-aliasing jitter.
+  uint64_t seed = 0;
+  // Image size in pixels (both in [1, 4096]).
+  int width = 64;
+  int height = 64;
+  // Horizontal field of view in radians (NeRF-synthetic uses 0.6911112).
+  float camera_angle_x = 0.6911112f;
+  // Views per time step for each split (train >= 1, test >= 0).
+  int num_train_views = 50;
+  int num_test_views = 10;
+  // Number of time steps (>= 1) and what changes between consecutive steps.
+  int num_time_steps = 1;
+  bool change_lighting = true;
+  bool change_geometry = true;
+  // Number of objects in the world at every time step (1..16).
+  int num_objects = 5;
+  // Camera distance from the origin (> 2.2 so cameras stay outside the
+  // content) and elevation range above the floor plane, in degrees
+  // (0 < min <= max < 89).
+  float camera_radius = 4.0f;
+  float min_elevation_deg = 15.0f;
+  float max_elevation_deg = 60.0f;
+  // Anti-aliasing: samples_per_axis^2 stratified jittered rays per pixel
+  // (1..8; 1 means a single ray through the pixel centre).
+  int samples_per_axis = 2;
+
+  absl::Status Validate() const;
+};
+
+// --- The analytic world -------------------------------------------------------
+
+struct ProceduralObject {
+  enum class Shape { kSphere, kBox };
+  Shape shape = Shape::kSphere;
+  Eigen::Vector3f center = Eigen::Vector3f::Zero();
+  // Sphere: radius in x (all components equal). Box: half side lengths.
+  Eigen::Vector3f half_extent = Eigen::Vector3f::Constant(0.25f);
+  Eigen::Vector3f color = Eigen::Vector3f::Constant(0.5f);  // Albedo in [0, 1].
+  int id = 0;  // Unique within a world's history (added objects get new ids).
+};
+
+struct ProceduralLight {
+  Eigen::Vector3f direction = Eigen::Vector3f(0, 0, 1);  // Unit, towards the light.
+  Eigen::Vector3f color = Eigen::Vector3f::Ones();
+  float intensity = 0.85f;
+  float ambient = 0.3f;
+};
+
+struct ProceduralWorld {
+  std::vector<ProceduralObject> objects;
+  ProceduralLight light;
+  // Floor slab: [-floor_half_size, floor_half_size]^2 x
+  // [floor_z - floor_thickness, floor_z].
+  float floor_half_size = 1.2f;
+  float floor_z = -0.5f;
+  float floor_thickness = 0.04f;
+  float checker_size = 0.3f;
+
+  // True if world point `p` is inside an object or the floor slab (the
+  // ground-truth occupancy, e.g. for occupancy-grid tests).
+  bool Occupied(const Eigen::Vector3f& p) const;
+};
+
+// The world at `time_step` >= 0 (it need not be < options.num_time_steps).
+// Precondition: options.Validate() is OK.
+ProceduralWorld ProceduralWorldAt(const ProceduralSceneOptions& options, int time_step);
+
+// The cameras of one split at one time step (deterministic from the options).
+// `test_split` selects the test ring instead of the train spiral.
+std::vector<Camera> ProceduralCameras(const ProceduralSceneOptions& options, int time_step,
+                                      bool test_split);
+
+struct ProceduralRender {
+  Image image;               // Composited onto white.
+  std::vector<float> alpha;  // Per pixel coverage in [0, 1].
+};
+
+// Renders `world` through `camera` (which must have no distortion) with
+// samples_per_axis^2 jittered subsamples per pixel. The jitter depends only on
+// `seed` and the pixel, so two worlds rendered from one camera differ exactly
+// where the worlds differ.
+ProceduralRender RenderProceduralView(const ProceduralWorld& world, const Camera& camera,
+                                      int samples_per_axis, uint64_t seed);
+
+// --- Datasets -----------------------------------------------------------------
+
+// Per-view alpha channels parallel to scene.train / val / test (each inner
+// vector has width * height entries).
+struct ViewAlphas {
+  std::vector<std::vector<float>> train, val, test;
+};
+
+struct ProceduralDataset {
+  Scene scene;
+  ViewAlphas alpha;
+};
+
+// Generates the scene: for each time step t, num_train_views train views and
+// num_test_views test views with camera.time_step = t, appended to
+// scene.train / scene.test in time-step order (scene.val stays empty). View
+// names are "train/r_<i>" / "test/r_<i>" with i the index within the split.
+// scene.kind = kBounded, background white, world_scale_hint = 1/3,
+// world_offset_hint = 0. Returns INVALID_ARGUMENT for bad options.
+absl::StatusOr<ProceduralDataset> GenerateProceduralDataset(const ProceduralSceneOptions& options);
+// As above, without the alpha channels.
+absl::StatusOr<Scene> GenerateProceduralScene(const ProceduralSceneOptions& options);
+
+// Writes `scene` in the NeRF-synthetic (Blender) format under `dir` (created
+// if needed): transforms_{train,val,test}.json with "camera_angle_x" and
+// frames {"file_path": "./<split>/r_<i>", "rotation", "time_step",
+// "transform_matrix" (4x4, OpenGL convention via ExportPose)}, and RGBA PNGs
+// <dir>/<split>/r_<i>.png. If scene.val is empty, transforms_val.json lists
+// the test frames (pointing at the test images). PNG colours are straight
+// (unassociated) alpha, un-composited from scene.background with `alpha`, so
+// compositing the PNG again reproduces the image to 8-bit precision; without
+// `alpha`, alpha = 1. Empty splits get a json with no frames. All views of a
+// split must share one pinhole camera model (same size, fx == fy, centred
+// principal point, no distortion) and have images; otherwise INVALID_ARGUMENT.
+// I/O failures give INTERNAL. Existing files in `dir` are overwritten.
+absl::Status WriteBlenderDataset(const Scene& scene, const std::string& dir,
+                                 const ViewAlphas* alpha = nullptr);
+absl::Status WriteBlenderDataset(const ProceduralDataset& dataset, const std::string& dir);
+
+// Writes one Blender-format folder per time step, <dir>/scan_000,
+// <dir>/scan_001, ..., each holding the views with that time step (indices
+// restart at 0 per folder; frames keep their original "time_step"). This is
+// the "directory of scan folders" input of continual learning. Every time
+// step in [0, scene.num_time_steps()) must have at least one train view.
+absl::Status WriteScanFolders(const Scene& scene, const std::string& dir,
+                              const ViewAlphas* alpha = nullptr);
+absl::Status WriteScanFolders(const ProceduralDataset& dataset, const std::string& dir);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_PROCEDURAL_SCENE_H_

@@ -1,0 +1,224 @@
+#include "core/renderer.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "absl/strings/str_format.h"
+#include "core/sh_encoding.h"
+#include "core/volume_rendering.h"
+
+namespace clnerf {
+
+absl::Status RenderOptions::Validate() const {
+  if (block_rays < 1) return absl::InvalidArgumentError("render: block_rays must be >= 1");
+  if (threads < 0) return absl::InvalidArgumentError("render: threads must be >= 0");
+  return absl::OkStatus();
+}
+
+namespace {
+
+struct RayState {
+  float t, t_end, T;
+  float rgb[3];
+  float depth;
+  bool alive;
+};
+
+// Renders one block of rays with a private workspace.
+long long RenderBlock(const NgpModel& model, const float* origins, const float* dirs, int n,
+                      const float* geo_bias, const float* app_bias, float min_weight, float* rgb_out,
+                      float* opacity_out, float* depth_out) {
+  const Network& net = model.network();
+  const HashGrid& grid = model.grid();
+  const MarchOptions& mo = model.options().march;
+  const float bound = model.bound();
+  const float* mlp = model.params().mlp.data();
+  const int Hc = net.options().colour_hidden, Hd = net.options().density_hidden;
+  const int Dg = grid.output_dim();
+
+  std::vector<RayState> st(n);
+  std::vector<float> colour_bias(size_t(Hc) * n);
+  float sh[kShDim];
+  for (int r = 0; r < n; ++r) {
+    const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
+    float t0, t1;
+    RayState& s = st[r];
+    s.T = 1.0f;
+    s.rgb[0] = s.rgb[1] = s.rgb[2] = 0.0f;
+    s.depth = 0.0f;
+    s.alive = IntersectBox(o, d, bound, &t0, &t1);
+    s.t = std::max(t0, mo.near);
+    s.t_end = t1;
+    ShEncode(d.x(), d.y(), d.z(), sh);
+    net.RayColourBias(mlp, sh, app_bias, colour_bias.data() + size_t(Hc) * r);
+  }
+
+  NetworkWorkspace ws;
+  std::vector<RaySample> samples;
+  std::vector<int> seg, seg_ray, keep, keep_seg;
+  std::vector<float> pos, feat, h0, sigma, dt, w;
+  std::vector<float> geo_cols;
+  long long evaluated = 0;
+  int wave = 4;
+  for (;;) {
+    samples.clear();
+    seg.assign(1, 0);
+    seg_ray.clear();
+    for (int r = 0; r < n; ++r) {
+      RayState& s = st[r];
+      if (!s.alive) continue;
+      const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
+      const size_t before = samples.size();
+      s.t = MarchRay(model.occupancy(), o, d, s.t, s.t_end, mo, bound, wave, &samples);
+      if (samples.size() == before) {
+        s.alive = false;
+        continue;
+      }
+      seg.push_back(int(samples.size()));
+      seg_ray.push_back(r);
+    }
+    const int m = int(samples.size());
+    if (m == 0) break;
+    evaluated += m;
+    const int nseg = int(seg_ray.size());
+    ws.Reserve(m, net.options(), Dg);
+    pos.resize(3 * size_t(m));
+    feat.resize(size_t(m) * Dg);
+    sigma.resize(m);
+    dt.resize(m);
+    w.resize(m);
+    for (int k = 0; k < nseg; ++k) {
+      const int r = seg_ray[k];
+      const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
+      for (int j = seg[k]; j < seg[k + 1]; ++j) {
+        const Eigen::Vector3f p = model.ToGridInput(o + samples[j].t * d);
+        pos[3 * j] = std::clamp(p.x(), 0.0f, 1.0f);
+        pos[3 * j + 1] = std::clamp(p.y(), 0.0f, 1.0f);
+        pos[3 * j + 2] = std::clamp(p.z(), 0.0f, 1.0f);
+        dt[j] = samples[j].dt;
+      }
+    }
+    grid.Encode(model.params().grid.data(), pos.data(), m, feat.data());
+    geo_cols.resize(size_t(Hd) * nseg);
+    for (int k = 0; k < nseg; ++k) std::copy(geo_bias, geo_bias + Hd, geo_cols.data() + size_t(Hd) * k);
+    net.DensityForward(mlp, feat.data(), m, seg.data(), nseg, geo_cols.data(), &ws);
+    for (int j = 0; j < m; ++j) sigma[j] = TruncExp(ws.h(0, j));
+    // Front-to-back weights per ray; select samples that matter.
+    keep.clear();
+    keep_seg.assign(1, 0);
+    std::vector<int> keep_ray;
+    for (int k = 0; k < nseg; ++k) {
+      RayState& s = st[seg_ray[k]];
+      float T = s.T;
+      for (int j = seg[k]; j < seg[k + 1]; ++j) {
+        const float alpha = 1.0f - std::exp(-sigma[j] * dt[j]);
+        w[j] = T * alpha;
+        T *= 1.0f - alpha;
+        if (w[j] >= min_weight) keep.push_back(j);
+        if (T <= kMinTransmittance) {
+          s.alive = false;
+          break;
+        }
+      }
+      s.T = T;
+      if (int(keep.size()) > keep_seg.back()) {
+        keep_seg.push_back(int(keep.size()));
+        keep_ray.push_back(k);
+      }
+    }
+    const int mk = int(keep.size());
+    if (mk > 0) {
+      // Compact h columns, colour the kept samples, accumulate.
+      Eigen::MatrixXf hk(ws.h.rows(), mk);
+      for (int i = 0; i < mk; ++i) hk.col(i) = ws.h.col(keep[i]);
+      ws.h.leftCols(mk) = hk;
+      std::vector<float> cb(size_t(Hc) * keep_ray.size());
+      for (size_t q = 0; q < keep_ray.size(); ++q) {
+        const int r = seg_ray[keep_ray[q]];
+        std::copy(colour_bias.data() + size_t(Hc) * r, colour_bias.data() + size_t(Hc) * (r + 1),
+                  cb.data() + size_t(Hc) * q);
+      }
+      net.ColourForward(mlp, mk, keep_seg.data(), int(keep_ray.size()), cb.data(), &ws);
+      for (size_t q = 0; q < keep_ray.size(); ++q) {
+        const int k = keep_ray[q];
+        RayState& s = st[seg_ray[k]];
+        for (int i = keep_seg[q]; i < keep_seg[q + 1]; ++i) {
+          const int j = keep[i];
+          s.rgb[0] += w[j] * ws.rgb(0, i);
+          s.rgb[1] += w[j] * ws.rgb(1, i);
+          s.rgb[2] += w[j] * ws.rgb(2, i);
+          s.depth += w[j] * samples[j].t;
+        }
+      }
+    }
+    wave = std::min(wave * 2, 32);
+  }
+  const Eigen::Vector3f& bg = model.background();
+  for (int r = 0; r < n; ++r) {
+    const RayState& s = st[r];
+    for (int c = 0; c < 3; ++c) rgb_out[3 * r + c] = s.rgb[c] + s.T * bg[c];
+    if (opacity_out) opacity_out[r] = 1.0f - s.T;
+    if (depth_out) depth_out[r] = s.depth;
+  }
+  return evaluated;
+}
+
+}  // namespace
+
+long long RenderRays(const NgpModel& model, const float* origins, const float* dirs, int n, int time_step,
+                     const RenderOptions& options, float* rgb, float* opacity, float* depth) {
+  const int t = time_step < 0 ? model.num_time_steps() - 1 : std::min(time_step, model.num_time_steps() - 1);
+  Eigen::MatrixXf geo, app;
+  model.network().StepBiases(model.params().mlp.data(), model.params().emb.data(), model.num_time_steps(), &geo,
+                             &app);
+  const Eigen::VectorXf geo_t = geo.col(t), app_t = app.col(t);
+  const int block = options.block_rays;
+  const int nblocks = (n + block - 1) / block;
+  long long total = 0;
+  const int threads = options.threads > 0 ? options.threads : omp_get_max_threads();
+#pragma omp parallel for schedule(dynamic) reduction(+ : total) num_threads(threads)
+  for (int b = 0; b < nblocks; ++b) {
+    const int begin = b * block, m = std::min(block, n - begin);
+    total += RenderBlock(model, origins + 3 * size_t(begin), dirs + 3 * size_t(begin), m, geo_t.data(),
+                         app_t.data(), options.min_weight, rgb + 3 * size_t(begin),
+                         opacity ? opacity + begin : nullptr, depth ? depth + begin : nullptr);
+  }
+  return total;
+}
+
+absl::StatusOr<RenderedView> RenderView(const NgpModel& model, const Camera& world_camera,
+                                        const RenderOptions& options) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  if (absl::Status s = ValidateCamera(world_camera); !s.ok()) return s;
+  if (options.time_step >= model.num_time_steps()) {
+    return absl::InvalidArgumentError(absl::StrFormat("time step %d does not exist (model has %d)",
+                                                      options.time_step, model.num_time_steps()));
+  }
+  const Camera cam = model.ToModelCamera(world_camera);
+  const int W = cam.intrinsics.width, H = cam.intrinsics.height;
+  const size_t n = size_t(W) * H;
+  std::vector<float> o(3 * n), d(3 * n);
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      Eigen::Vector3f oo, dd;
+      cam.Ray(x + 0.5f, y + 0.5f, &oo, &dd);
+      const size_t i = size_t(y) * W + x;
+      for (int c = 0; c < 3; ++c) {
+        o[3 * i + c] = oo[c];
+        d[3 * i + c] = dd[c];
+      }
+    }
+  }
+  RenderedView out;
+  out.rgb = Image(W, H);
+  out.opacity.resize(n);
+  out.depth.resize(n);
+  out.samples = RenderRays(model, o.data(), d.data(), int(n), options.time_step, options, out.rgb.rgb.data(),
+                           out.opacity.data(), out.depth.data());
+  for (float& z : out.depth) z /= model.normalization().scale;
+  return out;
+}
+
+}  // namespace clnerf

@@ -1,0 +1,368 @@
+#include "core/trainer.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "absl/strings/str_format.h"
+#include "core/sh_encoding.h"
+#include "core/volume_rendering.h"
+
+namespace clnerf {
+
+absl::Status TrainOptions::Validate() const {
+  if (iterations < 0) return absl::InvalidArgumentError("train: iterations must be >= 0");
+  if (batch_rays < 1 || max_batch_rays < batch_rays) {
+    return absl::InvalidArgumentError("train: need 1 <= batch_rays <= max_batch_rays");
+  }
+  if (target_samples < 0) return absl::InvalidArgumentError("train: target_samples must be >= 0");
+  if (!(learning_rate > 0) || !(lr_final_ratio > 0 && lr_final_ratio <= 1)) {
+    return absl::InvalidArgumentError("train: learning_rate must be > 0 and lr_final_ratio in (0, 1]");
+  }
+  if (!(opacity_reg >= 0)) return absl::InvalidArgumentError("train: opacity_reg must be >= 0");
+  if (threads < 0) return absl::InvalidArgumentError("train: threads must be >= 0");
+  return adam.Validate();
+}
+
+struct Trainer::ThreadScratch {
+  NetworkWorkspace ws;
+  std::vector<RaySample> samples;
+  std::vector<int> seg, seg2, ray_steps;
+  std::vector<float> pos, feat, sigma, dt, weights, t_final;
+  std::vector<float> d_rgb, d_h0, d_feat, d_geo, d_col;
+  std::vector<float> ray_sh, colour_bias, geo_bias;
+  std::vector<float> grad_mlp, grad_emb;
+  std::vector<float> store_pos, store_dfeat;  // For the grid backward phase.
+  double sq_err = 0, loss = 0;
+  long long samples_marched = 0, samples_used = 0;
+};
+
+namespace {
+constexpr int kBlockRays = 128;
+
+template <typename V>
+bool AllFinite(const V& v) {
+  for (float x : v) {
+    if (!std::isfinite(x)) return false;
+  }
+  return true;
+}
+}  // namespace
+
+Trainer::Trainer(NgpModel* model, RaySampler* sampler, const TrainOptions& options)
+    : model_(model), sampler_(sampler), options_(options), adam_(options.adam), rng_(options.seed) {
+  threads_ = options.threads > 0 ? options.threads : omp_get_max_threads();
+  batch_rays_ = options.batch_rays;
+  grad_grid_.assign(model->params().grid.size(), 0.0f);
+  touched_.assign(model->grid().num_params() / HashGrid::kFeatures, 0);
+  touched_lists_.resize(model->grid().num_levels());
+  adam_.ResizeBlock(0, model->params().grid.size());
+  adam_.ResizeBlock(1, model->params().mlp.size());
+  adam_.ResizeBlock(2, model->params().emb.size());
+  for (int i = 0; i < threads_; ++i) scratch_.push_back(std::make_unique<ThreadScratch>());
+  model->mutable_occupancy().MarkInvisible(sampler->Cameras(), model->options().march.near);
+}
+
+Trainer::~Trainer() = default;
+
+float Trainer::CurrentLearningRate() const {
+  const float lr = options_.learning_rate, lo = lr * options_.lr_final_ratio;
+  const float p = options_.iterations > 0 ? std::min(1.0f, float(step_) / options_.iterations) : 1.0f;
+  return lo + 0.5f * (lr - lo) * (1.0f + std::cos(float(M_PI) * p));
+}
+
+float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool track_touched) {
+  const NgpModel& model = *model_;
+  const Network& net = model.network();
+  const HashGrid& grid = model.grid();
+  const MarchOptions& mo = model.options().march;
+  const float bound = model.bound();
+  const float* mlp = model.params().mlp.data();
+  const float* emb = model.params().emb.data();
+  const int Dg = grid.output_dim();
+  const int Hd = net.options().density_hidden, Hc = net.options().colour_hidden;
+  const int nrays = batch.size();
+  const float inv_n = 1.0f / float(std::max(nrays, 1));
+  const float lambda = options_.opacity_reg;
+  const float min_step = mo.min_step(), max_step = mo.max_step(bound);
+  const Eigen::Vector3f bg = model.background();
+
+  Eigen::MatrixXf geo_bias, app_bias;
+  net.StepBiases(mlp, emb, model.num_time_steps(), &geo_bias, &app_bias);
+
+  const int nblocks = (nrays + kBlockRays - 1) / kBlockRays;
+#pragma omp parallel num_threads(threads_)
+  {
+    ThreadScratch& s = *scratch_[omp_get_thread_num()];
+    s.grad_mlp.assign(model.params().mlp.size(), 0.0f);
+    s.grad_emb.assign(model.params().emb.size(), 0.0f);
+    s.store_pos.clear();
+    s.store_dfeat.clear();
+    s.sq_err = s.loss = 0;
+    s.samples_marched = s.samples_used = 0;
+#pragma omp for schedule(static, 1)
+    for (int b = 0; b < nblocks; ++b) {
+      const int r0 = b * kBlockRays, nr = std::min(kBlockRays, nrays - r0);
+      // 1. March.
+      s.samples.clear();
+      s.seg.assign(1, 0);
+      for (int i = 0; i < nr; ++i) {
+        const int r = r0 + i;
+        const Eigen::Map<const Eigen::Vector3f> o(&batch.origin[3 * size_t(r)]), d(&batch.dir[3 * size_t(r)]);
+        float t0, t1;
+        if (IntersectBox(o, d, bound, &t0, &t1)) {
+          float t = std::max(t0, mo.near);
+          t += jitter[r] * StepAt(t, mo, min_step, max_step);
+          MarchRay(model.occupancy(), o, d, t, t1, mo, bound, mo.max_samples, &s.samples);
+        }
+        s.seg.push_back(int(s.samples.size()));
+      }
+      const int m = int(s.samples.size());
+      s.samples_marched += m;
+      s.pos.resize(3 * size_t(m));
+      s.dt.resize(m);
+      for (int i = 0; i < nr; ++i) {
+        const int r = r0 + i;
+        const Eigen::Map<const Eigen::Vector3f> o(&batch.origin[3 * size_t(r)]), d(&batch.dir[3 * size_t(r)]);
+        for (int j = s.seg[i]; j < s.seg[i + 1]; ++j) {
+          const Eigen::Vector3f p = model.ToGridInput(o + s.samples[j].t * d);
+          s.pos[3 * j] = std::clamp(p.x(), 0.0f, 1.0f);
+          s.pos[3 * j + 1] = std::clamp(p.y(), 0.0f, 1.0f);
+          s.pos[3 * j + 2] = std::clamp(p.z(), 0.0f, 1.0f);
+          s.dt[j] = s.samples[j].dt;
+        }
+      }
+      // 2. Encode + density MLP on every marched sample.
+      s.ws.Reserve(std::max(m, 1), net.options(), Dg);
+      s.feat.resize(size_t(m) * Dg);
+      grid.Encode(model.params().grid.data(), s.pos.data(), m, s.feat.data());
+      s.ray_steps.resize(nr);
+      s.geo_bias.resize(size_t(Hd) * nr);
+      for (int i = 0; i < nr; ++i) {
+        const int t = std::clamp(batch.time_step[r0 + i], 0, model.num_time_steps() - 1);
+        s.ray_steps[i] = t;
+        std::copy(geo_bias.col(t).data(), geo_bias.col(t).data() + Hd, s.geo_bias.data() + size_t(Hd) * i);
+      }
+      if (m > 0) net.DensityForward(mlp, s.feat.data(), m, s.seg.data(), nr, s.geo_bias.data(), &s.ws);
+      // 3. Composite sigma; keep samples up to early termination (compact in place).
+      s.sigma.resize(m);
+      s.weights.resize(m);
+      s.t_final.resize(nr);
+      for (int j = 0; j < m; ++j) s.sigma[j] = TruncExp(s.ws.h(0, j));
+      s.seg2.assign(1, 0);
+      int w = 0;
+      for (int i = 0; i < nr; ++i) {
+        const int a = s.seg[i], n_i = s.seg[i + 1] - a;
+        const int used = n_i > 0 ? CompositeWeights(&s.sigma[a], &s.dt[a], n_i, kMinTransmittance, &s.weights[a],
+                                                    &s.t_final[i])
+                                 : (s.t_final[i] = 1.0f, 0);
+        for (int j = a; j < a + used; ++j, ++w) {
+          if (w == j) continue;
+          s.sigma[w] = s.sigma[j];
+          s.dt[w] = s.dt[j];
+          s.weights[w] = s.weights[j];
+          s.pos[3 * w] = s.pos[3 * j];
+          s.pos[3 * w + 1] = s.pos[3 * j + 1];
+          s.pos[3 * w + 2] = s.pos[3 * j + 2];
+          std::copy(&s.feat[size_t(j) * Dg], &s.feat[size_t(j) * Dg] + Dg, &s.feat[size_t(w) * Dg]);
+          for (auto& act : s.ws.density_act) act.col(w) = act.col(j);
+          s.ws.h.col(w) = s.ws.h.col(j);
+        }
+        s.seg2.push_back(w);
+      }
+      const int m2 = w;
+      s.samples_used += m2;
+      // 4. Colour MLP on kept samples.
+      s.ray_sh.resize(size_t(kShDim) * nr);
+      s.colour_bias.resize(size_t(Hc) * nr);
+      for (int i = 0; i < nr; ++i) {
+        const float* d = &batch.dir[3 * size_t(r0 + i)];
+        ShEncode(d[0], d[1], d[2], &s.ray_sh[size_t(kShDim) * i]);
+        net.RayColourBias(mlp, &s.ray_sh[size_t(kShDim) * i], app_bias.col(s.ray_steps[i]).data(),
+                          &s.colour_bias[size_t(Hc) * i]);
+      }
+      if (m2 > 0) net.ColourForward(mlp, m2, s.seg2.data(), nr, s.colour_bias.data(), &s.ws);
+      // 5. Loss and compositing backward.
+      s.d_rgb.assign(3 * size_t(m2), 0.0f);
+      s.d_h0.assign(m2, 0.0f);
+      for (int i = 0; i < nr; ++i) {
+        const int r = r0 + i;
+        const int a = s.seg2[i], used = s.seg2[i + 1] - a;
+        const float* rgb = s.ws.rgb.data() + 3 * size_t(a);
+        float c[3];
+        CompositeColour(&s.weights[a], rgb, used, s.t_final[i], bg.data(), c);
+        const float* gt = &batch.target[3 * size_t(r)];
+        const float wr = batch.weight[r];
+        float dc[3], se = 0;
+        for (int k = 0; k < 3; ++k) {
+          const float e = c[k] - gt[k];
+          se += e * e;
+          dc[k] = wr * 2.0f * e / 3.0f * inv_n;
+        }
+        const float o = 1.0f - s.t_final[i] + 1e-10f;
+        s.sq_err += se / 3.0f;
+        s.loss += (wr * se / 3.0f + lambda * (-o * std::log(o))) * inv_n;
+        const float d_opacity = lambda * -(std::log(o) + 1.0f) * inv_n;
+        if (used > 0) {
+          CompositeBackward(&s.sigma[a], &s.dt[a], rgb, &s.weights[a], used, s.t_final[i], bg.data(), dc,
+                            d_opacity, &s.d_rgb[3 * size_t(a)], &s.d_h0[a]);
+        }
+        for (int j = a; j < a + used; ++j) s.d_h0[j] *= TruncExpGrad(s.ws.h(0, j));
+      }
+      // 6. Network backward; stash grid-input gradients for phase 2.
+      s.d_feat.resize(size_t(m2) * Dg);
+      s.d_geo.assign(size_t(Hd) * nr, 0.0f);
+      s.d_col.assign(size_t(Hc) * nr, 0.0f);
+      if (m2 > 0) {
+        net.Backward(mlp, s.feat.data(), m2, s.seg2.data(), nr, s.d_rgb.data(), s.d_h0.data(), &s.ws,
+                     s.grad_mlp.data(), s.d_feat.data(), s.d_geo.data(), s.d_col.data());
+      }
+      net.BackwardBiases(mlp, emb, nr, s.ray_steps.data(), s.ray_sh.data(), s.d_geo.data(), s.d_col.data(),
+                         s.grad_mlp.data(), s.grad_emb.data());
+      s.store_pos.insert(s.store_pos.end(), s.pos.begin(), s.pos.begin() + 3 * size_t(m2));
+      s.store_dfeat.insert(s.store_dfeat.end(), s.d_feat.begin(), s.d_feat.begin() + size_t(m2) * Dg);
+    }
+  }
+  // Phase 2: hash-grid backward, levels partitioned over threads.
+  const int L = grid.num_levels();
+#pragma omp parallel num_threads(threads_)
+  {
+    const int tid = omp_get_thread_num(), nt = omp_get_num_threads();
+    for (int l = tid; l < L; l += nt) {
+      for (const auto& sp : scratch_) {
+        const int n = int(sp->store_pos.size() / 3);
+        grid.BackwardLevel(l, sp->store_pos.data(), sp->store_dfeat.data(), n, grad_grid_.data(),
+                           track_touched ? touched_.data() : nullptr, &touched_lists_[l]);
+      }
+    }
+  }
+  // Reduce the small per-thread gradients in a fixed order (deterministic).
+  grad_mlp_.assign(model.params().mlp.size(), 0.0f);
+  grad_emb_.assign(model.params().emb.size(), 0.0f);
+  double loss = 0, sq = 0;
+  batch_samples_ = batch_composited_ = 0;
+  for (const auto& sp : scratch_) {
+    for (size_t i = 0; i < grad_mlp_.size(); ++i) grad_mlp_[i] += sp->grad_mlp[i];
+    for (size_t i = 0; i < grad_emb_.size(); ++i) grad_emb_[i] += sp->grad_emb[i];
+    loss += sp->loss;
+    sq += sp->sq_err;
+    batch_samples_ += sp->samples_marched;
+    batch_composited_ += sp->samples_used;
+  }
+  batch_mse_ = sq * inv_n;
+  return float(loss);
+}
+
+float Trainer::ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* g) {
+  std::fill(grad_grid_.begin(), grad_grid_.end(), 0.0f);
+  const float loss = ForwardBackward(batch, jitter.data(), /*track_touched=*/false);
+  g->grid = grad_grid_;
+  g->mlp = grad_mlp_;
+  g->emb = grad_emb_;
+  std::fill(grad_grid_.begin(), grad_grid_.end(), 0.0f);
+  return loss;
+}
+
+absl::Status Trainer::Step() {
+  const auto start = std::chrono::steady_clock::now();
+  NgpModel& model = *model_;
+  const int mo_interval = model.options().occupancy.update_interval;
+  if (step_ % mo_interval == 0) model.UpdateOccupancy(step_, &rng_);
+
+  RayBatch batch;
+  sampler_->Sample(batch_rays_, &rng_, &batch);
+  std::vector<float> jitter(batch.size());
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (float& j : jitter) j = u(rng_);
+
+  const float loss = ForwardBackward(batch, jitter.data(), /*track_touched=*/true);
+  const int next = step_ + 1;
+
+  auto clear_grid_grads = [this]() {
+    for (auto& list : touched_lists_) {
+      for (uint32_t e : list) {
+        grad_grid_[2 * size_t(e)] = 0.0f;
+        grad_grid_[2 * size_t(e) + 1] = 0.0f;
+        touched_[e] = 0;
+      }
+      list.clear();
+    }
+  };
+  // Stability checks before anything is applied.
+  std::string bad;
+  if (!std::isfinite(loss)) bad = absl::StrFormat("loss is %f", loss);
+  else if (!AllFinite(grad_mlp_)) bad = "MLP gradient has NaN/Inf";
+  else if (!AllFinite(grad_emb_)) bad = "embedding gradient has NaN/Inf";
+  else {
+    for (const auto& list : touched_lists_) {
+      for (uint32_t e : list) {
+        if (!std::isfinite(grad_grid_[2 * size_t(e)]) || !std::isfinite(grad_grid_[2 * size_t(e) + 1])) {
+          bad = "hash-grid gradient has NaN/Inf";
+          break;
+        }
+      }
+      if (!bad.empty()) break;
+    }
+  }
+  if (!bad.empty()) {
+    clear_grid_grads();
+    return absl::InternalError(absl::StrFormat("training diverged at step %d: %s", next, bad));
+  }
+
+  const float lr = CurrentLearningRate();
+  ModelParams& p = model.mutable_params();
+  // Keep a copy of the small blocks so a non-finite update can be undone.
+  const std::vector<float> mlp_before = p.mlp, emb_before = p.emb;
+  adam_.UpdateDense(1, lr, next, p.mlp.data(), grad_mlp_.data(), p.mlp.size());
+  adam_.UpdateDense(2, lr, next, p.emb.data(), grad_emb_.data(), p.emb.size());
+  bool finite = AllFinite(p.mlp) && AllFinite(p.emb);
+  for (int l = 0; l < int(touched_lists_.size()) && finite; ++l) {
+    adam_.UpdateSparse(0, lr, next, p.grid.data(), grad_grid_.data(), touched_lists_[l], HashGrid::kFeatures);
+    for (uint32_t e : touched_lists_[l]) {
+      if (!std::isfinite(p.grid[2 * size_t(e)]) || !std::isfinite(p.grid[2 * size_t(e) + 1])) finite = false;
+    }
+  }
+  clear_grid_grads();
+  if (!finite) {
+    p.mlp = mlp_before;
+    p.emb = emb_before;
+    return absl::InternalError(absl::StrFormat(
+        "training diverged at step %d: parameters became NaN/Inf after the update", next));
+  }
+  step_ = next;
+
+  // Adapt the batch so it marches about target_samples samples.
+  const double spr = batch.size() > 0 ? double(batch_samples_) / batch.size() : 0.0;
+  mean_samples_per_ray_ = mean_samples_per_ray_ == 0 ? spr : 0.9 * mean_samples_per_ray_ + 0.1 * spr;
+  if (options_.target_samples > 0 && mean_samples_per_ray_ > 0) {
+    const int want = int(options_.target_samples / mean_samples_per_ray_);
+    batch_rays_ = std::clamp((want + 127) / 128 * 128, 256, options_.max_batch_rays);
+  }
+  const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  last_.step = step_;
+  last_.loss = loss;
+  last_.mse = float(batch_mse_);
+  last_.psnr = batch_mse_ > 0 ? float(-10.0 * std::log10(batch_mse_)) : 99.0f;
+  last_.rays = batch.size();
+  last_.samples = batch_samples_;
+  last_.samples_composited = batch_composited_;
+  last_.seconds = secs;
+  total_seconds_ += secs;
+  total_samples_ += batch_samples_;
+  return absl::OkStatus();
+}
+
+absl::Status Trainer::Run(const std::function<void(const StepStats&)>& on_step, const std::atomic<bool>* cancel) {
+  while (step_ < options_.iterations) {
+    if (cancel != nullptr && cancel->load()) {
+      return absl::CancelledError(absl::StrFormat("training cancelled at step %d", step_));
+    }
+    if (absl::Status s = Step(); !s.ok()) return s;
+    if (on_step) on_step(last_);
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace clnerf

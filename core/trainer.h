@@ -1,0 +1,116 @@
+// Trainer: optimises a NgpModel on rays from a RaySampler with Adam, the
+// cosine learning-rate schedule, MSE + opacity-entropy loss, and periodic
+// occupancy-grid refreshes.
+//
+// One training step: sample rays -> march through the occupancy grid (first
+// sample jittered) -> hash-encode + density MLP on every marched sample ->
+// composite sigma front to back and drop samples behind early termination ->
+// colour MLP on the rest -> loss -> backward through compositing, both MLPs
+// and (in a second phase, one thread per subset of levels, so no atomics) the
+// hash grid -> Adam (lazy on the grid).
+//
+// Stability: the loss, every gradient and every updated parameter are checked
+// for NaN/Inf; a bad step is not applied and Step() returns INTERNAL naming
+// the step that diverged, leaving the model at its last finite state.
+//
+// A Trainer mutates its model and is not thread-safe; it uses OpenMP threads
+// internally.
+#ifndef CLNERF_CORE_TRAINER_H_
+#define CLNERF_CORE_TRAINER_H_
+
+#include <atomic>
+#include <functional>
+#include <memory>
+#include <random>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "core/adam.h"
+#include "core/ngp_model.h"
+#include "core/ray_sampler.h"
+
+namespace clnerf {
+
+struct TrainOptions {
+  int iterations = 2000;          // Training steps.
+  int batch_rays = 4096;          // Rays in the first batch.
+  int target_samples = 1 << 17;   // Adapt rays so a batch marches ~this many samples (0 = fixed).
+  int max_batch_rays = 1 << 15;   // Upper bound for the adaptive batch.
+  float learning_rate = 1e-2f;    // Initial learning rate (all blocks).
+  float lr_final_ratio = 1.0f / 30.0f;  // Cosine decay to lr * ratio.
+  float opacity_reg = 1e-3f;      // Weight of mean(-o log o).
+  AdamOptions adam;
+  uint64_t seed = 0;
+  int threads = 0;                // OpenMP threads; 0 = all cores.
+  absl::Status Validate() const;
+};
+
+struct StepStats {
+  int step = 0;           // 1-based index of the step just taken.
+  float loss = 0;         // Total loss of the batch.
+  float mse = 0;          // Colour MSE of the batch.
+  float psnr = 0;         // -10 log10(mse).
+  int rays = 0;
+  long long samples = 0;  // Network-evaluated samples (marched).
+  long long samples_composited = 0;  // After early termination.
+  double seconds = 0;     // Wall time of the step.
+};
+
+class Trainer {
+ public:
+  // The model and sampler must outlive the trainer.
+  Trainer(NgpModel* model, RaySampler* sampler, const TrainOptions& options);
+  ~Trainer();
+
+  // One iteration. INTERNAL ("training diverged at step N: ...") on NaN/Inf;
+  // the model keeps its last finite parameters.
+  absl::Status Step();
+  // Runs until `options.iterations` steps were taken, `cancel` becomes true
+  // (CANCELLED) or a step fails. `on_step` is called after every step.
+  absl::Status Run(const std::function<void(const StepStats&)>& on_step,
+                   const std::atomic<bool>* cancel = nullptr);
+
+  const StepStats& last() const { return last_; }
+  int step() const { return step_; }
+  float CurrentLearningRate() const;
+  double total_seconds() const { return total_seconds_; }
+  long long total_samples() const { return total_samples_; }
+
+  // Loss and gradients of one fixed batch without updating anything (used by
+  // gradient checks). Gradients are returned in the same layout as params.
+  struct Gradients {
+    std::vector<float> grid, mlp, emb;
+  };
+  float ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* grads);
+
+ private:
+  struct ThreadScratch;
+  float ForwardBackward(const RayBatch& batch, const float* jitter, bool compute_grid_touch);
+
+  NgpModel* model_;
+  RaySampler* sampler_;
+  TrainOptions options_;
+  Adam adam_;
+  std::mt19937_64 rng_;
+  int step_ = 0;
+  int batch_rays_;
+  double mean_samples_per_ray_ = 0;
+  StepStats last_;
+  double total_seconds_ = 0;
+  long long total_samples_ = 0;
+  int threads_ = 1;
+
+  // Gradient buffers.
+  std::vector<float> grad_grid_;
+  std::vector<uint8_t> touched_;
+  std::vector<std::vector<uint32_t>> touched_lists_;  // Per level.
+  std::vector<float> grad_mlp_, grad_emb_;
+  std::vector<std::unique_ptr<ThreadScratch>> scratch_;
+  // Batch statistics from the last ForwardBackward.
+  double batch_mse_ = 0;
+  long long batch_samples_ = 0, batch_composited_ = 0;
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_TRAINER_H_

@@ -1,0 +1,28 @@
+#!/usr/bin/env bash
+# Installs every build and test dependency of clnerf from Debian bookworm packages.
+# Used by the README's first command and by .ci/run, so a fresh machine and CI
+# install exactly the same set. Safe to run repeatedly.
+set -euo pipefail
+
+PKGS=(
+  build-essential cmake pkg-config
+  libgrpc-dev libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
+  libabsl-dev libeigen3-dev libopenimageio-dev openimageio-tools libspdlog-dev libfmt-dev
+  libgtest-dev libgmock-dev nlohmann-json3-dev libcli11-dev
+  python3 linux-perf valgrind
+)
+
+missing=()
+for p in "${PKGS[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install-deps: all ${#PKGS[@]} packages already installed"
+  exit 0
+fi
+echo "install-deps: installing ${missing[*]}"
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"
