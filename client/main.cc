@@ -1,1 +1,82 @@
-int main() { return 0; }
+// clnerf: command-line entry point. Flags are parsed here and only here.
+#include <cstdio>
+
+#include "CLI/CLI.hpp"
+#include "client/commands.h"
+#include "spdlog/spdlog.h"
+
+int main(int argc, char** argv) {
+  using namespace clnerf;
+  CLI::App app{"clnerf: continual NeRF on CPU (CLNeRF with an Instant-NGP backbone)"};
+  app.require_subcommand(1);
+  app.set_version_flag("--version", "clnerf 0.1.0");
+  std::string log_level = "info";
+  app.add_option("--log-level", log_level, "trace|debug|info|warn|error|off")->capture_default_str();
+
+  auto add_model_flags = [](CLI::App* c, ModelArgs* m) {
+    c->add_option("--levels", m->levels, "Hash-grid levels (default 16)");
+    c->add_option("--table-log2", m->log2_table_size, "log2 entries per level (default: derived from the scene)");
+    c->add_option("--finest-res", m->finest_resolution, "Finest grid resolution (default: derived)");
+    c->add_option("--steps-per-diagonal", m->steps_per_diagonal, "March steps across the box diagonal (default: derived)");
+    c->add_option("--occupancy-res", m->occupancy_resolution, "Occupancy grid resolution (default: derived)");
+    c->add_flag("--no-embed", m->no_embed, "Disable per-time-step embeddings");
+  };
+
+  TrainArgs train;
+  CLI::App* t = app.add_subcommand("train", "Train a model on a dataset (Blender, transforms.json or COLMAP)");
+  t->add_option("--data", train.data, "Dataset directory")->required();
+  t->add_option("--out", train.out, "Output model file")->required();
+  t->add_option("--iters", train.iterations, "Training steps")->capture_default_str();
+  t->add_option("--seed", train.seed, "Random seed")->capture_default_str();
+  t->add_option("--threads", train.threads, "Threads (0 = all cores)")->capture_default_str();
+  t->add_option("--downscale", train.downscale, "Shrink images by this factor")->capture_default_str();
+  t->add_option("--lr", train.learning_rate, "Initial learning rate")->capture_default_str();
+  t->add_option("--batch-samples", train.target_samples, "Samples per batch (rays adapt)")->capture_default_str();
+  t->add_option("--curve-every", train.curve_every, "Evaluate held-out views every N steps (PSNR-vs-time curve)");
+  t->add_option("--curve-views", train.curve_views, "Held-out views per curve point")->capture_default_str();
+  t->add_option("--json", train.json, "Write results as JSON to this file ('-' = stdout)");
+  t->add_flag("!--no-eval", train.eval_after, "Skip the final test-split evaluation");
+  add_model_flags(t, &train.model);
+
+  EvalArgs eval;
+  CLI::App* e = app.add_subcommand("eval", "Render a split and report PSNR/SSIM");
+  e->add_option("--model", eval.model, "Model file")->required();
+  e->add_option("--data", eval.data, "Dataset directory")->required();
+  e->add_option("--split", eval.split, "train|val|test")->capture_default_str();
+  e->add_option("--json", eval.json, "Write results as JSON to this file ('-' = stdout)");
+  e->add_option("--save-dir", eval.save_dir, "Also write the renders here");
+  e->add_option("--max-views", eval.max_views, "Evaluate an evenly spaced subset (0 = all)");
+  e->add_option("--threads", eval.threads, "Threads (0 = all cores)");
+  e->add_option("--downscale", eval.downscale, "Shrink images by this factor")->capture_default_str();
+
+  RenderArgs render;
+  CLI::App* r = app.add_subcommand("render", "Render views to PNG");
+  r->add_option("--model", render.model, "Model file")->required();
+  r->add_option("--out", render.out, "PNG file (one view) or directory")->required();
+  r->add_option("--data", render.data, "Take cameras from this dataset's split");
+  r->add_option("--split", render.split, "train|val|test")->capture_default_str();
+  r->add_option("--index", render.index, "Only this view of the split (-1 = all)")->capture_default_str();
+  r->add_option("--pose", render.pose, "Camera-to-world matrix, OpenGL convention, 12 or 16 numbers row-major");
+  r->add_option("--width", render.width, "Image width for --pose")->capture_default_str();
+  r->add_option("--height", render.height, "Image height for --pose")->capture_default_str();
+  r->add_option("--focal", render.focal, "Focal length in pixels for --pose (0 = NeRF-synthetic FOV)");
+  r->add_option("--time-step", render.time_step, "Time step to render (-1 = latest)")->capture_default_str();
+  r->add_option("--threads", render.threads, "Threads (0 = all cores)");
+
+  DemoArgs demo;
+  CLI::App* d = app.add_subcommand("demo", "Main job: procedural scene -> train -> render -> PSNR (no data needed)");
+  d->add_option("--out", demo.out, "Output directory")->capture_default_str();
+  d->add_option("--iters", demo.iterations, "Training steps")->capture_default_str();
+  d->add_option("--size", demo.size, "Image size (pixels)")->capture_default_str();
+  d->add_option("--seed", demo.seed, "Random seed")->capture_default_str();
+  d->add_option("--threads", demo.threads, "Threads (0 = all cores)");
+
+  CLI11_PARSE(app, argc, argv);
+  spdlog::set_level(spdlog::level::from_str(log_level));
+  spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
+  if (*t) return RunTrain(train);
+  if (*e) return RunEval(eval);
+  if (*r) return RunRender(render);
+  if (*d) return RunDemo(demo);
+  return 1;
+}

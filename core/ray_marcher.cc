@@ -61,8 +61,13 @@ float MarchRay(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen:
   while (t < t_end && count < max_count) {
     const Eigen::Vector3f p = o + t * d;
     const int c = grid.CascadeOf(p);
-    if (c < 0) break;
     const float dt = StepAt(t, opt, min_step, max_step);
+    if (c < 0) {
+      // Rounding can put a point on the box face just outside it; t_end
+      // (the box exit) bounds the loop.
+      t += dt;
+      continue;
+    }
     if (grid.OccupiedCell(grid.CellIndex(p, c))) {
       out->push_back({t, dt});
       ++count;

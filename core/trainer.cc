@@ -351,6 +351,7 @@ absl::Status Trainer::Step() {
   last_.seconds = secs;
   total_seconds_ += secs;
   total_samples_ += batch_samples_;
+  total_rays_ += batch.size();
   return absl::OkStatus();
 }
 

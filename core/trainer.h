@@ -75,6 +75,7 @@ class Trainer {
   float CurrentLearningRate() const;
   double total_seconds() const { return total_seconds_; }
   long long total_samples() const { return total_samples_; }
+  long long total_rays() const { return total_rays_; }
 
   // Loss and gradients of one fixed batch without updating anything (used by
   // gradient checks). Gradients are returned in the same layout as params.
@@ -98,6 +99,7 @@ class Trainer {
   StepStats last_;
   double total_seconds_ = 0;
   long long total_samples_ = 0;
+  long long total_rays_ = 0;
   int threads_ = 1;
 
   // Gradient buffers.

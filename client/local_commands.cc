@@ -1,0 +1,298 @@
+// Local verbs: train, eval, render, demo.
+#include <omp.h>
+
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
+#include "client/commands.h"
+#include "client/progress_bar.h"
+#include "core/checkpoint.h"
+#include "core/dataset.h"
+#include "core/evaluate.h"
+#include "core/fit.h"
+#include "core/procedural_scene.h"
+#include "core/renderer.h"
+#include "nlohmann/json.hpp"
+#include "spdlog/spdlog.h"
+
+namespace clnerf {
+namespace {
+
+int Fail(const absl::Status& s) {
+  std::fprintf(stderr, "clnerf: error: %s\n", std::string(s.message()).c_str());
+  return 1;
+}
+
+void SetThreads(int threads) {
+  if (threads > 0) omp_set_num_threads(threads);
+}
+
+absl::Status WriteJson(const std::string& path, const nlohmann::json& j) {
+  if (path.empty()) return absl::OkStatus();
+  if (path == "-") {
+    std::printf("%s\n", j.dump(2).c_str());
+    return absl::OkStatus();
+  }
+  std::ofstream f(path);
+  f << j.dump(2) << "\n";
+  if (!f) return absl::InternalError(absl::StrFormat("cannot write '%s'", path));
+  return absl::OkStatus();
+}
+
+const std::vector<View>* Split(const Scene& scene, const std::string& name) {
+  if (name == "train") return &scene.train;
+  if (name == "val") return &scene.val;
+  if (name == "test") return &scene.test;
+  return nullptr;
+}
+
+FitOptions MakeFitOptions(const TrainArgs& a) {
+  FitOptions fo;
+  fo.train.iterations = a.iterations;
+  fo.train.seed = a.seed;
+  fo.train.threads = a.threads;
+  fo.train.learning_rate = a.learning_rate;
+  fo.train.target_samples = a.target_samples;
+  fo.curve_every = a.curve_every;
+  fo.curve_views = a.curve_views;
+  fo.model.network.use_embeddings = !a.model.no_embed;
+  if (a.model.levels > 0) fo.model.grid.levels = a.model.levels;
+  return fo;
+}
+
+// Applies explicit capacity overrides after derivation.
+ModelOptions ApplyOverrides(ModelOptions mo, const ModelArgs& a) {
+  if (a.log2_table_size > 0) mo.grid.log2_table_size = a.log2_table_size;
+  if (a.finest_resolution > 0) mo.grid.finest_resolution = a.finest_resolution;
+  if (a.steps_per_diagonal > 0) mo.march.steps_per_diagonal = a.steps_per_diagonal;
+  if (a.occupancy_resolution > 0) mo.occupancy.resolution = a.occupancy_resolution;
+  return mo;
+}
+
+nlohmann::json EvalJson(const EvalResult& r) {
+  nlohmann::json per = nlohmann::json::array();
+  for (const ViewScore& v : r.views) {
+    per.push_back({{"name", v.name}, {"time_step", v.time_step}, {"psnr", v.psnr}, {"ssim", v.ssim},
+                   {"render_ms", v.render_seconds * 1e3}});
+  }
+  return {{"psnr", r.psnr}, {"ssim", r.ssim}, {"num_images", r.views.size()},
+          {"mean_render_ms", r.mean_render_seconds * 1e3}, {"images", per}};
+}
+
+// Trains with a progress bar; shared by train and demo.
+absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, FitOptions fo, const ModelArgs& overrides) {
+  if (overrides.log2_table_size > 0 || overrides.finest_resolution > 0 || overrides.steps_per_diagonal > 0 ||
+      overrides.occupancy_resolution > 0) {
+    const Normalization norm = ComputeNormalization(scene);
+    fo.model = ApplyOverrides(DeriveModelOptions(scene, norm, fo.capacity, fo.model), overrides);
+    fo.derive_capacity = false;
+  }
+  ProgressBar bar("train", fo.train.iterations);
+  double rays = 0, secs = 0;
+  auto result = FitScene(scene, fo, [&](const StepStats& s, const Trainer& t) {
+    rays += s.rays;
+    secs += s.seconds;
+    bar.Update(s.step, absl::StrFormat("%s rays/s | loss %.5f | psnr %.2f", FormatCount(secs > 0 ? rays / secs : 0),
+                                       s.loss, s.psnr));
+  });
+  if (result.ok()) bar.Finish(absl::StrFormat("%s samples/s", FormatCount(result->samples_per_second)));
+  else std::fprintf(stderr, "\n");
+  return result;
+}
+
+}  // namespace
+
+int RunTrain(const TrainArgs& a) {
+  SetThreads(a.threads);
+  DatasetOptions dopt;
+  dopt.downscale = a.downscale;
+  absl::StatusOr<Scene> scene = LoadScene(a.data, dopt);
+  if (!scene.ok()) return Fail(scene.status());
+  spdlog::info("loaded '{}': {} train, {} val, {} test views, {} time step(s)", scene->name, scene->train.size(),
+               scene->val.size(), scene->test.size(), scene->num_time_steps());
+  absl::StatusOr<FitResult> fit = TrainWithProgress(*scene, MakeFitOptions(a), a.model);
+  if (!fit.ok()) return Fail(fit.status());
+  absl::StatusOr<size_t> bytes = SaveCheckpoint(*fit->model, a.out);
+  if (!bytes.ok()) return Fail(bytes.status());
+  spdlog::info("saved model to {} ({} bytes on disk, {} bytes of parameters)", a.out, *bytes, fit->model->num_bytes());
+  nlohmann::json j = {{"model", a.out},
+                      {"model_bytes", fit->model->num_bytes()},
+                      {"file_bytes", *bytes},
+                      {"iterations", fit->iterations},
+                      {"train_seconds", fit->train_seconds},
+                      {"samples_per_second", fit->samples_per_second},
+                      {"rays_per_second", fit->rays_per_second},
+                      {"finest_resolution", fit->model->options().grid.finest_resolution},
+                      {"log2_table_size", fit->model->options().grid.log2_table_size},
+                      {"levels", fit->model->options().grid.levels}};
+  nlohmann::json curve = nlohmann::json::array();
+  for (const CurvePoint& c : fit->curve) {
+    curve.push_back({{"iteration", c.iteration}, {"train_seconds", c.train_seconds}, {"psnr", c.psnr}, {"ssim", c.ssim}});
+  }
+  j["curve"] = curve;
+  if (a.eval_after && !scene->test.empty()) {
+    EvalOptions eo;
+    absl::StatusOr<EvalResult> ev = EvaluateViews(*fit->model, scene->test, eo);
+    if (!ev.ok()) return Fail(ev.status());
+    j["psnr"] = ev->psnr;
+    j["ssim"] = ev->ssim;
+    j["num_images"] = ev->views.size();
+    j["mean_render_ms"] = ev->mean_render_seconds * 1e3;
+    std::printf("test PSNR %.2f dB, SSIM %.4f over %zu images | train %.1fs, %.0f samples/s | model %zu bytes\n",
+                ev->psnr, ev->ssim, ev->views.size(), fit->train_seconds, fit->samples_per_second,
+                fit->model->num_bytes());
+  } else {
+    std::printf("trained %d steps in %.1fs, %.0f samples/s | model %zu bytes\n", fit->iterations, fit->train_seconds,
+                fit->samples_per_second, fit->model->num_bytes());
+  }
+  if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
+  return 0;
+}
+
+int RunEval(const EvalArgs& a) {
+  SetThreads(a.threads);
+  absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
+  if (!ck.ok()) return Fail(ck.status());
+  DatasetOptions dopt;
+  dopt.downscale = a.downscale;
+  absl::StatusOr<Scene> scene = LoadScene(a.data, dopt);
+  if (!scene.ok()) return Fail(scene.status());
+  const std::vector<View>* views = Split(*scene, a.split);
+  if (views == nullptr) return Fail(absl::InvalidArgumentError("--split must be train, val or test"));
+  if (views->empty()) return Fail(absl::InvalidArgumentError(absl::StrFormat("split '%s' is empty", a.split)));
+  EvalOptions eo;
+  eo.save_dir = a.save_dir;
+  eo.max_views = a.max_views;
+  absl::StatusOr<EvalResult> ev = EvaluateViews(ck->model, *views, eo);
+  if (!ev.ok()) return Fail(ev.status());
+  nlohmann::json j = EvalJson(*ev);
+  j["model"] = a.model;
+  j["model_bytes"] = ck->model.num_bytes();
+  j["split"] = a.split;
+  std::printf("%s: PSNR %.2f dB, SSIM %.4f over %zu images, %.1f ms/image\n", a.split.c_str(), ev->psnr, ev->ssim,
+              ev->views.size(), ev->mean_render_seconds * 1e3);
+  if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
+  return 0;
+}
+
+int RunRender(const RenderArgs& a) {
+  SetThreads(a.threads);
+  absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
+  if (!ck.ok()) return Fail(ck.status());
+  const NgpModel& model = ck->model;
+  std::vector<Camera> cams;
+  std::vector<std::string> names;
+  if (!a.pose.empty()) {
+    std::vector<float> v;
+    for (absl::string_view tok : absl::StrSplit(a.pose, absl::ByAnyChar(", "), absl::SkipEmpty())) {
+      float x;
+      if (!absl::SimpleAtof(tok, &x)) return Fail(absl::InvalidArgumentError("--pose must be 12 or 16 numbers"));
+      v.push_back(x);
+    }
+    if (v.size() != 12 && v.size() != 16) return Fail(absl::InvalidArgumentError("--pose must be 12 or 16 numbers"));
+    Pose p;
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c) p(r, c) = v[r * 4 + c];
+    Camera cam;
+    cam.c2w = ConvertPose(p, PoseConvention::kOpenGL);
+    cam.intrinsics.width = a.width;
+    cam.intrinsics.height = a.height;
+    const float f = a.focal > 0 ? a.focal : 0.5f * a.width / std::tan(0.5f * 0.6911112f);
+    cam.intrinsics.fx = cam.intrinsics.fy = f;
+    cam.intrinsics.cx = 0.5f * a.width;
+    cam.intrinsics.cy = 0.5f * a.height;
+    cams.push_back(cam);
+    names.push_back("view");
+  } else if (!a.data.empty()) {
+    DatasetOptions dopt;
+    dopt.load_images = false;
+    absl::StatusOr<Scene> scene = LoadScene(a.data, dopt);
+    if (!scene.ok()) return Fail(scene.status());
+    const std::vector<View>* views = Split(*scene, a.split);
+    if (views == nullptr || views->empty()) return Fail(absl::InvalidArgumentError("no views in that split"));
+    for (int i = 0; i < int(views->size()); ++i) {
+      if (a.index >= 0 && i != a.index) continue;
+      cams.push_back((*views)[i].camera);
+      names.push_back(std::filesystem::path((*views)[i].name).filename().string());
+    }
+    if (cams.empty()) return Fail(absl::InvalidArgumentError(absl::StrFormat("--index %d out of range", a.index)));
+  } else {
+    return Fail(absl::InvalidArgumentError("give --pose or --data"));
+  }
+  const bool single = cams.size() == 1 && std::filesystem::path(a.out).has_extension();
+  ProgressBar bar("render", (long long)cams.size());
+  for (size_t i = 0; i < cams.size(); ++i) {
+    RenderOptions ro;
+    ro.time_step = a.time_step;
+    absl::StatusOr<RenderedView> r = RenderView(model, cams[i], ro);
+    if (!r.ok()) return Fail(r.status());
+    const std::string path = single ? a.out : absl::StrFormat("%s/%04d_%s.png", a.out, int(i), names[i]);
+    if (absl::Status s = WriteImage(path, r->rgb); !s.ok()) return Fail(s);
+    bar.Update((long long)i + 1);
+  }
+  bar.Finish();
+  std::printf("wrote %zu image(s) to %s\n", cams.size(), a.out.c_str());
+  return 0;
+}
+
+int RunDemo(const DemoArgs& a) {
+  SetThreads(a.threads);
+  std::error_code ec;
+  std::filesystem::create_directories(a.out, ec);
+  if (ec) return Fail(absl::InternalError(absl::StrFormat("cannot create '%s': %s", a.out, ec.message())));
+  ProceduralSceneOptions po;
+  po.seed = a.seed;
+  po.width = po.height = a.size;
+  po.num_train_views = 60;
+  po.num_test_views = 12;
+  spdlog::info("generating a procedural scene ({} train / {} test views at {}x{})", po.num_train_views,
+               po.num_test_views, a.size, a.size);
+  absl::StatusOr<ProceduralDataset> data = GenerateProceduralDataset(po);
+  if (!data.ok()) return Fail(data.status());
+  if (absl::Status s = WriteBlenderDataset(*data, a.out + "/scene"); !s.ok()) return Fail(s);
+  TrainArgs ta;
+  ta.iterations = a.iterations;
+  ta.seed = a.seed;
+  ta.threads = a.threads;
+  absl::StatusOr<FitResult> fit = TrainWithProgress(data->scene, MakeFitOptions(ta), ta.model);
+  if (!fit.ok()) return Fail(fit.status());
+  const std::string model_path = a.out + "/model.clnerf";
+  absl::StatusOr<size_t> bytes = SaveCheckpoint(*fit->model, model_path);
+  if (!bytes.ok()) return Fail(bytes.status());
+  EvalOptions eo;
+  eo.save_dir = a.out + "/renders";
+  absl::StatusOr<EvalResult> ev = EvaluateViews(*fit->model, data->scene.test, eo);
+  if (!ev.ok()) return Fail(ev.status());
+  // Constant-colour baseline: the mean training colour everywhere.
+  double mean[3] = {0, 0, 0};
+  size_t npx = 0;
+  for (const View& v : data->scene.train) {
+    for (size_t i = 0; i < v.image.num_pixels(); ++i)
+      for (int c = 0; c < 3; ++c) mean[c] += v.image.rgb[3 * i + c];
+    npx += v.image.num_pixels();
+  }
+  double base_mse = 0;
+  size_t nvals = 0;
+  for (const View& v : data->scene.test) {
+    for (size_t i = 0; i < v.image.num_pixels(); ++i)
+      for (int c = 0; c < 3; ++c) {
+        const double e = v.image.rgb[3 * i + c] - mean[c] / npx;
+        base_mse += e * e;
+        ++nvals;
+      }
+  }
+  const double base_psnr = -10.0 * std::log10(base_mse / nvals);
+  std::printf("demo: test PSNR %.2f dB (constant-colour baseline %.2f dB), SSIM %.4f over %zu views\n", ev->psnr,
+              base_psnr, ev->ssim, ev->views.size());
+  std::printf("demo: trained %d steps in %.1fs (%.0f samples/s); model %zu bytes -> %s; renders in %s\n",
+              fit->iterations, fit->train_seconds, fit->samples_per_second, fit->model->num_bytes(),
+              model_path.c_str(), eo.save_dir.c_str());
+  return 0;
+}
+
+}  // namespace clnerf

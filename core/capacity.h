@@ -1,0 +1,48 @@
+// Capacity: "model no more than a scene needs". Derives the hash grid's
+// finest resolution, its table size, the occupancy-grid resolution and the
+// march step from the scene itself (pixel footprint at the scene centre and
+// the model box), instead of the GPU defaults (finest 2048*s, 2^19 entries
+// per level, 1024 steps per diagonal), which over-provision small captures.
+// Pure functions; thread-safe.
+#ifndef CLNERF_CORE_CAPACITY_H_
+#define CLNERF_CORE_CAPACITY_H_
+
+#include <string>
+
+#include "absl/status/status.h"
+#include "core/ngp_model.h"
+#include "core/scene.h"
+
+namespace clnerf {
+
+struct CapacityOptions {
+  // Finest-level grid cells per pixel footprint (at the median camera's
+  // distance to the box centre). 2 = Nyquist.
+  float oversample = 4.0f;
+  // Table entries per level ~= table_factor * finest_resolution^2 (surfaces
+  // grow with the square of resolution), rounded up to a power of two.
+  float table_factor = 4.0f;
+  int min_log2_table_size = 14;
+  int max_log2_table_size = 19;
+  // March steps per finest grid cell along a ray.
+  float steps_per_cell = 1.0f;
+  absl::Status Validate() const;
+};
+
+struct CapacityReport {
+  float pixel_footprint = 0;   // Model units per pixel at the scene centre.
+  int finest_resolution = 0;
+  int log2_table_size = 0;
+  int occupancy_resolution = 0;
+  float steps_per_diagonal = 0;
+  std::string ToString() const;
+};
+
+// Fills grid/occupancy/march fields of `base` from the scene's training
+// cameras (model space via `norm`). Other fields of `base` are kept.
+ModelOptions DeriveModelOptions(const Scene& scene, const Normalization& norm, const CapacityOptions& capacity,
+                                ModelOptions base, CapacityReport* report = nullptr);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_CAPACITY_H_

@@ -1,0 +1,849 @@
+#include "core/checkpoint.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <array>
+#include <atomic>
+#include <bit>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <type_traits>
+
+#include "absl/strings/escaping.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+
+namespace clnerf {
+namespace {
+
+constexpr size_t kMagicSize = 8;
+constexpr size_t kVersionEnd = 12;     // magic + version.
+constexpr size_t kHeaderSize = 20;     // magic + version + total size.
+constexpr size_t kChecksumSize = 4;
+constexpr size_t kSectionHeaderSize = 12;  // tag + length.
+static_assert(sizeof(kCheckpointMagic) == kMagicSize + 1);
+
+// Sanity limits applied to untrusted input before any layout is built from it
+// (so a crafted file cannot make the layout code loop or allocate without
+// bound). They are far above any real model.
+constexpr int kMaxTimeSteps = 1 << 20;
+constexpr int kMaxLayers = 4096;
+constexpr int kMaxWidth = 1 << 16;
+constexpr int kMaxGridResolution = 1 << 20;
+constexpr float kMaxBound = 1e30f;
+
+// Field-by-field encoders below must list every member of the options structs.
+// These asserts catch most additions (a new member usually changes the size):
+// when one fires, encode the new field in a new section (see checkpoint.h) and
+// update the expected size here.
+static_assert(sizeof(HashGridOptions) == 5 * sizeof(int), "update the checkpoint format (HGOP)");
+static_assert(sizeof(NetworkOptions) == 8 * sizeof(int), "update the checkpoint format (NTOP)");
+static_assert(sizeof(OccupancyGridOptions) == 3 * sizeof(int) + 2 * sizeof(float),
+              "update the checkpoint format (OGOP)");
+static_assert(sizeof(MarchOptions) == sizeof(int) + 3 * sizeof(float), "update the checkpoint format (MROP)");
+static_assert(sizeof(Normalization) == 5 * sizeof(float), "update the checkpoint format (MODL)");
+
+constexpr uint32_t Tag(const char (&s)[5]) {
+  return uint32_t(uint8_t(s[0])) | uint32_t(uint8_t(s[1])) << 8 | uint32_t(uint8_t(s[2])) << 16 |
+         uint32_t(uint8_t(s[3])) << 24;
+}
+
+// Version 1 sections. All are critical (upper-case first letter).
+constexpr uint32_t kTagModel = Tag("MODL");             // Kind, normalisation, background, steps.
+constexpr uint32_t kTagGridOptions = Tag("HGOP");       // HashGridOptions.
+constexpr uint32_t kTagNetworkOptions = Tag("NTOP");    // NetworkOptions.
+constexpr uint32_t kTagOccupancyOptions = Tag("OGOP");  // OccupancyGridOptions.
+constexpr uint32_t kTagMarchOptions = Tag("MROP");      // MarchOptions.
+constexpr uint32_t kTagGridParams = Tag("PGRD");        // float32[] hash tables.
+constexpr uint32_t kTagMlpParams = Tag("PMLP");         // float32[] MLP weights.
+constexpr uint32_t kTagEmbParams = Tag("PEMB");         // float32[] embedding rows.
+constexpr uint32_t kTagOccupancy = Tag("OCCG");         // Occupancy grid state.
+constexpr uint32_t kTagMetadata = Tag("META");          // CheckpointExtras::metadata.
+constexpr uint32_t kTagExtraSection = Tag("XSEC");      // One CheckpointExtras::sections entry.
+
+std::string TagName(uint32_t tag) {
+  const char c[4] = {char(tag & 0xff), char((tag >> 8) & 0xff), char((tag >> 16) & 0xff),
+                     char((tag >> 24) & 0xff)};
+  return absl::CHexEscape(absl::string_view(c, 4));
+}
+
+// Ancillary sections (first character a lower-case letter) may be skipped.
+bool IsAncillary(uint32_t tag) {
+  const uint8_t first = uint8_t(tag & 0xff);
+  return first >= 'a' && first <= 'z';
+}
+
+// ---------------------------------------------------------------------------
+// CRC-32 (IEEE 802.3, reflected polynomial 0xEDB88320; same as zlib.crc32),
+// slicing-by-8.
+
+using CrcTables = std::array<std::array<uint32_t, 256>, 8>;
+
+constexpr CrcTables MakeCrcTables() {
+  CrcTables t{};
+  for (uint32_t i = 0; i < 256; ++i) {
+    uint32_t c = i;
+    for (int k = 0; k < 8; ++k) c = (c & 1) ? (c >> 1) ^ 0xEDB88320u : c >> 1;
+    t[0][i] = c;
+  }
+  for (int s = 1; s < 8; ++s) {
+    for (uint32_t i = 0; i < 256; ++i) t[s][i] = (t[s - 1][i] >> 8) ^ t[0][t[s - 1][i] & 0xff];
+  }
+  return t;
+}
+
+constexpr CrcTables kCrcTables = MakeCrcTables();
+
+uint32_t LoadLE32(const unsigned char* p) {
+  return uint32_t(p[0]) | uint32_t(p[1]) << 8 | uint32_t(p[2]) << 16 | uint32_t(p[3]) << 24;
+}
+
+uint32_t Crc32(std::string_view data) {
+  const auto& t = kCrcTables;
+  const unsigned char* p = reinterpret_cast<const unsigned char*>(data.data());
+  size_t n = data.size();
+  uint32_t crc = 0xFFFFFFFFu;
+  while (n >= 8) {
+    const uint32_t lo = LoadLE32(p) ^ crc;
+    const uint32_t hi = LoadLE32(p + 4);
+    crc = t[7][lo & 0xff] ^ t[6][(lo >> 8) & 0xff] ^ t[5][(lo >> 16) & 0xff] ^ t[4][lo >> 24] ^
+          t[3][hi & 0xff] ^ t[2][(hi >> 8) & 0xff] ^ t[1][(hi >> 16) & 0xff] ^ t[0][hi >> 24];
+    p += 8;
+    n -= 8;
+  }
+  while (n--) crc = t[0][(crc ^ *p++) & 0xff] ^ (crc >> 8);
+  return ~crc;
+}
+
+// ---------------------------------------------------------------------------
+// Little-endian encoding.
+
+template <typename U>
+U ToLittle(U v) {
+  static_assert(std::is_unsigned_v<U>);
+  if constexpr (std::endian::native == std::endian::little || sizeof(U) == 1) {
+    return v;
+  } else {
+    U r = 0;
+    for (size_t i = 0; i < sizeof(U); ++i) {
+      r = U(r << 8) | U(v & 0xff);
+      v = U(v >> 8);
+    }
+    return r;
+  }
+}
+
+// The unsigned integer type with the same size as T (T: float, integers).
+template <typename T>
+using Bits = std::conditional_t<sizeof(T) == 1, uint8_t,
+                                std::conditional_t<sizeof(T) == 4, uint32_t, uint64_t>>;
+
+class Writer {
+ public:
+  explicit Writer(std::string* out) : out_(out) {}
+
+  template <typename T>
+  void Put(T v) {
+    static_assert(std::is_arithmetic_v<T> && (sizeof(T) == 1 || sizeof(T) == 4 || sizeof(T) == 8));
+    const Bits<T> le = ToLittle(std::bit_cast<Bits<T>>(v));
+    out_->append(reinterpret_cast<const char*>(&le), sizeof(le));
+  }
+  void I32(int v) { Put(int32_t(v)); }
+  void Bytes(std::string_view s) { out_->append(s.data(), s.size()); }
+  void String(std::string_view s) {
+    Put(uint64_t(s.size()));
+    Bytes(s);
+  }
+  template <typename T>
+  void Array(const std::vector<T>& v) {
+    if constexpr (std::endian::native == std::endian::little) {
+      if (!v.empty()) out_->append(reinterpret_cast<const char*>(v.data()), v.size() * sizeof(T));
+    } else {
+      for (const T& x : v) Put(x);
+    }
+  }
+
+  // Sections: Begin writes the tag and a length placeholder, End patches it.
+  size_t BeginSection(uint32_t tag) {
+    Put(tag);
+    const size_t at = out_->size();
+    Put(uint64_t(0));
+    return at;
+  }
+  void EndSection(size_t at) {
+    const uint64_t len = ToLittle(uint64_t(out_->size() - at - sizeof(uint64_t)));
+    std::memcpy(out_->data() + at, &len, sizeof(len));
+  }
+
+ private:
+  std::string* out_;
+};
+
+// Bounds-checked reader over one section's payload. Every Get fails (returns
+// false) instead of reading past the end.
+class Reader {
+ public:
+  explicit Reader(std::string_view data) : data_(data) {}
+
+  size_t remaining() const { return data_.size() - pos_; }
+  bool done() const { return pos_ == data_.size(); }
+
+  template <typename T>
+  bool Get(T* v) {
+    if (remaining() < sizeof(T)) return false;
+    Bits<T> le;
+    std::memcpy(&le, data_.data() + pos_, sizeof(le));
+    *v = std::bit_cast<T>(ToLittle(le));
+    pos_ += sizeof(T);
+    return true;
+  }
+  bool I32(int* v) {
+    int32_t x;
+    if (!Get(&x)) return false;
+    *v = x;
+    return true;
+  }
+  bool Bytes(size_t n, std::string_view* out) {
+    if (remaining() < n) return false;
+    *out = data_.substr(pos_, n);
+    pos_ += n;
+    return true;
+  }
+  bool String(std::string* s) {
+    uint64_t n;
+    std::string_view v;
+    if (!Get(&n) || n > remaining() || !Bytes(size_t(n), &v)) return false;
+    s->assign(v.data(), v.size());
+    return true;
+  }
+  // Reads `count` elements; the count is checked against the remaining bytes
+  // before anything is allocated.
+  template <typename T>
+  bool Array(uint64_t count, std::vector<T>* v) {
+    if (count > remaining() / sizeof(T)) return false;
+    v->resize(size_t(count));
+    if constexpr (std::endian::native == std::endian::little) {
+      if (count > 0) std::memcpy(v->data(), data_.data() + pos_, size_t(count) * sizeof(T));
+      pos_ += size_t(count) * sizeof(T);
+    } else {
+      for (T& x : *v) Get(&x);
+    }
+    return true;
+  }
+
+ private:
+  std::string_view data_;
+  size_t pos_ = 0;
+};
+
+absl::Status Corrupt(absl::string_view source, absl::string_view detail) {
+  return absl::DataLossError(absl::StrCat("checkpoint '", source, "' is corrupt: ", detail));
+}
+
+// ---------------------------------------------------------------------------
+// Encoding.
+
+uint32_t EncodeKind(SceneKind kind) {
+  switch (kind) {
+    case SceneKind::kBounded:
+      return 0;
+    case SceneKind::kUnbounded:
+      return 1;
+  }
+  return 0xFFFFFFFFu;
+}
+
+bool DecodeKind(uint32_t v, SceneKind* kind) {
+  switch (v) {
+    case 0:
+      *kind = SceneKind::kBounded;
+      return true;
+    case 1:
+      *kind = SceneKind::kUnbounded;
+      return true;
+  }
+  return false;
+}
+
+absl::Status CheckModelConsistent(const NgpModel& model) {
+  const int steps = model.num_time_steps();
+  if (steps < 1 || steps > kMaxTimeSteps) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("cannot checkpoint model: %d time steps (must be in [1, %d])", steps, kMaxTimeSteps));
+  }
+  const ModelParams& p = model.params();
+  const size_t want_emb = size_t(steps) * model.network().embedding_row_size();
+  if (p.grid.size() != model.grid().num_params() || p.mlp.size() != model.network().num_mlp_params() ||
+      p.emb.size() != want_emb) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "cannot checkpoint model: parameter blocks (grid %d, mlp %d, emb %d) do not match its layout "
+        "(grid %d, mlp %d, emb %d)",
+        p.grid.size(), p.mlp.size(), p.emb.size(), model.grid().num_params(), model.network().num_mlp_params(),
+        want_emb));
+  }
+  const OccupancyGrid& occ = model.occupancy();
+  const size_t cells = occ.num_cells();
+  if (occ.density().size() != cells || occ.visible().size() != cells || occ.bits().size() != (cells + 63) / 64) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "cannot checkpoint model: occupancy state (density %d, visible %d, bits %d) does not match its %d cells",
+        occ.density().size(), occ.visible().size(), occ.bits().size(), cells));
+  }
+  return absl::OkStatus();
+}
+
+// ---------------------------------------------------------------------------
+// Decoding helpers.
+
+struct RawSection {
+  uint32_t tag;
+  std::string_view payload;
+};
+
+// Returns the payload of the one section with `tag`, or an error if it is
+// missing or repeated.
+absl::StatusOr<std::string_view> Single(const std::vector<RawSection>& sections, uint32_t tag,
+                                        const std::string& source) {
+  const std::string_view* found = nullptr;
+  for (const RawSection& s : sections) {
+    if (s.tag != tag) continue;
+    if (found != nullptr) return Corrupt(source, absl::StrCat("section '", TagName(tag), "' appears twice"));
+    found = &s.payload;
+  }
+  if (found == nullptr) return Corrupt(source, absl::StrCat("required section '", TagName(tag), "' is missing"));
+  return *found;
+}
+
+absl::Status WrongSize(const std::string& source, uint32_t tag, size_t got, size_t want) {
+  return Corrupt(source, absl::StrFormat("section '%s' has %d bytes, expected %d", TagName(tag), got, want));
+}
+
+// Reads a float32 block whose length must be exactly `count` floats.
+absl::Status ReadFloats(std::string_view payload, uint32_t tag, size_t count, const std::string& source,
+                        std::vector<float>* out) {
+  if (payload.size() / sizeof(float) != count || payload.size() % sizeof(float) != 0) {
+    return Corrupt(source, absl::StrFormat("section '%s' has %d bytes, but the model options imply %d floats "
+                                           "(%d bytes)",
+                                           TagName(tag), payload.size(), count, count * sizeof(float)));
+  }
+  Reader r(payload);
+  r.Array(count, out);
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+const std::string* CheckpointExtras::FindSection(std::string_view name) const {
+  for (const auto& [n, data] : sections) {
+    if (n == name) return &data;
+  }
+  return nullptr;
+}
+
+absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const CheckpointExtras& extras) {
+  if (absl::Status s = CheckModelConsistent(model); !s.ok()) return s;
+  const ModelOptions& o = model.options();
+  const ModelParams& p = model.params();
+  const OccupancyGrid& occ = model.occupancy();
+
+  size_t estimate = 1024 + (p.grid.size() + p.mlp.size() + p.emb.size()) * sizeof(float) +
+                    occ.num_cells() * (sizeof(float) + 1) + occ.bits().size() * sizeof(uint64_t);
+  for (const auto& [k, v] : extras.metadata) estimate += 16 + k.size() + v.size();
+  for (const auto& [n, d] : extras.sections) estimate += 32 + n.size() + d.size();
+  std::string out;
+  out.reserve(estimate);
+  Writer w(&out);
+
+  w.Bytes(std::string_view(kCheckpointMagic, kMagicSize));
+  w.Put(uint32_t(kCheckpointFormatVersion));
+  w.Put(uint64_t(0));  // Total size, patched below.
+
+  size_t at = w.BeginSection(kTagModel);
+  w.Put(EncodeKind(model.kind()));
+  const Normalization& norm = model.normalization();
+  for (int i = 0; i < 3; ++i) w.Put(norm.center[i]);
+  w.Put(norm.scale);
+  w.Put(norm.bound);
+  for (int i = 0; i < 3; ++i) w.Put(model.background()[i]);
+  w.Put(uint32_t(model.num_time_steps()));
+  w.EndSection(at);
+
+  at = w.BeginSection(kTagGridOptions);
+  w.I32(o.grid.levels);
+  w.I32(o.grid.features_per_level);
+  w.I32(o.grid.log2_table_size);
+  w.I32(o.grid.base_resolution);
+  w.I32(o.grid.finest_resolution);
+  w.EndSection(at);
+
+  at = w.BeginSection(kTagNetworkOptions);
+  w.I32(o.network.density_hidden);
+  w.I32(o.network.density_hidden_layers);
+  w.I32(o.network.density_out);
+  w.I32(o.network.colour_hidden);
+  w.I32(o.network.colour_hidden_layers);
+  w.I32(o.network.appearance_dim);
+  w.I32(o.network.geometry_dim);
+  w.Put(uint8_t(o.network.use_embeddings ? 1 : 0));
+  w.EndSection(at);
+
+  at = w.BeginSection(kTagOccupancyOptions);
+  w.I32(o.occupancy.resolution);
+  w.I32(o.occupancy.update_interval);
+  w.I32(o.occupancy.warmup_iterations);
+  w.Put(o.occupancy.decay);
+  w.Put(o.occupancy.density_threshold);
+  w.EndSection(at);
+
+  at = w.BeginSection(kTagMarchOptions);
+  w.I32(o.march.max_samples);
+  w.Put(o.march.steps_per_diagonal);
+  w.Put(o.march.cone_angle);
+  w.Put(o.march.near);
+  w.EndSection(at);
+
+  at = w.BeginSection(kTagGridParams);
+  w.Array(p.grid);
+  w.EndSection(at);
+  at = w.BeginSection(kTagMlpParams);
+  w.Array(p.mlp);
+  w.EndSection(at);
+  at = w.BeginSection(kTagEmbParams);
+  w.Array(p.emb);
+  w.EndSection(at);
+
+  at = w.BeginSection(kTagOccupancy);
+  w.Put(occ.threshold());
+  w.Put(uint64_t(occ.num_cells()));
+  w.Array(occ.density());
+  w.Array(occ.visible());
+  w.Array(occ.bits());
+  w.EndSection(at);
+
+  at = w.BeginSection(kTagMetadata);
+  w.Put(uint64_t(extras.metadata.size()));
+  for (const auto& [k, v] : extras.metadata) {
+    w.String(k);
+    w.String(v);
+  }
+  w.EndSection(at);
+
+  for (const auto& [name, data] : extras.sections) {
+    at = w.BeginSection(kTagExtraSection);
+    w.String(name);
+    w.Bytes(data);
+    w.EndSection(at);
+  }
+
+  const uint64_t total = ToLittle(uint64_t(out.size() + kChecksumSize));
+  std::memcpy(out.data() + kVersionEnd, &total, sizeof(total));
+  w.Put(Crc32(out));
+  return out;
+}
+
+absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, std::string_view source_name) {
+  const std::string source(source_name);  // For messages.
+  const size_t n = bytes.size();
+  // 1. Magic (a shorter file whose bytes are a prefix of it is truncated).
+  if (n > 0 && std::memcmp(bytes.data(), kCheckpointMagic, std::min(n, kMagicSize)) != 0) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("'", source, "' is not a clnerf checkpoint (bad magic bytes; expected \"", kCheckpointMagic,
+                     "\")"));
+  }
+  const auto truncated = [&](const char* at_least, uint64_t want) {
+    return absl::DataLossError(
+        absl::StrCat("checkpoint '", source, "' is truncated: expected ", at_least, want, " bytes, got ", n));
+  };
+  if (n < kVersionEnd) return truncated("at least ", kHeaderSize);
+  // 2. Version, before anything else: a newer format may differ in all else.
+  Reader header(bytes.substr(0, std::min(n, kHeaderSize)));
+  std::string_view magic;
+  uint32_t version = 0;
+  header.Bytes(kMagicSize, &magic);
+  header.Get(&version);
+  if (version != kCheckpointFormatVersion) {
+    return absl::FailedPreconditionError(absl::StrCat(
+        "checkpoint '", source, "' has format version ", version, ", but this build only reads format version ",
+        kCheckpointFormatVersion,
+        version > kCheckpointFormatVersion ? " (it was written by a newer clnerf; upgrade to load it)" : ""));
+  }
+  // 3. Size.
+  if (n < kHeaderSize) return truncated("at least ", kHeaderSize);
+  uint64_t total = 0;
+  header.Get(&total);
+  if (total < kHeaderSize + kChecksumSize) {
+    return Corrupt(source, absl::StrCat("header declares a size of ", total, " bytes, less than the minimum ",
+                                        kHeaderSize + kChecksumSize));
+  }
+  if (n < total) return truncated("", total);
+  if (n > total) {
+    return Corrupt(source, absl::StrCat("expected ", total, " bytes, got ", n, " (trailing data)"));
+  }
+  // 4. Checksum over everything before it.
+  {
+    Reader tail(bytes.substr(n - kChecksumSize));
+    uint32_t stored = 0;
+    tail.Get(&stored);
+    const uint32_t computed = Crc32(bytes.substr(0, n - kChecksumSize));
+    if (stored != computed) {
+      return Corrupt(source, absl::StrFormat("checksum mismatch (stored 0x%08x, computed 0x%08x)", stored, computed));
+    }
+  }
+  // 5. Sections.
+  std::vector<RawSection> sections;
+  {
+    Reader r(bytes.substr(kHeaderSize, n - kHeaderSize - kChecksumSize));
+    while (!r.done()) {
+      const size_t offset = n - kChecksumSize - r.remaining();
+      uint32_t tag = 0;
+      uint64_t len = 0;
+      if (!r.Get(&tag) || !r.Get(&len)) {
+        return Corrupt(source, absl::StrFormat("incomplete section header at offset %d", offset));
+      }
+      std::string_view payload;
+      if (len > r.remaining() || !r.Bytes(size_t(len), &payload)) {
+        return Corrupt(source, absl::StrFormat("section '%s' at offset %d claims %d bytes, but only %d remain",
+                                               TagName(tag), offset, len, r.remaining()));
+      }
+      sections.push_back({tag, payload});
+    }
+  }
+  for (const RawSection& s : sections) {
+    switch (s.tag) {
+      case kTagModel:
+      case kTagGridOptions:
+      case kTagNetworkOptions:
+      case kTagOccupancyOptions:
+      case kTagMarchOptions:
+      case kTagGridParams:
+      case kTagMlpParams:
+      case kTagEmbParams:
+      case kTagOccupancy:
+      case kTagMetadata:
+      case kTagExtraSection:
+        break;
+      default:
+        if (!IsAncillary(s.tag)) {
+          return absl::FailedPreconditionError(
+              absl::StrCat("checkpoint '", source, "' contains critical section '", TagName(s.tag),
+                           "', which this build does not understand (written by a newer clnerf?)"));
+        }
+    }
+  }
+
+  // 6. Fixed-size sections.
+  ModelOptions options;
+  Normalization norm;
+  SceneKind kind = SceneKind::kBounded;
+  Eigen::Vector3f background;
+  uint32_t steps = 0;
+  {
+    auto payload = Single(sections, kTagModel, source);
+    if (!payload.ok()) return payload.status();
+    constexpr size_t kSize = 4 + 3 * 4 + 4 + 4 + 3 * 4 + 4;
+    if (payload->size() != kSize) return WrongSize(source, kTagModel, payload->size(), kSize);
+    Reader r(*payload);
+    uint32_t kind_code = 0;
+    r.Get(&kind_code);
+    for (int i = 0; i < 3; ++i) r.Get(&norm.center[i]);
+    r.Get(&norm.scale);
+    r.Get(&norm.bound);
+    for (int i = 0; i < 3; ++i) r.Get(&background[i]);
+    r.Get(&steps);
+    if (!DecodeKind(kind_code, &kind)) return Corrupt(source, absl::StrCat("unknown scene kind ", kind_code));
+  }
+  {
+    auto payload = Single(sections, kTagGridOptions, source);
+    if (!payload.ok()) return payload.status();
+    if (payload->size() != 5 * 4) return WrongSize(source, kTagGridOptions, payload->size(), 5 * 4);
+    Reader r(*payload);
+    r.I32(&options.grid.levels);
+    r.I32(&options.grid.features_per_level);
+    r.I32(&options.grid.log2_table_size);
+    r.I32(&options.grid.base_resolution);
+    r.I32(&options.grid.finest_resolution);
+  }
+  {
+    auto payload = Single(sections, kTagNetworkOptions, source);
+    if (!payload.ok()) return payload.status();
+    if (payload->size() != 7 * 4 + 1) return WrongSize(source, kTagNetworkOptions, payload->size(), 7 * 4 + 1);
+    Reader r(*payload);
+    r.I32(&options.network.density_hidden);
+    r.I32(&options.network.density_hidden_layers);
+    r.I32(&options.network.density_out);
+    r.I32(&options.network.colour_hidden);
+    r.I32(&options.network.colour_hidden_layers);
+    r.I32(&options.network.appearance_dim);
+    r.I32(&options.network.geometry_dim);
+    uint8_t use = 0;
+    r.Get(&use);
+    if (use > 1) return Corrupt(source, absl::StrCat("invalid use_embeddings flag ", int(use)));
+    options.network.use_embeddings = use == 1;
+  }
+  {
+    auto payload = Single(sections, kTagOccupancyOptions, source);
+    if (!payload.ok()) return payload.status();
+    if (payload->size() != 5 * 4) return WrongSize(source, kTagOccupancyOptions, payload->size(), 5 * 4);
+    Reader r(*payload);
+    r.I32(&options.occupancy.resolution);
+    r.I32(&options.occupancy.update_interval);
+    r.I32(&options.occupancy.warmup_iterations);
+    r.Get(&options.occupancy.decay);
+    r.Get(&options.occupancy.density_threshold);
+  }
+  {
+    auto payload = Single(sections, kTagMarchOptions, source);
+    if (!payload.ok()) return payload.status();
+    if (payload->size() != 4 * 4) return WrongSize(source, kTagMarchOptions, payload->size(), 4 * 4);
+    Reader r(*payload);
+    r.I32(&options.march.max_samples);
+    r.Get(&options.march.steps_per_diagonal);
+    r.Get(&options.march.cone_angle);
+    r.Get(&options.march.near);
+  }
+
+  // 7. Validate what the layouts are built from, before building them.
+  if (absl::Status s = options.Validate(); !s.ok()) {
+    return Corrupt(source, absl::StrCat("invalid model options: ", s.message()));
+  }
+  const NetworkOptions& no = options.network;
+  if (options.grid.finest_resolution > kMaxGridResolution || no.density_hidden > kMaxWidth ||
+      no.colour_hidden > kMaxWidth || no.density_out > kMaxWidth || no.appearance_dim > kMaxWidth ||
+      no.geometry_dim > kMaxWidth || no.density_hidden_layers > kMaxLayers || no.colour_hidden_layers > kMaxLayers) {
+    return Corrupt(source, "model options exceed the sanity limits for checkpoints");
+  }
+  if (steps < 1 || steps > uint32_t(kMaxTimeSteps)) {
+    return Corrupt(source, absl::StrFormat("%d time steps (must be in [1, %d])", steps, kMaxTimeSteps));
+  }
+  if (!(norm.bound > 0 && norm.bound <= kMaxBound) || !(norm.scale > 0) || !std::isfinite(norm.scale)) {
+    return Corrupt(source, absl::StrFormat("invalid normalisation (scale %g, bound %g)", norm.scale, norm.bound));
+  }
+  const HashGrid grid(options.grid);
+  const Network network(options.network, grid.output_dim());
+
+  // 8. Parameter blocks.
+  ModelParams params;
+  {
+    auto payload = Single(sections, kTagGridParams, source);
+    if (!payload.ok()) return payload.status();
+    if (absl::Status s = ReadFloats(*payload, kTagGridParams, grid.num_params(), source, &params.grid); !s.ok()) {
+      return s;
+    }
+  }
+  {
+    auto payload = Single(sections, kTagMlpParams, source);
+    if (!payload.ok()) return payload.status();
+    if (absl::Status s = ReadFloats(*payload, kTagMlpParams, network.num_mlp_params(), source, &params.mlp);
+        !s.ok()) {
+      return s;
+    }
+  }
+  {
+    auto payload = Single(sections, kTagEmbParams, source);
+    if (!payload.ok()) return payload.status();
+    const size_t want = size_t(steps) * network.embedding_row_size();
+    if (absl::Status s = ReadFloats(*payload, kTagEmbParams, want, source, &params.emb); !s.ok()) return s;
+  }
+
+  // 9. Occupancy state. The cascade count depends only on the bound: ask a
+  // minimal grid for it rather than duplicating the rule.
+  std::vector<float> density;
+  std::vector<uint8_t> visible;
+  std::vector<uint64_t> bits;
+  float threshold = 0;
+  {
+    auto payload = Single(sections, kTagOccupancy, source);
+    if (!payload.ok()) return payload.status();
+    OccupancyGridOptions probe_options = options.occupancy;
+    probe_options.resolution = 8;
+    const OccupancyGrid probe(probe_options, norm.bound, options.march.min_step());
+    const uint64_t res = uint64_t(options.occupancy.resolution);
+    const uint64_t want_cells = res * res * res * uint64_t(probe.num_cascades());
+    Reader r(*payload);
+    uint64_t cells = 0;
+    if (!r.Get(&threshold) || !r.Get(&cells)) return WrongSize(source, kTagOccupancy, payload->size(), 12);
+    if (cells != want_cells) {
+      return Corrupt(source, absl::StrFormat("occupancy grid has %d cells, but the model options imply %d", cells,
+                                             want_cells));
+    }
+    const uint64_t words = (cells + 63) / 64;
+    const uint64_t want_bytes = 12 + cells * (sizeof(float) + 1) + words * sizeof(uint64_t);
+    if (payload->size() != want_bytes) return WrongSize(source, kTagOccupancy, payload->size(), want_bytes);
+    r.Array(cells, &density);
+    r.Array(cells, &visible);
+    r.Array(words, &bits);
+    for (uint8_t v : visible) {
+      if (v > 1) return Corrupt(source, absl::StrCat("invalid occupancy visibility flag ", int(v)));
+    }
+  }
+
+  // 10. Extras.
+  CheckpointExtras extras;
+  {
+    auto payload = Single(sections, kTagMetadata, source);
+    if (!payload.ok()) return payload.status();
+    Reader r(*payload);
+    uint64_t count = 0;
+    if (!r.Get(&count) || count > r.remaining() / 16) {
+      return Corrupt(source, "metadata section is malformed");
+    }
+    for (uint64_t i = 0; i < count; ++i) {
+      std::string key, value;
+      if (!r.String(&key) || !r.String(&value)) return Corrupt(source, "metadata section is malformed");
+      if (!extras.metadata.emplace(std::move(key), std::move(value)).second) {
+        return Corrupt(source, "metadata section has a duplicate key");
+      }
+    }
+    if (!r.done()) return Corrupt(source, "metadata section has trailing bytes");
+  }
+  for (const RawSection& s : sections) {
+    if (s.tag != kTagExtraSection) continue;
+    Reader r(s.payload);
+    std::string name;
+    if (!r.String(&name)) return Corrupt(source, "extra section is malformed");
+    std::string_view data;
+    r.Bytes(r.remaining(), &data);
+    extras.sections.emplace_back(std::move(name), std::string(data));
+  }
+
+  // 11. Assemble.
+  absl::StatusOr<NgpModel> model =
+      NgpModel::FromParts(options, norm, kind, background, int(steps), std::move(params));
+  if (!model.ok()) return Corrupt(source, model.status().message());
+  if (model->occupancy().num_cells() != density.size()) {
+    return Corrupt(source, "occupancy grid size does not match the model");
+  }
+  model->mutable_occupancy().Restore(std::move(density), std::move(visible), std::move(bits), threshold);
+  return LoadedCheckpoint{*std::move(model), std::move(extras), n, version};
+}
+
+// ---------------------------------------------------------------------------
+// Files.
+
+namespace {
+
+absl::Status WriteAll(int fd, std::string_view data, const std::string& name) {
+  while (!data.empty()) {
+    const ssize_t w = ::write(fd, data.data(), data.size());
+    if (w < 0) {
+      if (errno == EINTR) continue;
+      return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", name, "'"));
+    }
+    data.remove_prefix(size_t(w));
+  }
+  return absl::OkStatus();
+}
+
+std::string DirectoryOf(const std::string& path) {
+  const size_t slash = path.find_last_of('/');
+  if (slash == std::string::npos) return ".";
+  if (slash == 0) return "/";
+  return path.substr(0, slash);
+}
+
+absl::Status SyncDirectory(const std::string& dir) {
+  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) return absl::ErrnoToStatus(errno, absl::StrCat("cannot open directory '", dir, "'"));
+  int rc;
+  do {
+    rc = ::fsync(fd);
+  } while (rc != 0 && errno == EINTR);
+  const int err = errno;
+  ::close(fd);
+  // Some file systems cannot sync directories; that is not a failure.
+  if (rc != 0 && err != EINVAL && err != ENOTSUP) {
+    return absl::ErrnoToStatus(err, absl::StrCat("cannot fsync directory '", dir, "'"));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status AtomicWrite(const std::string& path, std::string_view data) {
+  static std::atomic<uint64_t> counter{0};
+  const std::string tmp = absl::StrCat(path, ".tmp.", ::getpid(), ".", counter.fetch_add(1));
+  const int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return absl::ErrnoToStatus(errno, absl::StrCat("cannot create '", tmp, "'"));
+  absl::Status status = WriteAll(fd, data, tmp);
+  if (status.ok()) {
+    int rc;
+    do {
+      rc = ::fsync(fd);
+    } while (rc != 0 && errno == EINTR);
+    if (rc != 0) status = absl::ErrnoToStatus(errno, absl::StrCat("cannot fsync '", tmp, "'"));
+  }
+  if (::close(fd) != 0 && status.ok()) {
+    status = absl::ErrnoToStatus(errno, absl::StrCat("cannot close '", tmp, "'"));
+  }
+  if (status.ok() && ::rename(tmp.c_str(), path.c_str()) != 0) {
+    status = absl::ErrnoToStatus(errno, absl::StrCat("cannot rename '", tmp, "' to '", path, "'"));
+  }
+  if (!status.ok()) {
+    ::unlink(tmp.c_str());
+    return status;
+  }
+  // The new file is in place; an error from here on only means that the
+  // rename may not yet be durable.
+  return SyncDirectory(DirectoryOf(path));
+}
+
+absl::StatusOr<std::string> ReadWholeFile(const std::string& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) {
+    if (errno == ENOENT) return absl::NotFoundError(absl::StrCat("checkpoint '", path, "' not found"));
+    return absl::ErrnoToStatus(errno, absl::StrCat("cannot open checkpoint '", path, "'"));
+  }
+  // Read the size fstat reports in one buffer, then keep reading in case the
+  // file is longer than reported (or not a regular file).
+  std::string out;
+  struct stat st;
+  if (::fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0) out.resize(size_t(st.st_size));
+  size_t filled = 0;
+  std::string chunk;
+  while (true) {
+    char* dst;
+    size_t room;
+    if (filled < out.size()) {
+      dst = out.data() + filled;
+      room = out.size() - filled;
+    } else {
+      chunk.resize(size_t(1) << 20);
+      dst = chunk.data();
+      room = chunk.size();
+    }
+    const ssize_t r = ::read(fd, dst, room);
+    if (r < 0) {
+      if (errno == EINTR) continue;
+      const int err = errno;
+      ::close(fd);
+      return absl::ErrnoToStatus(err, absl::StrCat("cannot read checkpoint '", path, "'"));
+    }
+    if (r == 0) break;
+    if (dst == chunk.data()) {
+      out.append(chunk.data(), size_t(r));
+    }
+    filled += size_t(r);
+  }
+  out.resize(filled);
+  ::close(fd);
+  return out;
+}
+
+}  // namespace
+
+absl::StatusOr<size_t> SaveCheckpoint(const NgpModel& model, const std::string& path,
+                                      const CheckpointExtras& extras) {
+  absl::StatusOr<std::string> bytes = SerializeCheckpoint(model, extras);
+  if (!bytes.ok()) return bytes.status();
+  if (absl::Status s = AtomicWrite(path, *bytes); !s.ok()) return s;
+  return bytes->size();
+}
+
+absl::StatusOr<LoadedCheckpoint> LoadCheckpoint(const std::string& path) {
+  absl::StatusOr<std::string> bytes = ReadWholeFile(path);
+  if (!bytes.ok()) return bytes.status();
+  return DeserializeCheckpoint(*bytes, path);
+}
+
+}  // namespace clnerf
