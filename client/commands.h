@@ -69,7 +69,18 @@ struct DemoArgs {
   int threads = 0;
 };
 
+struct BenchRenderArgs {
+  std::string model;
+  std::string data;
+  std::string sizes = "100,200";  // Square image sizes to time.
+  int views = 20;                  // Test views per size.
+  int repeats = 3;                 // Renders per view (the median is kept).
+  int threads = 0;
+  std::string json;
+};
+
 int RunTrain(const TrainArgs& args);
+int RunBenchRender(const BenchRenderArgs& args);
 int RunEval(const EvalArgs& args);
 int RunRender(const RenderArgs& args);
 int RunDemo(const DemoArgs& args);

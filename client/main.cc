@@ -71,6 +71,18 @@ int main(int argc, char** argv) {
   d->add_option("--seed", demo.seed, "Random seed")->capture_default_str();
   d->add_option("--threads", demo.threads, "Threads (0 = all cores)");
 
+  CLI::App* bench = app.add_subcommand("bench", "Benchmarks (print figures and JSON)");
+  bench->require_subcommand(1);
+  BenchRenderArgs bench_render;
+  CLI::App* br = bench->add_subcommand("render", "Time renders of test views at several sizes");
+  br->add_option("--model", bench_render.model, "Model file")->required();
+  br->add_option("--data", bench_render.data, "Dataset (cameras of its test split)")->required();
+  br->add_option("--sizes", bench_render.sizes, "Comma-separated square sizes")->capture_default_str();
+  br->add_option("--views", bench_render.views, "Views per size")->capture_default_str();
+  br->add_option("--repeats", bench_render.repeats, "Renders per view (median kept)")->capture_default_str();
+  br->add_option("--threads", bench_render.threads, "Threads (0 = all cores)");
+  br->add_option("--json", bench_render.json, "Write JSON here");
+
   CLI11_PARSE(app, argc, argv);
   spdlog::set_level(spdlog::level::from_str(log_level));
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
@@ -78,5 +90,6 @@ int main(int argc, char** argv) {
   if (*e) return RunEval(eval);
   if (*r) return RunRender(render);
   if (*d) return RunDemo(demo);
+  if (*br) return RunBenchRender(bench_render);
   return 1;
 }

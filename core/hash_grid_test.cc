@@ -132,7 +132,9 @@ TEST(HashGridLayoutTest, ResolutionFormulaReachesFinest) {
       const size_t max_size = size_t(1) << c.log2_table;
       EXPECT_EQ(grid.level_dense(l), dense <= max_size) << "level " << l;
       EXPECT_EQ(grid.level_size(l), std::min(dense, max_size)) << "level " << l;
-      if (l > 0) EXPECT_GE(grid.level_resolution(l), grid.level_resolution(l - 1));
+      if (l > 0) {
+        EXPECT_GE(grid.level_resolution(l), grid.level_resolution(l - 1));
+      }
       total += grid.level_size(l);
     }
     EXPECT_EQ(grid.level_resolution(c.levels - 1), uint32_t(c.finest));

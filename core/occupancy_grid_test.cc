@@ -70,7 +70,9 @@ TEST(OccupancyGridTest, CascadeSelection) {
     ASSERT_GE(c, 0);
     const float m = p.cwiseAbs().maxCoeff();
     ASSERT_LE(m, g4.cascade_half_size(c)) << p.transpose();
-    if (c > 0) ASSERT_GE(m, g4.cascade_half_size(c - 1)) << p.transpose();
+    if (c > 0) {
+      ASSERT_GE(m, g4.cascade_half_size(c - 1)) << p.transpose();
+    }
   }
 }
 

@@ -131,7 +131,9 @@ TEST(MarchRayTest, ConstantStepsThroughFullGrid) {
     EXPECT_GE(s[i].t, start);
     EXPECT_LT(s[i].t, t1);
     EXPECT_NEAR(s[i].t, start + i * dt, 1e-4f) << i;
-    if (i > 0) EXPECT_GT(s[i].t, s[i - 1].t) << i;
+    if (i > 0) {
+      EXPECT_GT(s[i].t, s[i - 1].t) << i;
+    }
   }
   EXPECT_GE(end, t1);
   // max_count truncates, and resuming from the returned t continues the
@@ -255,11 +257,36 @@ TEST(MarchRayTest, StopsOutsideTheBox) {
   const MarchOptions mo = Opts(64);
   const OccupancyGrid grid(GridOptions(8), 0.5f, mo.min_step());
   std::vector<RaySample> s;
-  // t_end beyond the box: marching stops at the box exit.
+  // t_end beyond the box: no sample lies outside it.
   MarchRay(grid, Eigen::Vector3f(-0.4f, 0, 0), Eigen::Vector3f(1, 0, 0), 0.0f, 100.0f, mo, 0.5f, 1000, &s);
   ASSERT_FALSE(s.empty());
   for (const RaySample& r : s) EXPECT_LE(-0.4f + r.t, 0.5f);
   EXPECT_GT(-0.4f + s.back().t, 0.5f - mo.min_step());
+}
+
+TEST(MarchRayTest, RaysStartingOnTheBoxFaceAreMarched) {
+  // Marching from the entry distance t0 of IntersectBox: rounding can put
+  // o + t0 d a hair outside the box; the ray must still be marched through
+  // the (fully occupied) box: every lattice point up to t1 but the last.
+  const MarchOptions mo = Opts(128);
+  const OccupancyGrid grid(GridOptions(16), 0.5f, mo.min_step());
+  std::mt19937_64 rng(5);
+  std::normal_distribution<float> g(0.0f, 1.0f);
+  int marched = 0;
+  for (int i = 0; i < 2000; ++i) {
+    const Eigen::Vector3f o = 1.3f * Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized();
+    const Eigen::Vector3f aim = (0.2f * Eigen::Vector3f(g(rng), g(rng), g(rng))).cwiseMax(-0.45f).cwiseMin(0.45f);
+    const Eigen::Vector3f d = (aim - o).normalized();
+    float t0, t1;
+    if (!IntersectBox(o, d, 0.5f, &t0, &t1) || t1 - t0 < 4 * mo.min_step()) continue;
+    std::vector<RaySample> s;
+    MarchRay(grid, o, d, t0, t1, mo, 0.5f, mo.max_samples, &s);
+    const int lattice = int(std::ceil((t1 - t0) / mo.min_step()));
+    ASSERT_GE(int(s.size()), lattice - 1) << "o " << o.transpose() << " d " << d.transpose() << " t0 " << t0;
+    for (const RaySample& r : s) ASSERT_LE((o + r.t * d).cwiseAbs().maxCoeff(), 0.5f);
+    ++marched;
+  }
+  EXPECT_GT(marched, 1500);
 }
 
 }  // namespace

@@ -1,0 +1,79 @@
+// `clnerf bench ...`: benchmarks that print what they measured (a
+// human-readable line plus JSON).
+#include <omp.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
+#include "client/commands.h"
+#include "core/checkpoint.h"
+#include "core/dataset.h"
+#include "core/renderer.h"
+#include "nlohmann/json.hpp"
+
+namespace clnerf {
+
+int RunBenchRender(const BenchRenderArgs& a) {
+  if (a.threads > 0) omp_set_num_threads(a.threads);
+  auto fail = [](const absl::Status& s) {
+    std::fprintf(stderr, "clnerf: error: %s\n", std::string(s.message()).c_str());
+    return 1;
+  };
+  absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
+  if (!ck.ok()) return fail(ck.status());
+  DatasetOptions dopt;
+  dopt.load_images = false;
+  absl::StatusOr<Scene> scene = LoadScene(a.data, dopt);
+  if (!scene.ok()) return fail(scene.status());
+  const std::vector<View>& views = scene->test.empty() ? scene->train : scene->test;
+  if (views.empty()) return fail(absl::InvalidArgumentError("dataset has no views"));
+  nlohmann::json results = nlohmann::json::array();
+  for (absl::string_view tok : absl::StrSplit(a.sizes, ',', absl::SkipEmpty())) {
+    int size = 0;
+    if (!absl::SimpleAtoi(tok, &size) || size <= 0) return fail(absl::InvalidArgumentError("bad --sizes"));
+    std::vector<double> ms;
+    long long samples = 0;
+    const int n = std::min<int>(a.views, int(views.size()));
+    for (int i = 0; i < n; ++i) {
+      Camera cam = views[size_t(i) * views.size() / n].camera;
+      const float s = float(size) / cam.intrinsics.width;
+      cam.intrinsics.fx *= s;
+      cam.intrinsics.fy *= s;
+      cam.intrinsics.cx *= s;
+      cam.intrinsics.cy *= float(size) / cam.intrinsics.height;
+      cam.intrinsics.width = cam.intrinsics.height = size;
+      std::vector<double> rep;
+      for (int r = 0; r < std::max(1, a.repeats); ++r) {
+        const auto t0 = std::chrono::steady_clock::now();
+        absl::StatusOr<RenderedView> out = RenderView(ck->model, cam, RenderOptions{});
+        rep.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+        if (!out.ok()) return fail(out.status());
+        if (r == 0) samples += out->samples;
+      }
+      std::sort(rep.begin(), rep.end());
+      ms.push_back(rep[rep.size() / 2]);
+    }
+    std::sort(ms.begin(), ms.end());
+    const double mean = [&] { double t = 0; for (double v : ms) t += v; return t / ms.size(); }();
+    const double p50 = ms[ms.size() / 2], p90 = ms[std::min(ms.size() - 1, size_t(ms.size() * 0.9))];
+    std::printf("render %dx%d: mean %.1f ms, p50 %.1f ms, p90 %.1f ms, max %.1f ms over %d views (%.0f samples/view, %d threads)\n",
+                size, size, mean, p50, p90, ms.back(), n, double(samples) / n, omp_get_max_threads());
+    results.push_back({{"size", size}, {"views", n}, {"mean_ms", mean}, {"p50_ms", p50}, {"p90_ms", p90},
+                       {"max_ms", ms.back()}, {"samples_per_view", double(samples) / n}});
+  }
+  nlohmann::json j = {{"model", a.model}, {"threads", omp_get_max_threads()}, {"results", results}};
+  if (!a.json.empty()) {
+    std::ofstream f(a.json);
+    f << j.dump(2) << "\n";
+  }
+  std::printf("%s\n", j.dump().c_str());
+  return 0;
+}
+
+}  // namespace clnerf
