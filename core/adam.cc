@@ -22,6 +22,15 @@ void Adam::ResizeBlock(int block, size_t size) {
 }
 
 namespace {
+// Bias-corrected step size and epsilon for 1-based step `step`.
+struct Corrected {
+  float step_size, eps_hat;
+};
+inline Corrected Correct(const AdamOptions& o, float lr, int step) {
+  const float c1 = 1.0f - std::pow(o.beta1, float(step)), c2 = 1.0f - std::pow(o.beta2, float(step));
+  return {lr * std::sqrt(c2) / c1, o.epsilon * std::sqrt(c2)};
+}
+
 inline void AdamOne(float& p, float g, float& m, float& v, float b1, float b2, float step_size, float eps_hat) {
   m = b1 * m + (1.0f - b1) * g;
   v = b2 * v + (1.0f - b2) * g * g;
@@ -31,9 +40,7 @@ inline void AdamOne(float& p, float g, float& m, float& v, float b1, float b2, f
 
 void Adam::UpdateDense(int block, float lr, int step, float* params, const float* grad, size_t n) {
   const float b1 = options_.beta1, b2 = options_.beta2;
-  const float c1 = 1.0f - std::pow(b1, float(step)), c2 = 1.0f - std::pow(b2, float(step));
-  const float step_size = lr * std::sqrt(c2) / c1;
-  const float eps_hat = options_.epsilon * std::sqrt(c2);
+  const auto [step_size, eps_hat] = Correct(options_, lr, step);
   float* m = m_[block].data();
   float* v = v_[block].data();
 #pragma omp simd
@@ -43,9 +50,7 @@ void Adam::UpdateDense(int block, float lr, int step, float* params, const float
 void Adam::UpdateSparse(int block, float lr, int step, float* params, const float* grad,
                         const std::vector<uint32_t>& entries, int stride) {
   const float b1 = options_.beta1, b2 = options_.beta2;
-  const float c1 = 1.0f - std::pow(b1, float(step)), c2 = 1.0f - std::pow(b2, float(step));
-  const float step_size = lr * std::sqrt(c2) / c1;
-  const float eps_hat = options_.epsilon * std::sqrt(c2);
+  const auto [step_size, eps_hat] = Correct(options_, lr, step);
   float* m = m_[block].data();
   float* v = v_[block].data();
   for (uint32_t e : entries) {

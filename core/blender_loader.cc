@@ -13,70 +13,13 @@
 #include "absl/strings/str_cat.h"
 #include "core/dataset.h"
 #include "core/image.h"
+#include "core/transforms_json.h"
 
 namespace clnerf {
 namespace {
 
 namespace fs = std::filesystem;
 using nlohmann::json;
-
-absl::Status Annotate(const absl::Status& s, const std::string& ctx) {
-  return absl::Status(s.code(), absl::StrCat(ctx, ": ", s.message()));
-}
-
-absl::StatusOr<json> ReadJson(const fs::path& path) {
-  std::ifstream in(path);
-  if (!in) return absl::NotFoundError(absl::StrCat("cannot open ", path.string()));
-  try {
-    return json::parse(in);
-  } catch (const json::exception& e) {
-    return absl::InvalidArgumentError(absl::StrCat(path.string(), ": malformed json: ", e.what()));
-  }
-}
-
-// Reads a 3x4 or 4x4 row-major "transform_matrix" (the last row is ignored).
-absl::StatusOr<Pose> ParsePose(const json& frame, const std::string& ctx) {
-  if (!frame.contains("transform_matrix")) {
-    return absl::InvalidArgumentError(absl::StrCat(ctx, ": missing field 'transform_matrix'"));
-  }
-  const json& m = frame["transform_matrix"];
-  const auto bad = [&] {
-    return absl::InvalidArgumentError(
-        absl::StrCat(ctx, ": field 'transform_matrix' must be a 4x4 or 3x4 array of numbers"));
-  };
-  if (!m.is_array() || (m.size() != 3 && m.size() != 4)) return bad();
-  Pose pose;
-  for (int r = 0; r < 3; ++r) {
-    if (!m[r].is_array() || m[r].size() != 4) return bad();
-    for (int c = 0; c < 4; ++c) {
-      if (!m[r][c].is_number()) return bad();
-      pose(r, c) = m[r][c].get<float>();
-    }
-  }
-  return pose;
-}
-
-absl::StatusOr<int> ParseTimeStep(const json& frame, const std::string& ctx) {
-  if (!frame.contains("time_step")) return 0;
-  const json& t = frame["time_step"];
-  if (!t.is_number_integer() || t.get<int64_t>() < 0 ||
-      t.get<int64_t>() > std::numeric_limits<int>::max()) {
-    return absl::InvalidArgumentError(
-        absl::StrCat(ctx, ": field 'time_step' must be a non-negative integer"));
-  }
-  return t.get<int>();
-}
-
-// `file_path` relative to `dir`; ".png" is appended when the bare path does
-// not exist but the .png does.
-fs::path ResolveImagePath(const fs::path& dir, const std::string& file_path) {
-  const fs::path p = dir / file_path;
-  std::error_code ec;
-  if (fs::is_regular_file(p, ec)) return p;
-  fs::path png = p;
-  png += ".png";
-  return fs::is_regular_file(png, ec) ? png : p;
-}
 
 absl::Status LoadSplit(const fs::path& dir, const std::string& file_name,
                        const BlenderLoadOptions& opts, std::vector<View>* out) {

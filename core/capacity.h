@@ -21,7 +21,7 @@ struct CapacityOptions {
   float oversample = 4.0f;
   // Table entries per level ~= table_factor * finest_resolution^2 (surfaces
   // grow with the square of resolution), rounded up to a power of two.
-  float table_factor = 4.0f;
+  float table_factor = 0.25f;
   int min_log2_table_size = 14;
   int max_log2_table_size = 19;
   // March steps per finest grid cell along a ray.

@@ -1,5 +1,6 @@
 #include "core/hash_grid.h"
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -120,21 +121,34 @@ inline void CornerSetup(float scale, uint32_t stride, uint32_t mask, const float
   }
 }
 
+// Samples are processed in small batches: corner indices of the whole batch
+// are computed (and their cache lines prefetched) before any table entry is
+// read, so the random table reads of one batch overlap in the memory system.
+constexpr int kBatch = 16;
+
 template <bool kDense>
 void EncodeLevel(const float* table, float scale, uint32_t stride, uint32_t mask, const float* pos, int n,
                  int out_stride, float* out) {
-  for (int i = 0; i < n; ++i) {
-    uint32_t idx[8];
-    float w[8];
-    CornerSetup<kDense>(scale, stride, mask, pos + 3 * i, idx, w);
-    float f0 = 0, f1 = 0;
-    for (int k = 0; k < 8; ++k) {
-      const float* e = table + 2 * size_t(idx[k]);
-      f0 += w[k] * e[0];
-      f1 += w[k] * e[1];
+  uint32_t idx[kBatch][8];
+  float w[kBatch][8];
+  for (int i0 = 0; i0 < n; i0 += kBatch) {
+    const int m = std::min(kBatch, n - i0);
+    for (int b = 0; b < m; ++b) {
+      CornerSetup<kDense>(scale, stride, mask, pos + 3 * (i0 + b), idx[b], w[b]);
+      if constexpr (!kDense) {
+        for (int k = 0; k < 8; ++k) __builtin_prefetch(table + 2 * size_t(idx[b][k]));
+      }
     }
-    out[size_t(i) * out_stride] = f0;
-    out[size_t(i) * out_stride + 1] = f1;
+    for (int b = 0; b < m; ++b) {
+      float f0 = 0, f1 = 0;
+      for (int k = 0; k < 8; ++k) {
+        const float* e = table + 2 * size_t(idx[b][k]);
+        f0 += w[b][k] * e[0];
+        f1 += w[b][k] * e[1];
+      }
+      out[size_t(i0 + b) * out_stride] = f0;
+      out[size_t(i0 + b) * out_stride + 1] = f1;
+    }
   }
 }
 
@@ -142,23 +156,36 @@ template <bool kDense>
 void BackwardLevelImpl(float* gtable, float scale, uint32_t stride, uint32_t mask, const float* pos,
                        const float* dout, int n, int in_stride, size_t offset, uint8_t* touched,
                        std::vector<uint32_t>* touched_list) {
-  for (int i = 0; i < n; ++i) {
-    const float g0 = dout[size_t(i) * in_stride], g1 = dout[size_t(i) * in_stride + 1];
-    if (g0 == 0.0f && g1 == 0.0f) continue;
-    uint32_t idx[8];
-    float w[8];
-    CornerSetup<kDense>(scale, stride, mask, pos + 3 * i, idx, w);
-    for (int k = 0; k < 8; ++k) {
-      float* e = gtable + 2 * size_t(idx[k]);
-      e[0] += w[k] * g0;
-      e[1] += w[k] * g1;
+  uint32_t idx[kBatch][8];
+  float w[kBatch][8];
+  float g[kBatch][2];
+  for (int i0 = 0; i0 < n; i0 += kBatch) {
+    const int m = std::min(kBatch, n - i0);
+    int cnt = 0;
+    for (int b = 0; b < m; ++b) {
+      const float g0 = dout[size_t(i0 + b) * in_stride], g1 = dout[size_t(i0 + b) * in_stride + 1];
+      if (g0 == 0.0f && g1 == 0.0f) continue;
+      g[cnt][0] = g0;
+      g[cnt][1] = g1;
+      CornerSetup<kDense>(scale, stride, mask, pos + 3 * (i0 + b), idx[cnt], w[cnt]);
+      if constexpr (!kDense) {
+        for (int k = 0; k < 8; ++k) __builtin_prefetch(gtable + 2 * size_t(idx[cnt][k]), 1);
+      }
+      ++cnt;
     }
-    if (touched != nullptr) {
+    for (int b = 0; b < cnt; ++b) {
       for (int k = 0; k < 8; ++k) {
-        const size_t global = offset + idx[k];
-        if (!touched[global]) {
-          touched[global] = 1;
-          touched_list->push_back(uint32_t(global));
+        float* e = gtable + 2 * size_t(idx[b][k]);
+        e[0] += w[b][k] * g[b][0];
+        e[1] += w[b][k] * g[b][1];
+      }
+      if (touched != nullptr) {
+        for (int k = 0; k < 8; ++k) {
+          const size_t global = offset + idx[b][k];
+          if (!touched[global]) {
+            touched[global] = 1;
+            touched_list->push_back(uint32_t(global));
+          }
         }
       }
     }

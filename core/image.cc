@@ -63,6 +63,17 @@ absl::StatusOr<std::vector<float>> ReadAll(OIIO::ImageInput* in, const std::stri
   return px;
 }
 
+// Decodes an opened input, composites alpha, and closes it.
+absl::StatusOr<Image> ReadOpened(OIIO::ImageInput* in, const std::string& name,
+                                 const Eigen::Vector3f& background) {
+  int w, h, nc;
+  auto px = ReadAll(in, name, &w, &h, &nc);
+  const bool premult = in->spec().get_int_attribute("oiio:UnassociatedAlpha", 0) == 0;
+  in->close();
+  if (!px.ok()) return px.status();
+  return FromPixels(*px, w, h, nc, premult, background, name);
+}
+
 }  // namespace
 
 absl::StatusOr<Image> ReadImage(const std::string& path, const Eigen::Vector3f& background) {
@@ -77,12 +88,7 @@ absl::StatusOr<Image> ReadImage(const std::string& path, const Eigen::Vector3f& 
     return absl::InvalidArgumentError(
         absl::StrCat("cannot open image '", path, "': ", OIIO::geterror()));
   }
-  int w, h, nc;
-  auto px = ReadAll(in.get(), path, &w, &h, &nc);
-  const bool premult = in->spec().get_int_attribute("oiio:UnassociatedAlpha", 0) == 0;
-  in->close();
-  if (!px.ok()) return px.status();
-  return FromPixels(*px, w, h, nc, premult, background, path);
+  return ReadOpened(in.get(), path, background);
 }
 
 absl::StatusOr<Image> DecodeImage(const std::string& bytes, const std::string& name_hint,
@@ -102,12 +108,7 @@ absl::StatusOr<Image> DecodeImage(const std::string& bytes, const std::string& n
     return absl::InvalidArgumentError(
         absl::StrCat("cannot decode image '", name_hint, "': ", OIIO::geterror()));
   }
-  int w, h, nc;
-  auto px = ReadAll(in.get(), name_hint, &w, &h, &nc);
-  const bool premult = in->spec().get_int_attribute("oiio:UnassociatedAlpha", 0) == 0;
-  in->close();
-  if (!px.ok()) return px.status();
-  return FromPixels(*px, w, h, nc, premult, background, name_hint);
+  return ReadOpened(in.get(), name_hint, background);
 }
 
 absl::StatusOr<Mask> ReadMask(const std::string& path, bool nonzero_is_exclude) {

@@ -117,8 +117,8 @@ void Network::RayColourBias(const float* mlp, const float* sh, const float* app_
   o += Eigen::Map<const Eigen::VectorXf>(app_bias, c0.rows);
 }
 
-void Network::DensityForward(const float* mlp, const float* feat, int n, const int* seg, int nrays,
-                             const float* geo_bias, NetworkWorkspace* ws) const {
+void Network::DensityHidden(const float* mlp, const float* feat, int n, const int* seg, int nrays,
+                            const float* geo_bias, NetworkWorkspace* ws) const {
   const ConstMatrixMap x(feat, grid_dim_, n);
   const int L = int(density_layers_.size());
   auto a0 = ws->density_act[0].leftCols(n);
@@ -130,22 +130,19 @@ void Network::DensityForward(const float* mlp, const float* feat, int n, const i
     ak.noalias() = W(mlp, density_layers_[k]) * ws->density_act[k - 1].leftCols(n);
     ak = ak.cwiseMax(0.0f);
   }
+}
+
+void Network::DensityForward(const float* mlp, const float* feat, int n, const int* seg, int nrays,
+                             const float* geo_bias, NetworkWorkspace* ws) const {
+  DensityHidden(mlp, feat, n, seg, nrays, geo_bias, ws);
+  const int L = int(density_layers_.size());
   ws->h.leftCols(n).noalias() = W(mlp, density_layers_[L - 1]) * ws->density_act[L - 2].leftCols(n);
 }
 
 void Network::DensityOnly(const float* mlp, const float* feat, int n, const int* seg, int nrays,
                           const float* geo_bias, NetworkWorkspace* ws, float* h0) const {
-  const ConstMatrixMap x(feat, grid_dim_, n);
+  DensityHidden(mlp, feat, n, seg, nrays, geo_bias, ws);
   const int L = int(density_layers_.size());
-  auto a0 = ws->density_act[0].leftCols(n);
-  a0.noalias() = W(mlp, density_layers_[0]).leftCols(grid_dim_) * x;
-  if (options_.geo_dim() > 0) AddSegmentBias(a0, geo_bias, seg, nrays);
-  a0 = a0.cwiseMax(0.0f);
-  for (int k = 1; k < L - 1; ++k) {
-    auto ak = ws->density_act[k].leftCols(n);
-    ak.noalias() = W(mlp, density_layers_[k]) * ws->density_act[k - 1].leftCols(n);
-    ak = ak.cwiseMax(0.0f);
-  }
   Eigen::Map<Eigen::RowVectorXf> out(h0, n);
   out.noalias() = W(mlp, density_layers_[L - 1]).row(0) * ws->density_act[L - 2].leftCols(n);
 }

@@ -114,6 +114,10 @@ class Network {
   int colour_input_dim() const;
 
  private:
+  // Hidden layers of the density MLP (fills ws->density_act).
+  void DensityHidden(const float* mlp, const float* feat, int n, const int* seg, int nrays,
+                     const float* geo_bias, NetworkWorkspace* ws) const;
+
   NetworkOptions options_;
   int grid_dim_;
   std::vector<Layer> density_layers_;

@@ -26,6 +26,8 @@ struct Config {
   int colour_layers;
   bool embeddings;
 };
+// Readable parameter names in test listings (instead of raw bytes).
+void PrintTo(const Config& c, std::ostream* os) { *os << c.name; }
 
 NetworkOptions MakeOptions(const Config& c) {
   NetworkOptions o;

@@ -280,14 +280,16 @@ absl::Status Trainer::Step() {
   const float loss = ForwardBackward(batch, jitter.data(), /*track_touched=*/true);
   const int next = step_ + 1;
 
-  auto clear_grid_grads = [this]() {
-    for (auto& list : touched_lists_) {
-      for (uint32_t e : list) {
+  const int L = int(touched_lists_.size());
+  auto clear_grid_grads = [this, L]() {
+#pragma omp parallel for schedule(dynamic) num_threads(threads_)
+    for (int l = 0; l < L; ++l) {
+      for (uint32_t e : touched_lists_[l]) {
         grad_grid_[2 * size_t(e)] = 0.0f;
         grad_grid_[2 * size_t(e) + 1] = 0.0f;
         touched_[e] = 0;
       }
-      list.clear();
+      touched_lists_[l].clear();
     }
   };
   // Stability checks before anything is applied.
@@ -296,15 +298,17 @@ absl::Status Trainer::Step() {
   else if (!AllFinite(grad_mlp_)) bad = "MLP gradient has NaN/Inf";
   else if (!AllFinite(grad_emb_)) bad = "embedding gradient has NaN/Inf";
   else {
-    for (const auto& list : touched_lists_) {
-      for (uint32_t e : list) {
+    int grid_bad = 0;
+#pragma omp parallel for schedule(dynamic) reduction(+ : grid_bad) num_threads(threads_)
+    for (int l = 0; l < L; ++l) {
+      for (uint32_t e : touched_lists_[l]) {
         if (!std::isfinite(grad_grid_[2 * size_t(e)]) || !std::isfinite(grad_grid_[2 * size_t(e) + 1])) {
-          bad = "hash-grid gradient has NaN/Inf";
+          ++grid_bad;
           break;
         }
       }
-      if (!bad.empty()) break;
     }
+    if (grid_bad > 0) bad = "hash-grid gradient has NaN/Inf";
   }
   if (!bad.empty()) {
     clear_grid_grads();
@@ -318,13 +322,25 @@ absl::Status Trainer::Step() {
   adam_.UpdateDense(1, lr, next, p.mlp.data(), grad_mlp_.data(), p.mlp.size());
   adam_.UpdateDense(2, lr, next, p.emb.data(), grad_emb_.data(), p.emb.size());
   bool finite = AllFinite(p.mlp) && AllFinite(p.emb);
-  for (int l = 0; l < int(touched_lists_.size()) && finite; ++l) {
-    adam_.UpdateSparse(0, lr, next, p.grid.data(), grad_grid_.data(), touched_lists_[l], HashGrid::kFeatures);
-    for (uint32_t e : touched_lists_[l]) {
-      if (!std::isfinite(p.grid[2 * size_t(e)]) || !std::isfinite(p.grid[2 * size_t(e) + 1])) finite = false;
+  if (finite) {
+    // Sparse grid update, one level per task (levels own disjoint entries);
+    // gradients are cleared in the same pass.
+    int grid_bad = 0;
+#pragma omp parallel for schedule(dynamic) reduction(+ : grid_bad) num_threads(threads_)
+    for (int l = 0; l < L; ++l) {
+      adam_.UpdateSparse(0, lr, next, p.grid.data(), grad_grid_.data(), touched_lists_[l], HashGrid::kFeatures);
+      for (uint32_t e : touched_lists_[l]) {
+        if (!std::isfinite(p.grid[2 * size_t(e)]) || !std::isfinite(p.grid[2 * size_t(e) + 1])) ++grid_bad;
+        grad_grid_[2 * size_t(e)] = 0.0f;
+        grad_grid_[2 * size_t(e) + 1] = 0.0f;
+        touched_[e] = 0;
+      }
+      touched_lists_[l].clear();
     }
+    finite = grid_bad == 0;
+  } else {
+    clear_grid_grads();
   }
-  clear_grid_grads();
   if (!finite) {
     p.mlp = mlp_before;
     p.emb = emb_before;
