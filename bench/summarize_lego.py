@@ -14,6 +14,7 @@ summary = {
     "psnr": ev["psnr"], "ssim": ev["ssim"], "num_images": ev["num_images"],
     "train_seconds": train["train_seconds"], "samples_per_second": train["samples_per_second"],
     "rays_per_second": train["rays_per_second"], "model_bytes": train["model_bytes"],
+    "composited_samples_per_second": train.get("composited_samples_per_second"),
     "iterations": train["iterations"],
     "render_ms": {str(r["size"]): r["mean_ms"] for r in render["results"]},
     "curve": train["curve"], "sweep": [],
@@ -27,7 +28,7 @@ for f in sorted(os.listdir(out)):
 json.dump(summary, open(os.path.join(out, "summary.json"), "w"), indent=2)
 print(f"lego_100: test PSNR {summary['psnr']:.2f} dB, SSIM {summary['ssim']:.4f} over {summary['num_images']} images; "
       f"train {summary['train_seconds']:.0f}s ({summary['iterations']} steps), "
-      f"{summary['samples_per_second']/1e3:.0f}k samples/s; model {summary['model_bytes']/1e6:.1f} MB; "
+      f"{summary['samples_per_second']/1e3:.0f}k samples/s marched, {summary['composited_samples_per_second']/1e3:.0f}k composited; model {summary['model_bytes']/1e6:.1f} MB; "
       f"render " + ", ".join(f"{k}px {v:.0f} ms" for k, v in summary["render_ms"].items()))
 print("\n| train s | step | PSNR (25 test views) | SSIM |\n|---|---|---|---|")
 for c in summary["curve"]:

@@ -126,6 +126,7 @@ int RunTrain(const TrainArgs& a) {
                       {"iterations", fit->iterations},
                       {"train_seconds", fit->train_seconds},
                       {"samples_per_second", fit->samples_per_second},
+                      {"composited_samples_per_second", fit->composited_samples_per_second},
                       {"rays_per_second", fit->rays_per_second},
                       {"finest_resolution", fit->model->options().grid.finest_resolution},
                       {"log2_table_size", fit->model->options().grid.log2_table_size},

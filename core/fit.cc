@@ -54,6 +54,8 @@ absl::StatusOr<FitResult> FitScene(const Scene& scene, const FitOptions& options
   result.train_seconds = trainer.total_seconds();
   result.samples = trainer.total_samples();
   result.samples_per_second = result.train_seconds > 0 ? result.samples / result.train_seconds : 0;
+  result.composited_samples_per_second =
+      result.train_seconds > 0 ? trainer.total_composited() / result.train_seconds : 0;
   result.rays_per_second = result.train_seconds > 0 ? trainer.total_rays() / result.train_seconds : 0;
   return result;
 }

@@ -41,7 +41,8 @@ struct FitResult {
   int iterations = 0;
   double train_seconds = 0;
   long long samples = 0;      // Network-evaluated samples over the run.
-  double samples_per_second = 0;
+  double samples_per_second = 0;             // Marched samples (density MLP) per second.
+  double composited_samples_per_second = 0;  // Samples through colour MLP + full backward.
   double rays_per_second = 0;
   std::vector<CurvePoint> curve;
 };

@@ -19,39 +19,16 @@ absl::Status OccupancyGridOptions::Validate() const {
 OccupancyGrid::OccupancyGrid(const OccupancyGridOptions& options, float bound, float min_step)
     : options_(options), bound_(bound), res_(options.resolution) {
   cascades_ = std::max(1 + int(std::ceil(std::log2(2.0f * bound))), 1);
+  for (int c = 0; c < cascades_; ++c) {
+    half_.push_back(std::min(std::ldexp(1.0f, c - 1), bound));
+    cells_per_unit_.push_back(res_ * 0.5f / half_.back());
+  }
   max_threshold_ = options.density_threshold > 0 ? options.density_threshold : 0.01f / min_step;
   threshold_ = max_threshold_;
   density_.assign(num_cells(), 0.0f);
   visible_.assign(num_cells(), 1);
   bits_.assign((num_cells() + 63) / 64, 0);
   SetAllOccupied();
-}
-
-float OccupancyGrid::cascade_half_size(int c) const {
-  return std::min(std::ldexp(1.0f, c - 1), bound_);
-}
-
-int OccupancyGrid::CascadeOf(const Eigen::Vector3f& p) const {
-  const float m = p.cwiseAbs().maxCoeff();
-  if (!(m <= bound_)) return -1;
-  int c = 0;
-  if (m >= 0.5f) {
-    int e;
-    std::frexp(m, &e);  // m = f * 2^e, f in [0.5, 1): log2 floor = e - 1.
-    c = e + 1;
-  }
-  return std::min(c, cascades_ - 1);
-}
-
-uint32_t OccupancyGrid::CellIndex(const Eigen::Vector3f& p, int c) const {
-  const float h = cascade_half_size(c);
-  const float s = res_ * 0.5f / h;
-  uint32_t idx[3];
-  for (int d = 0; d < 3; ++d) {
-    const int v = int((p[d] + h) * s);
-    idx[d] = uint32_t(std::clamp(v, 0, res_ - 1));
-  }
-  return uint32_t(c * cells_per_cascade() + idx[0] + res_ * (idx[1] + size_t(res_) * idx[2]));
 }
 
 bool OccupancyGrid::Occupied(const Eigen::Vector3f& p) const {

@@ -13,6 +13,8 @@
 #ifndef CLNERF_CORE_OCCUPANCY_GRID_H_
 #define CLNERF_CORE_OCCUPANCY_GRID_H_
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <random>
 #include <vector>
@@ -44,18 +46,30 @@ class OccupancyGrid {
   int num_cascades() const { return cascades_; }
   size_t cells_per_cascade() const { return size_t(res_) * res_ * res_; }
   size_t num_cells() const { return cells_per_cascade() * cascades_; }
-  float cascade_half_size(int c) const;
+  float cascade_half_size(int c) const { return half_[c]; }
   float threshold() const { return threshold_; }
 
   // Cascade containing model-space point p (the finest that covers it), or -1
   // when p is outside the model box.
-  int CascadeOf(const Eigen::Vector3f& p) const;
+  int CascadeOf(const Eigen::Vector3f& p) const {
+    const float m = std::max(std::abs(p.x()), std::max(std::abs(p.y()), std::abs(p.z())));
+    if (!(m <= bound_)) return -1;
+    int c = 0;
+    while (c < cascades_ - 1 && m >= half_[c]) ++c;
+    return c;
+  }
   // Linear cell index (including cascade offset) of p in cascade c.
-  uint32_t CellIndex(const Eigen::Vector3f& p, int c) const;
+  uint32_t CellIndex(const Eigen::Vector3f& p, int c) const {
+    const float h = half_[c], s = cells_per_unit_[c];
+    const int x = std::clamp(int((p.x() + h) * s), 0, res_ - 1);
+    const int y = std::clamp(int((p.y() + h) * s), 0, res_ - 1);
+    const int z = std::clamp(int((p.z() + h) * s), 0, res_ - 1);
+    return uint32_t(size_t(c) * cells_per_cascade() + x + size_t(res_) * (y + size_t(res_) * z));
+  }
   bool Occupied(const Eigen::Vector3f& p) const;
   bool OccupiedCell(uint32_t cell) const { return (bits_[cell >> 6] >> (cell & 63)) & 1; }
   // Side length of a cell of cascade c.
-  float CellSize(int c) const { return 2.0f * cascade_half_size(c) / res_; }
+  float CellSize(int c) const { return 1.0f / cells_per_unit_[c]; }
 
   // Model-space position of a cell (centre + jitter in [-0.5, 0.5) cells).
   Eigen::Vector3f CellPosition(uint32_t cell, const Eigen::Vector3f& jitter) const;
@@ -92,7 +106,9 @@ class OccupancyGrid {
   std::vector<float> density_;
   std::vector<uint8_t> visible_;
   std::vector<uint64_t> bits_;
-  std::vector<float> fresh_;  // Scratch for ApplyUpdate (-1 = untouched).
+  std::vector<float> fresh_;
+  std::vector<float> half_;           // Half-size of each cascade.
+  std::vector<float> cells_per_unit_; // res / (2 * half) per cascade.  // Scratch for ApplyUpdate (-1 = untouched).
 };
 
 }  // namespace clnerf

@@ -55,14 +55,19 @@ long long RenderBlock(const NgpModel& model, const float* origins, const float* 
     net.RayColourBias(mlp, sh, app_bias, colour_bias.data() + size_t(Hc) * r);
   }
 
-  NetworkWorkspace ws;
-  std::vector<RaySample> samples;
-  std::vector<int> seg, seg_ray, keep, keep_seg;
-  std::vector<float> pos, feat, h0, sigma, dt, w;
-  std::vector<float> geo_cols;
+  // Scratch reused across blocks and calls on the same thread.
+  thread_local NetworkWorkspace ws;
+  thread_local std::vector<RaySample> samples;
+  thread_local std::vector<int> seg, seg_ray, keep, keep_seg, keep_ray;
+  thread_local std::vector<float> pos, feat, sigma, dt, w, geo_cols, cb;
+  thread_local Eigen::MatrixXf hk;
   long long evaluated = 0;
-  int wave = 4;
+  int alive = n;
   for (;;) {
+    // Samples per live ray this wave: the wave's total stays near kWaveBudget
+    // so activations stay in cache; few live rays march further per wave.
+    constexpr int kWaveBudget = 4096;
+    const int wave = std::clamp(kWaveBudget / std::max(alive, 1), 2, 64);
     samples.clear();
     seg.assign(1, 0);
     seg_ray.clear();
@@ -81,6 +86,7 @@ long long RenderBlock(const NgpModel& model, const float* origins, const float* 
     }
     const int m = int(samples.size());
     if (m == 0) break;
+    alive = int(seg_ray.size());
     evaluated += m;
     const int nseg = int(seg_ray.size());
     ws.Reserve(m, net.options(), Dg);
@@ -108,7 +114,7 @@ long long RenderBlock(const NgpModel& model, const float* origins, const float* 
     // Front-to-back weights per ray; select samples that matter.
     keep.clear();
     keep_seg.assign(1, 0);
-    std::vector<int> keep_ray;
+    keep_ray.clear();
     for (int k = 0; k < nseg; ++k) {
       RayState& s = st[seg_ray[k]];
       float T = s.T;
@@ -131,10 +137,10 @@ long long RenderBlock(const NgpModel& model, const float* origins, const float* 
     const int mk = int(keep.size());
     if (mk > 0) {
       // Compact h columns, colour the kept samples, accumulate.
-      Eigen::MatrixXf hk(ws.h.rows(), mk);
+      hk.resize(ws.h.rows(), mk);
       for (int i = 0; i < mk; ++i) hk.col(i) = ws.h.col(keep[i]);
       ws.h.leftCols(mk) = hk;
-      std::vector<float> cb(size_t(Hc) * keep_ray.size());
+      cb.resize(size_t(Hc) * keep_ray.size());
       for (size_t q = 0; q < keep_ray.size(); ++q) {
         const int r = seg_ray[keep_ray[q]];
         std::copy(colour_bias.data() + size_t(Hc) * r, colour_bias.data() + size_t(Hc) * (r + 1),
@@ -153,7 +159,6 @@ long long RenderBlock(const NgpModel& model, const float* origins, const float* 
         }
       }
     }
-    wave = std::min(wave * 2, 32);
   }
   const Eigen::Vector3f& bg = model.background();
   for (int r = 0; r < n; ++r) {

@@ -368,6 +368,7 @@ absl::Status Trainer::Step() {
   total_seconds_ += secs;
   total_samples_ += batch_samples_;
   total_rays_ += batch.size();
+  total_composited_ += batch_composited_;
   return absl::OkStatus();
 }
 

@@ -76,6 +76,8 @@ class Trainer {
   double total_seconds() const { return total_seconds_; }
   long long total_samples() const { return total_samples_; }
   long long total_rays() const { return total_rays_; }
+  // Samples that reached the colour MLP and the backward pass.
+  long long total_composited() const { return total_composited_; }
 
   // Loss and gradients of one fixed batch without updating anything (used by
   // gradient checks). Gradients are returned in the same layout as params.
@@ -100,6 +102,7 @@ class Trainer {
   double total_seconds_ = 0;
   long long total_samples_ = 0;
   long long total_rays_ = 0;
+  long long total_composited_ = 0;
   int threads_ = 1;
 
   // Gradient buffers.
