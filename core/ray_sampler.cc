@@ -14,6 +14,7 @@ void RayBatch::Resize(int n) {
   target.resize(3 * size_t(n));
   time_step.resize(n);
   weight.resize(n);
+  robust.assign(n, 0);
 }
 
 void PixelRay(const Camera& cam, uint32_t pixel, float* origin, float* dir) {

@@ -27,6 +27,7 @@ struct RayBatch {
   std::vector<float> target;   // n x 3, supervision colour.
   std::vector<int> time_step;  // n.
   std::vector<float> weight;   // n, loss weight (1 for plain training).
+  std::vector<uint8_t> robust; // n, 1 = Charbonnier loss sqrt(e^2 + 1e-6) instead of MSE.
   int size() const { return int(time_step.size()); }
   void Resize(int n);
 };
@@ -35,6 +36,9 @@ class RaySampler {
  public:
   virtual ~RaySampler() = default;
   virtual void Sample(int n, std::mt19937_64* rng, RayBatch* out) = 0;
+  // Training progress in [0, 1], set by the trainer before each Sample()
+  // (MEIL-NeRF weights its replay rays by it).
+  virtual void SetProgress(float progress) {}
   // Model-space cameras of every view the sampler draws from (for the
   // occupancy grid's visibility mask).
   virtual std::vector<Camera> Cameras() const = 0;

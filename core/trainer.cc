@@ -195,15 +195,23 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool 
         CompositeColour(&s.weights[a], rgb, used, s.t_final[i], bg.data(), c);
         const float* gt = &batch.target[3 * size_t(r)];
         const float wr = batch.weight[r];
-        float dc[3], se = 0;
+        const bool robust = !batch.robust.empty() && batch.robust[r] != 0;
+        float dc[3], se = 0, data_loss = 0;
         for (int k = 0; k < 3; ++k) {
           const float e = c[k] - gt[k];
           se += e * e;
-          dc[k] = wr * 2.0f * e / 3.0f * inv_n;
+          if (robust) {  // Charbonnier (MEIL-NeRF's replay loss).
+            const float ch = std::sqrt(e * e + 1e-6f);
+            data_loss += ch;
+            dc[k] = wr * e / ch / 3.0f * inv_n;
+          } else {
+            data_loss += e * e;
+            dc[k] = wr * 2.0f * e / 3.0f * inv_n;
+          }
         }
         const float o = 1.0f - s.t_final[i] + 1e-10f;
         s.sq_err += se / 3.0f;
-        s.loss += (wr * se / 3.0f + lambda * (-o * std::log(o))) * inv_n;
+        s.loss += (wr * data_loss / 3.0f + lambda * (-o * std::log(o))) * inv_n;
         const float d_opacity = lambda * -(std::log(o) + 1.0f) * inv_n;
         if (used > 0) {
           CompositeBackward(&s.sigma[a], &s.dt[a], rgb, &s.weights[a], used, s.t_final[i], bg.data(), dc,
@@ -257,12 +265,54 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool 
 
 float Trainer::ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* g) {
   std::fill(grad_grid_.begin(), grad_grid_.end(), 0.0f);
-  const float loss = ForwardBackward(batch, jitter.data(), /*track_touched=*/false);
+  float loss = ForwardBackward(batch, jitter.data(), /*track_touched=*/false);
+  if (options_.ewc != nullptr) loss += ApplyEwc(/*track_touched=*/false);
   g->grid = grad_grid_;
   g->mlp = grad_mlp_;
   g->emb = grad_emb_;
   std::fill(grad_grid_.begin(), grad_grid_.end(), 0.0f);
   return loss;
+}
+
+float Trainer::ApplyEwc(bool track_touched) {
+  const EwcPenalty& e = *options_.ewc;
+  const ModelParams& p = model_->params();
+  double loss = 0;
+  auto dense = [&](const std::vector<float>& theta, const std::vector<float>& f, const std::vector<float>& a,
+                   std::vector<float>* g) {
+    const size_t n = std::min({theta.size(), f.size(), a.size()});
+    for (size_t i = 0; i < n; ++i) {
+      const float d = theta[i] - a[i];
+      (*g)[i] += e.lambda * f[i] * d;
+      loss += 0.5 * double(e.lambda) * f[i] * d * d;
+    }
+  };
+  dense(p.mlp, e.fisher.mlp, e.anchor.mlp, &grad_mlp_);
+  dense(p.emb, e.fisher.emb, e.anchor.emb, &grad_emb_);
+  // Grid: every entry with Fisher information gets a gradient (dense, which
+  // is what makes EWC expensive on hash grids).
+  const HashGrid& grid = model_->grid();
+  const int L = grid.num_levels();
+  if (e.fisher.grid.size() != p.grid.size() || e.anchor.grid.size() != p.grid.size()) return float(loss);
+  double grid_loss = 0;
+#pragma omp parallel for schedule(dynamic) reduction(+ : grid_loss) num_threads(threads_)
+  for (int l = 0; l < L; ++l) {
+    const size_t begin = grid.level_offset(l), end = begin + grid.level_size(l);
+    for (size_t entry = begin; entry < end; ++entry) {
+      const float f0 = e.fisher.grid[2 * entry], f1 = e.fisher.grid[2 * entry + 1];
+      if (f0 == 0.0f && f1 == 0.0f) continue;
+      const float d0 = p.grid[2 * entry] - e.anchor.grid[2 * entry];
+      const float d1 = p.grid[2 * entry + 1] - e.anchor.grid[2 * entry + 1];
+      grad_grid_[2 * entry] += e.lambda * f0 * d0;
+      grad_grid_[2 * entry + 1] += e.lambda * f1 * d1;
+      grid_loss += 0.5 * double(e.lambda) * (f0 * d0 * d0 + f1 * d1 * d1);
+      if (track_touched && !touched_[entry]) {
+        touched_[entry] = 1;
+        touched_lists_[l].push_back(uint32_t(entry));
+      }
+    }
+  }
+  return float(loss + grid_loss);
 }
 
 absl::Status Trainer::Step() {
@@ -272,12 +322,14 @@ absl::Status Trainer::Step() {
   if (step_ % mo_interval == 0) model.UpdateOccupancy(step_, &rng_);
 
   RayBatch batch;
+  sampler_->SetProgress(options_.iterations > 0 ? float(step_) / options_.iterations : 1.0f);
   sampler_->Sample(batch_rays_, &rng_, &batch);
   std::vector<float> jitter(batch.size());
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   for (float& j : jitter) j = u(rng_);
 
-  const float loss = ForwardBackward(batch, jitter.data(), /*track_touched=*/true);
+  float loss = ForwardBackward(batch, jitter.data(), /*track_touched=*/true);
+  if (options_.ewc != nullptr) loss += ApplyEwc(/*track_touched=*/true);
   const int next = step_ + 1;
 
   const int L = int(touched_lists_.size());

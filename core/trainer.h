@@ -31,6 +31,15 @@
 
 namespace clnerf {
 
+// Elastic weight consolidation: adds lambda/2 * sum F_i (theta_i - anchor_i)^2
+// to the loss. `fisher` and `anchor` have the layout of ModelParams; embedding
+// rows beyond the anchor's (new time steps) are not penalised.
+struct EwcPenalty {
+  float lambda = 1e5f;
+  ModelParams fisher;
+  ModelParams anchor;
+};
+
 struct TrainOptions {
   int iterations = 2000;          // Training steps.
   int batch_rays = 4096;          // Rays in the first batch.
@@ -42,6 +51,7 @@ struct TrainOptions {
   AdamOptions adam;
   uint64_t seed = 0;
   int threads = 0;                // OpenMP threads; 0 = all cores.
+  const EwcPenalty* ewc = nullptr;  // Optional EWC regulariser (not owned).
   absl::Status Validate() const;
 };
 
@@ -89,6 +99,9 @@ class Trainer {
  private:
   struct ThreadScratch;
   float ForwardBackward(const RayBatch& batch, const float* jitter, bool compute_grid_touch);
+  // Adds the EWC penalty's gradient (marking grid entries touched) and
+  // returns its loss.
+  float ApplyEwc(bool track_touched);
 
   NgpModel* model_;
   RaySampler* sampler_;
