@@ -133,6 +133,7 @@ void OccupancyGrid::MarkInvisible(const std::vector<Camera>& cameras, float near
     pos.push_back(c.c2w.col(3));
   }
   const size_t n = num_cells();
+  std::vector<uint8_t> fresh_seen(n, 0);
 #pragma omp parallel for schedule(static)
   for (long long i = 0; i < (long long)n; ++i) {
     const Eigen::Vector3f p = CellPosition(uint32_t(i), Eigen::Vector3f::Zero());
@@ -148,10 +149,14 @@ void OccupancyGrid::MarkInvisible(const std::vector<Camera>& cameras, float near
       const float u = in.fx * q.x() / q.z() + in.cx, v = in.fy * q.y() / q.z() + in.cy;
       seen = u >= -mx && u <= in.width + mx && v >= -my && v <= in.height + my;
     }
-    if (!seen) visible_[i] = 0;
+    // Cells that become visible again (a warm-started model seeing a new
+    // region) start occupied, like cells of a fresh grid.
+    fresh_seen[i] = seen && !visible_[i];
+    visible_[i] = seen;
   }
   for (size_t i = 0; i < n; ++i) {
     if (!visible_[i]) bits_[i >> 6] &= ~(uint64_t(1) << (i & 63));
+    if (fresh_seen[i]) bits_[i >> 6] |= uint64_t(1) << (i & 63);
   }
 }
 

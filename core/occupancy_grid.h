@@ -79,8 +79,9 @@ class OccupancyGrid {
   std::vector<uint32_t> CellsToUpdate(int iter, std::mt19937_64* rng) const;
   // new = max(decay * old, sigma) for the given cells, then refreshes bits.
   void ApplyUpdate(const std::vector<uint32_t>& cells, const std::vector<float>& sigma);
-  // Marks cells outside every camera frustum (model-space cameras) as
-  // permanently empty.
+  // Recomputes visibility: cells outside every camera frustum (model-space
+  // cameras) are empty until the next call; cells that become visible start
+  // occupied.
   void MarkInvisible(const std::vector<Camera>& cameras, float near);
   // Marks all visible cells occupied (initial state before any update).
   void SetAllOccupied();

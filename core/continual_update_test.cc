@@ -1,0 +1,206 @@
+#include "core/continual_update.h"
+
+#include <cmath>
+
+#include "core/checkpoint.h"
+#include "core/continual_sampler.h"
+#include "core/evaluate.h"
+#include "core/procedural_scene.h"
+#include "core/renderer.h"
+#include "core/scan_sequence.h"
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+ScanSequence TinySequence(int steps, int size = 24, int train = 20) {
+  ProceduralSceneOptions po;
+  po.width = po.height = size;
+  po.num_train_views = train;
+  po.num_test_views = 4;
+  po.num_time_steps = steps;
+  po.samples_per_axis = 1;
+  po.seed = 3;
+  absl::StatusOr<Scene> s = GenerateProceduralScene(po);
+  EXPECT_TRUE(s.ok()) << s.status();
+  absl::StatusOr<ScanSequence> seq = FromTimeSteps(*s);
+  EXPECT_TRUE(seq.ok()) << seq.status();
+  return *seq;
+}
+
+UpdateOptions TinyOptions(ContinualMethod method, int iterations) {
+  UpdateOptions o;
+  o.method = method;
+  o.train.iterations = iterations;
+  o.train.threads = 2;
+  o.train.seed = 1;
+  o.train.target_samples = 1 << 13;
+  o.train.batch_rays = 512;
+  o.model.grid.levels = 8;
+  o.capacity.max_log2_table_size = 14;
+  o.model.occupancy.warmup_iterations = 64;
+  return o;
+}
+
+Scene ScanScene(const ScanSequence& seq, int t) {
+  Scene s = seq.Union(-1);  // Header only.
+  s.train = seq.scans[t].train;
+  s.test = seq.scans[t].test;
+  return s;
+}
+
+TEST(ContinualUpdateTest, PreviousModelAndMemoryAreUntouched) {
+  const ScanSequence seq = TinySequence(2, 16, 8);
+  absl::StatusOr<ContinualState> s0 =
+      ContinualUpdate(ScanScene(seq, 0), nullptr, TinyOptions(ContinualMethod::kCLNeRF, 10), nullptr, nullptr, nullptr);
+  ASSERT_TRUE(s0.ok()) << s0.status();
+  const std::string model_before = *SerializeCheckpoint(*s0->model);
+  const std::string memory_before = s0->memory.Serialize();
+  for (InitMode init : {InitMode::kWarm, InitMode::kReinit}) {
+    UpdateOptions o = TinyOptions(ContinualMethod::kCLNeRF, 10);
+    o.init = init;
+    UpdateReport rep;
+    absl::StatusOr<ContinualState> s1 = ContinualUpdate(ScanScene(seq, 1), &*s0, o, nullptr, nullptr, &rep);
+    ASSERT_TRUE(s1.ok()) << s1.status();
+    EXPECT_EQ(*SerializeCheckpoint(*s0->model), model_before);
+    EXPECT_EQ(s0->memory.Serialize(), memory_before);
+    EXPECT_EQ(s1->model->num_time_steps(), 2);
+    EXPECT_EQ(s1->memory.num_cameras(), 16u);
+    EXPECT_EQ(rep.replay_views + rep.buffer_views, 8);
+  }
+}
+
+TEST(ContinualUpdateTest, ReplayLabelsAreThePreviousModelsRenders) {
+  const ScanSequence seq = TinySequence(2, 16, 8);
+  absl::StatusOr<ContinualState> s0 =
+      ContinualUpdate(ScanScene(seq, 0), nullptr, TinyOptions(ContinualMethod::kCLNeRF, 30), nullptr, nullptr, nullptr);
+  ASSERT_TRUE(s0.ok()) << s0.status();
+  const NgpModel& prev = *s0->model;
+  // Online: every replay ray's label is the frozen model's render of that ray.
+  std::vector<SamplerView> views;
+  for (uint32_t i = 0; i < s0->memory.num_cameras(); ++i) views.push_back({s0->memory.GetCamera(i), nullptr, nullptr, true});
+  ContinualRaySampler sampler(views, prev, &prev, 0.0f);
+  std::mt19937_64 rng(5);
+  RayBatch b;
+  sampler.Sample(64, &rng, &b);
+  for (int i = 0; i < b.size(); ++i) {
+    float rgb[3];
+    RenderRays(prev, &b.origin[3 * i], &b.dir[3 * i], 1, b.time_step[i], RenderOptions{}, rgb, nullptr, nullptr);
+    for (int c = 0; c < 3; ++c) EXPECT_EQ(b.target[3 * i + c], rgb[c]) << "ray " << i;
+  }
+  // Offline: the cached label of a view is RenderView's image of it, so a
+  // sampled pixel equals the same pixel of RenderView.
+  const Camera cam = s0->memory.GetCamera(0);
+  RenderOptions ro;
+  ro.time_step = cam.time_step;
+  absl::StatusOr<RenderedView> full = RenderView(prev, cam, ro);
+  ASSERT_TRUE(full.ok());
+  ContinualRaySampler offline({{cam, &full->rgb, nullptr, true}}, prev, nullptr, 0.0f);
+  offline.Sample(32, &rng, &b);
+  for (int i = 0; i < b.size(); ++i) {
+    float rgb[3];
+    RenderRays(prev, &b.origin[3 * i], &b.dir[3 * i], 1, b.time_step[i], RenderOptions{}, rgb, nullptr, nullptr);
+    for (int c = 0; c < 3; ++c) EXPECT_EQ(b.target[3 * i + c], rgb[c]) << "ray " << i;
+  }
+}
+
+TEST(ContinualUpdateTest, TimeStepsRouteToTheirEmbeddingRows) {
+  const ScanSequence seq = TinySequence(1, 16, 8);
+  absl::StatusOr<ContinualState> s0 =
+      ContinualUpdate(ScanScene(seq, 0), nullptr, TinyOptions(ContinualMethod::kCLNeRF, 20), nullptr, nullptr, nullptr);
+  ASSERT_TRUE(s0.ok());
+  NgpModel m = *s0->model;
+  m.AddTimeStep(99);
+  const Camera cam = seq.scans[0].test[0].camera;
+  RenderOptions r0, r1;
+  r0.time_step = 0;
+  r1.time_step = 1;
+  const Image a = RenderView(m, cam, r0)->rgb, b = RenderView(m, cam, r1)->rgb;
+  EXPECT_NE(a.rgb, b.rgb);  // Different rows, different renders.
+  // Copy row 0 into row 1: the renders become identical.
+  const int row = m.network().embedding_row_size();
+  std::copy(m.params().emb.begin(), m.params().emb.begin() + row, m.mutable_params().emb.begin() + row);
+  EXPECT_EQ(RenderView(m, cam, r1)->rgb.rgb, a.rgb);
+  // Training rays of step 1 only produce gradients in row 1.
+  std::vector<const View*> vs;
+  std::vector<View> views = seq.scans[0].train;
+  for (View& v : views) {
+    v.camera.time_step = 1;
+    vs.push_back(&v);
+  }
+  auto sampler = ImageRaySampler::Create(vs, m);
+  ASSERT_TRUE(sampler.ok());
+  Trainer tr(&m, sampler->get(), TinyOptions(ContinualMethod::kCLNeRF, 1).train);
+  RayBatch batch;
+  std::mt19937_64 rng(1);
+  (*sampler)->Sample(256, &rng, &batch);
+  Trainer::Gradients g;
+  tr.ComputeLossAndGradients(batch, std::vector<float>(batch.size(), 0.5f), &g);
+  double row0 = 0, row1 = 0;
+  for (int i = 0; i < row; ++i) row0 += std::abs(g.emb[i]), row1 += std::abs(g.emb[row + i]);
+  EXPECT_EQ(row0, 0.0);
+  EXPECT_GT(row1, 0.0);
+}
+
+TEST(ContinualUpdateTest, MasksExcludePixels) {
+  // Left half red, right half blue; the mask keeps only the left half.
+  View v;
+  v.name = "masked";
+  v.camera.intrinsics = {8, 8, 10, 10, 4, 4};
+  v.camera.c2w.col(3) = Eigen::Vector3f(0, 0, -3);
+  v.image = Image(8, 8);
+  v.mask = {8, 8, std::vector<uint8_t>(64, 0)};
+  for (int y = 0; y < 8; ++y)
+    for (int x = 0; x < 8; ++x) {
+      float* p = v.image.pixel(x, y);
+      p[0] = x < 4 ? 1.0f : 0.0f;
+      p[2] = x < 4 ? 0.0f : 1.0f;
+      v.mask.keep[y * 8 + x] = x < 4;
+    }
+  Normalization norm;
+  absl::StatusOr<NgpModel> m = NgpModel::Create(TinyOptions(ContinualMethod::kNT, 1).model, norm,
+                                                SceneKind::kBounded, Eigen::Vector3f::Ones(), 1, 0);
+  ASSERT_TRUE(m.ok());
+  ContinualRaySampler s({{v.camera, &v.image, &v.mask, false}}, *m, nullptr, 0.0f);
+  auto img = ImageRaySampler::Create({&v}, *m);
+  ASSERT_TRUE(img.ok());
+  std::mt19937_64 rng(2);
+  for (RaySampler* sampler : {static_cast<RaySampler*>(&s), static_cast<RaySampler*>(img->get())}) {
+    RayBatch b;
+    sampler->Sample(500, &rng, &b);
+    for (int i = 0; i < b.size(); ++i) {
+      ASSERT_EQ(b.target[3 * i], 1.0f);
+      ASSERT_EQ(b.target[3 * i + 2], 0.0f);
+    }
+  }
+}
+
+// On a tiny 3-scan changing scene, clnerf keeps the first scan while nt
+// forgets it. Measured here: clnerf 16.8 dB vs nt 13.7 dB on scan 0's test
+// views (warm start, 150 steps per scan). The tiny budget keeps absolute
+// quality low; the margin, not the level, is what this test checks.
+TEST(ContinualUpdateTest, CLNeRFBeatsNaiveTrainingOnTheFirstScan) {
+  const ScanSequence seq = TinySequence(3);
+  double psnr[2];
+  int k = 0;
+  for (ContinualMethod method : {ContinualMethod::kCLNeRF, ContinualMethod::kNT}) {
+    std::optional<ContinualState> state;
+    for (int t = 0; t < 3; ++t) {
+      UpdateOptions o = TinyOptions(method, 150);
+      o.init = InitMode::kWarm;
+      absl::StatusOr<ContinualState> next =
+          ContinualUpdate(ScanScene(seq, t), state ? &*state : nullptr, o, nullptr, nullptr, nullptr);
+      ASSERT_TRUE(next.ok()) << next.status();
+      state = std::move(*next);
+    }
+    absl::StatusOr<EvalResult> ev = EvaluateViews(*state->model, seq.scans[0].test, {});
+    ASSERT_TRUE(ev.ok());
+    psnr[k++] = ev->psnr;
+  }
+  RecordProperty("clnerf_psnr", std::to_string(psnr[0]));
+  RecordProperty("nt_psnr", std::to_string(psnr[1]));
+  EXPECT_GT(psnr[0], psnr[1] + 3.0) << "clnerf " << psnr[0] << " nt " << psnr[1];
+}
+
+}  // namespace
+}  // namespace clnerf
