@@ -183,9 +183,10 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
 
   // M_t: every new camera, then the buffer policy.
   ContinualState next;
-  next.memory = prev != nullptr ? prev->memory : ReplayMemory(options.buffer_size);
-  const int k_buffer = method == ContinualMethod::kCLNeRFNoER ? 0 : options.buffer_size;
-  if (prev == nullptr) next.memory = ReplayMemory(k_buffer);
+  // Only methods that replay real images keep any (clnerf-noer, nt, ewc and
+  // meil store cameras only).
+  const int k_buffer = use_buffer ? options.buffer_size : 0;
+  next.memory = prev != nullptr ? prev->memory : ReplayMemory(k_buffer);
   std::mt19937_64 rng(seed ^ 0x5eed);
   std::vector<uint32_t> new_ids;
   for (const View& v : scan.train) new_ids.push_back(next.memory.AddCamera(v.camera));
