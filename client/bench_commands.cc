@@ -21,22 +21,18 @@ namespace clnerf {
 
 int RunBenchRender(const BenchRenderArgs& a) {
   if (a.threads > 0) omp_set_num_threads(a.threads);
-  auto fail = [](const absl::Status& s) {
-    std::fprintf(stderr, "clnerf: error: %s\n", std::string(s.message()).c_str());
-    return 1;
-  };
   absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
-  if (!ck.ok()) return fail(ck.status());
+  if (!ck.ok()) return Fail(ck.status());
   DatasetOptions dopt;
   dopt.load_images = false;
   absl::StatusOr<Scene> scene = LoadScene(a.data, dopt);
-  if (!scene.ok()) return fail(scene.status());
+  if (!scene.ok()) return Fail(scene.status());
   const std::vector<View>& views = scene->test.empty() ? scene->train : scene->test;
-  if (views.empty()) return fail(absl::InvalidArgumentError("dataset has no views"));
+  if (views.empty()) return Fail(absl::InvalidArgumentError("dataset has no views"));
   nlohmann::json results = nlohmann::json::array();
   for (absl::string_view tok : absl::StrSplit(a.sizes, ',', absl::SkipEmpty())) {
     int size = 0;
-    if (!absl::SimpleAtoi(tok, &size) || size <= 0) return fail(absl::InvalidArgumentError("bad --sizes"));
+    if (!absl::SimpleAtoi(tok, &size) || size <= 0) return Fail(absl::InvalidArgumentError("bad --sizes"));
     std::vector<double> ms;
     long long samples = 0;
     const int n = std::min<int>(a.views, int(views.size()));
@@ -53,7 +49,7 @@ int RunBenchRender(const BenchRenderArgs& a) {
         const auto t0 = std::chrono::steady_clock::now();
         absl::StatusOr<RenderedView> out = RenderView(ck->model, cam, RenderOptions{});
         rep.push_back(std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
-        if (!out.ok()) return fail(out.status());
+        if (!out.ok()) return Fail(out.status());
         if (r == 0) samples += out->samples;
       }
       std::sort(rep.begin(), rep.end());

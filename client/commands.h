@@ -7,6 +7,8 @@
 #include <cstdint>
 #include <string>
 
+#include "absl/status/status.h"
+
 namespace clnerf {
 
 // Overrides of model capacity (0 / negative = derive from the scene).
@@ -78,6 +80,9 @@ struct BenchRenderArgs {
   int threads = 0;
   std::string json;
 };
+
+// Prints "clnerf: error: <message>" to stderr and returns exit code 1.
+int Fail(const absl::Status& status);
 
 int RunTrain(const TrainArgs& args);
 int RunBenchRender(const BenchRenderArgs& args);

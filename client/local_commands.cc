@@ -23,11 +23,6 @@
 namespace clnerf {
 namespace {
 
-int Fail(const absl::Status& s) {
-  std::fprintf(stderr, "clnerf: error: %s\n", std::string(s.message()).c_str());
-  return 1;
-}
-
 void SetThreads(int threads) {
   if (threads > 0) omp_set_num_threads(threads);
 }
@@ -106,6 +101,11 @@ absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, FitOptions fo, c
 }
 
 }  // namespace
+
+int Fail(const absl::Status& s) {
+  std::fprintf(stderr, "clnerf: error: %s\n", std::string(s.message()).c_str());
+  return 1;
+}
 
 int RunTrain(const TrainArgs& a) {
   SetThreads(a.threads);
@@ -269,25 +269,7 @@ int RunDemo(const DemoArgs& a) {
   eo.save_dir = a.out + "/renders";
   absl::StatusOr<EvalResult> ev = EvaluateViews(*fit->model, data->scene.test, eo);
   if (!ev.ok()) return Fail(ev.status());
-  // Constant-colour baseline: the mean training colour everywhere.
-  double mean[3] = {0, 0, 0};
-  size_t npx = 0;
-  for (const View& v : data->scene.train) {
-    for (size_t i = 0; i < v.image.num_pixels(); ++i)
-      for (int c = 0; c < 3; ++c) mean[c] += v.image.rgb[3 * i + c];
-    npx += v.image.num_pixels();
-  }
-  double base_mse = 0;
-  size_t nvals = 0;
-  for (const View& v : data->scene.test) {
-    for (size_t i = 0; i < v.image.num_pixels(); ++i)
-      for (int c = 0; c < 3; ++c) {
-        const double e = v.image.rgb[3 * i + c] - mean[c] / npx;
-        base_mse += e * e;
-        ++nvals;
-      }
-  }
-  const double base_psnr = -10.0 * std::log10(base_mse / nvals);
+  const double base_psnr = ConstantColourPsnr(data->scene.train, data->scene.test);
   std::printf("demo: test PSNR %.2f dB (constant-colour baseline %.2f dB), SSIM %.4f over %zu views\n", ev->psnr,
               base_psnr, ev->ssim, ev->views.size());
   std::printf("demo: trained %d steps in %.1fs (%.0f samples/s); model %zu bytes -> %s; renders in %s\n",

@@ -196,9 +196,10 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
     for (const BufferedImage& b : next.memory.buffer()) cand.push_back({0.0, b});
     for (size_t i = 0; i < scan.train.size(); ++i) cand.push_back({0.0, {new_ids[i], scan.train[i].image, scan.train[i].mask}});
     for (auto& [score, b] : cand) {
+      const Camera cam = next.memory.GetCamera(b.camera);
       RenderOptions ro;
-      ro.time_step = next.memory.GetCamera(b.camera).time_step;
-      absl::StatusOr<RenderedView> r = RenderView(*model, next.memory.GetCamera(b.camera), ro);
+      ro.time_step = cam.time_step;
+      absl::StatusOr<RenderedView> r = RenderView(*model, cam, ro);
       if (!r.ok()) return r.status();
       score = Psnr(r->rgb, b.image);
     }

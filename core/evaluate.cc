@@ -13,6 +13,25 @@ absl::Status EvalOptions::Validate() const {
   return render.Validate();
 }
 
+double ConstantColourPsnr(const std::vector<View>& train, const std::vector<View>& test) {
+  double mean[3] = {0, 0, 0}, n = 0;
+  for (const View& v : train) {
+    for (size_t i = 0; i < v.image.num_pixels(); ++i)
+      for (int c = 0; c < 3; ++c) mean[c] += v.image.rgb[3 * i + c];
+    n += double(v.image.num_pixels());
+  }
+  double mse = 0, count = 0;
+  for (const View& v : test) {
+    for (size_t i = 0; i < v.image.num_pixels(); ++i)
+      for (int c = 0; c < 3; ++c) {
+        const double e = v.image.rgb[3 * i + c] - mean[c] / n;
+        mse += e * e;
+        count += 1;
+      }
+  }
+  return PsnrFromMse(mse / count);
+}
+
 absl::StatusOr<EvalResult> EvaluateViews(const NgpModel& model, const std::vector<View>& views,
                                          const EvalOptions& options) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;

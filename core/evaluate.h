@@ -35,6 +35,10 @@ struct EvalResult {
   std::vector<ViewScore> views;
 };
 
+// PSNR over `test` of predicting the mean training colour everywhere: the
+// floor a trained model must clear.
+double ConstantColourPsnr(const std::vector<View>& train, const std::vector<View>& test);
+
 absl::StatusOr<EvalResult> EvaluateViews(const NgpModel& model, const std::vector<View>& views,
                                          const EvalOptions& options);
 

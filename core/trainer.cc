@@ -155,9 +155,10 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool 
       int w = 0;
       for (int i = 0; i < nr; ++i) {
         const int a = s.seg[i], n_i = s.seg[i + 1] - a;
-        const int used = n_i > 0 ? CompositeWeights(&s.sigma[a], &s.dt[a], n_i, kMinTransmittance, &s.weights[a],
-                                                    &s.t_final[i])
-                                 : (s.t_final[i] = 1.0f, 0);
+        s.t_final[i] = 1.0f;
+        const int used =
+            n_i > 0 ? CompositeWeights(&s.sigma[a], &s.dt[a], n_i, kMinTransmittance, &s.weights[a], &s.t_final[i])
+                    : 0;
         for (int j = a; j < a + used; ++j, ++w) {
           if (w == j) continue;
           s.sigma[w] = s.sigma[j];
@@ -274,6 +275,15 @@ float Trainer::ComputeLossAndGradients(const RayBatch& batch, const std::vector<
   return loss;
 }
 
+void Trainer::ClearLevelGradients(int level) {
+  for (uint32_t e : touched_lists_[level]) {
+    grad_grid_[2 * size_t(e)] = 0.0f;
+    grad_grid_[2 * size_t(e) + 1] = 0.0f;
+    touched_[e] = 0;
+  }
+  touched_lists_[level].clear();
+}
+
 float Trainer::ApplyEwc(bool track_touched) {
   const EwcPenalty& e = *options_.ewc;
   const ModelParams& p = model_->params();
@@ -335,14 +345,7 @@ absl::Status Trainer::Step() {
   const int L = int(touched_lists_.size());
   auto clear_grid_grads = [this, L]() {
 #pragma omp parallel for schedule(dynamic) num_threads(threads_)
-    for (int l = 0; l < L; ++l) {
-      for (uint32_t e : touched_lists_[l]) {
-        grad_grid_[2 * size_t(e)] = 0.0f;
-        grad_grid_[2 * size_t(e) + 1] = 0.0f;
-        touched_[e] = 0;
-      }
-      touched_lists_[l].clear();
-    }
+    for (int l = 0; l < L; ++l) ClearLevelGradients(l);
   };
   // Stability checks before anything is applied.
   std::string bad;
@@ -383,11 +386,8 @@ absl::Status Trainer::Step() {
       adam_.UpdateSparse(0, lr, next, p.grid.data(), grad_grid_.data(), touched_lists_[l], HashGrid::kFeatures);
       for (uint32_t e : touched_lists_[l]) {
         if (!std::isfinite(p.grid[2 * size_t(e)]) || !std::isfinite(p.grid[2 * size_t(e) + 1])) ++grid_bad;
-        grad_grid_[2 * size_t(e)] = 0.0f;
-        grad_grid_[2 * size_t(e) + 1] = 0.0f;
-        touched_[e] = 0;
       }
-      touched_lists_[l].clear();
+      ClearLevelGradients(l);
     }
     finite = grid_bad == 0;
   } else {

@@ -102,6 +102,8 @@ class Trainer {
   // Adds the EWC penalty's gradient (marking grid entries touched) and
   // returns its loss.
   float ApplyEwc(bool track_touched);
+  // Zeroes the gradients and touched flags of one level's touched entries.
+  void ClearLevelGradients(int level);
 
   NgpModel* model_;
   RaySampler* sampler_;
