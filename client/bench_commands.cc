@@ -6,7 +6,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
-#include <fstream>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
@@ -20,7 +19,7 @@
 namespace clnerf {
 
 int RunBenchRender(const BenchRenderArgs& a) {
-  if (a.threads > 0) omp_set_num_threads(a.threads);
+  SetThreads(a.threads);
   absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
   if (!ck.ok()) return Fail(ck.status());
   DatasetOptions dopt;
@@ -64,11 +63,8 @@ int RunBenchRender(const BenchRenderArgs& a) {
                        {"max_ms", ms.back()}, {"samples_per_view", double(samples) / n}});
   }
   nlohmann::json j = {{"model", a.model}, {"threads", omp_get_max_threads()}, {"results", results}};
-  if (!a.json.empty()) {
-    std::ofstream f(a.json);
-    f << j.dump(2) << "\n";
-  }
   std::printf("%s\n", j.dump().c_str());
+  if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
   return 0;
 }
 

@@ -8,6 +8,7 @@
 #include <string>
 
 #include "absl/status/status.h"
+#include "nlohmann/json_fwd.hpp"
 
 namespace clnerf {
 
@@ -81,14 +82,38 @@ struct BenchRenderArgs {
   std::string json;
 };
 
+struct BenchContinualArgs {
+  std::string method = "clnerf";  // nt|ewc|er|meil|clnerf|clnerf-noer|ub
+  std::string data;               // Dataset, scan-folder directory, or "procedural".
+  int tasks = 0;                  // 0 = 10 for a static dataset, 5 procedural scans.
+  int iterations = 400;           // Training steps per update (and for ub).
+  std::string init = "warm";      // reinit|warm
+  std::string replay = "offline"; // offline|online
+  int buffer = 10;                // K real images (clnerf, er).
+  bool prioritized = false;       // Keep the K lowest-PSNR images instead of a reservoir.
+  bool no_embed = false;
+  float ewc_lambda = 1e5f;
+  float warm_lr_scale = 1.0f;     // Learning-rate factor for warm-started updates.
+  float downscale = 1.0f;
+  int procedural_size = 64;       // Image size of the procedural scans.
+  uint64_t seed = 0;
+  int threads = 0;
+  std::string json;
+};
+
 // Prints "clnerf: error: <message>" to stderr and returns exit code 1.
 int Fail(const absl::Status& status);
+// Sets the OpenMP thread count (0 = leave the default: all cores).
+void SetThreads(int threads);
+// Writes `j` to `path` ("-" = stdout, "" = nowhere).
+absl::Status WriteJson(const std::string& path, const nlohmann::json& j);
 
 int RunTrain(const TrainArgs& args);
 int RunBenchRender(const BenchRenderArgs& args);
 int RunEval(const EvalArgs& args);
 int RunRender(const RenderArgs& args);
 int RunDemo(const DemoArgs& args);
+int RunBenchContinual(const BenchContinualArgs& args);
 
 }  // namespace clnerf
 

@@ -23,22 +23,6 @@
 namespace clnerf {
 namespace {
 
-void SetThreads(int threads) {
-  if (threads > 0) omp_set_num_threads(threads);
-}
-
-absl::Status WriteJson(const std::string& path, const nlohmann::json& j) {
-  if (path.empty()) return absl::OkStatus();
-  if (path == "-") {
-    std::printf("%s\n", j.dump(2).c_str());
-    return absl::OkStatus();
-  }
-  std::ofstream f(path);
-  f << j.dump(2) << "\n";
-  if (!f) return absl::InternalError(absl::StrFormat("cannot write '%s'", path));
-  return absl::OkStatus();
-}
-
 const std::vector<View>* Split(const Scene& scene, const std::string& name) {
   if (name == "train") return &scene.train;
   if (name == "val") return &scene.val;
@@ -101,6 +85,22 @@ absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, FitOptions fo, c
 }
 
 }  // namespace
+
+void SetThreads(int threads) {
+  if (threads > 0) omp_set_num_threads(threads);
+}
+
+absl::Status WriteJson(const std::string& path, const nlohmann::json& j) {
+  if (path.empty()) return absl::OkStatus();
+  if (path == "-") {
+    std::printf("%s\n", j.dump(2).c_str());
+    return absl::OkStatus();
+  }
+  std::ofstream f(path);
+  f << j.dump(2) << "\n";
+  if (!f) return absl::InternalError(absl::StrFormat("cannot write '%s'", path));
+  return absl::OkStatus();
+}
 
 int Fail(const absl::Status& s) {
   std::fprintf(stderr, "clnerf: error: %s\n", std::string(s.message()).c_str());

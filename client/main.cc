@@ -83,6 +83,31 @@ int main(int argc, char** argv) {
   br->add_option("--threads", bench_render.threads, "Threads (0 = all cores)");
   br->add_option("--json", bench_render.json, "Write JSON here");
 
+  BenchContinualArgs bc;
+  CLI::App* bcc = bench->add_subcommand("continual", "Run one continual method through every step of a scan sequence");
+  bcc->add_option("--method", bc.method, "nt|ewc|er|meil|clnerf|clnerf-noer|ub")->capture_default_str();
+  bcc->add_option("--data", bc.data,
+                  "Static dataset (cut into --tasks), dataset with time steps, directory of scan folders, or "
+                  "'procedural'")
+      ->required();
+  bcc->add_option("--tasks", bc.tasks, "Tasks for a static dataset / scans for 'procedural' (0 = 10 / 5)")
+      ->capture_default_str();
+  bcc->add_option("--iters", bc.iterations, "Training steps per update (ub: for its single run)")->capture_default_str();
+  bcc->add_option("--init", bc.init, "reinit|warm: start each update from scratch or from the previous model")
+      ->capture_default_str();
+  bcc->add_option("--replay", bc.replay, "offline|online generative replay")->capture_default_str();
+  bcc->add_option("--buffer", bc.buffer, "Real images kept for experience replay (clnerf, er)")->capture_default_str();
+  bcc->add_flag("--prioritized", bc.prioritized, "Buffer keeps the lowest-PSNR images instead of a reservoir");
+  bcc->add_flag("--no-embed", bc.no_embed, "Ablation: no per-time-step embeddings");
+  bcc->add_option("--ewc-lambda", bc.ewc_lambda, "EWC strength")->capture_default_str();
+  bcc->add_option("--warm-lr-scale", bc.warm_lr_scale, "Learning-rate factor for warm-started updates")
+      ->capture_default_str();
+  bcc->add_option("--downscale", bc.downscale, "Shrink images by this factor")->capture_default_str();
+  bcc->add_option("--procedural-size", bc.procedural_size, "Image size of the procedural scans")->capture_default_str();
+  bcc->add_option("--seed", bc.seed, "Random seed")->capture_default_str();
+  bcc->add_option("--threads", bc.threads, "Threads (0 = all cores)");
+  bcc->add_option("--json", bc.json, "Write JSON here ('-' = stdout)");
+
   CLI11_PARSE(app, argc, argv);
   spdlog::set_level(spdlog::level::from_str(log_level));
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
@@ -91,5 +116,6 @@ int main(int argc, char** argv) {
   if (*r) return RunRender(render);
   if (*d) return RunDemo(demo);
   if (*br) return RunBenchRender(bench_render);
+  if (*bcc) return RunBenchContinual(bc);
   return 1;
 }

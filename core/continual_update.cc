@@ -50,6 +50,7 @@ const char* UpdatePhaseName(UpdatePhase p) {
 absl::Status UpdateOptions::Validate() const {
   if (buffer_size < 0) return absl::InvalidArgumentError("buffer size must be >= 0");
   if (!(ewc_lambda >= 0) || ewc_batches < 1) return absl::InvalidArgumentError("bad EWC options");
+  if (!(warm_lr_scale > 0 && warm_lr_scale <= 1)) return absl::InvalidArgumentError("warm_lr_scale must be in (0, 1]");
   if (!(meil_new_fraction > 0 && meil_new_fraction < 1)) {
     return absl::InvalidArgumentError("meil_new_fraction must be in (0, 1)");
   }
@@ -152,6 +153,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
 
   TrainOptions to = options.train;
   to.seed = seed;
+  if (prev != nullptr && options.init == InitMode::kWarm) to.learning_rate *= options.warm_lr_scale;
   if (method == ContinualMethod::kEWC && prev != nullptr && prev->ewc != nullptr) to.ewc = prev->ewc.get();
   Trainer trainer(model.get(), &sampler, to);
   absl::Status st = trainer.Run(

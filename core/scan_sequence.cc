@@ -114,4 +114,27 @@ absl::StatusOr<ScanSequence> LoadScanFolders(const std::string& dir, const Datas
   return seq;
 }
 
+Scene ScanSequence::ScanScene(int t) const {
+  Scene s = Union(-1);  // Header fields only.
+  if (t >= 0 && t < size()) {
+    s.train = scans[t].train;
+    s.test = scans[t].test;
+  }
+  return s;
+}
+
+absl::StatusOr<ScanSequence> LoadScanSequence(const std::string& dir, int num_tasks, const DatasetOptions& options) {
+  absl::StatusOr<DatasetFormat> format = DetectDatasetFormat(dir);
+  if (!format.ok()) {
+    if (!absl::IsNotFound(format.status())) return format.status();
+    std::error_code ec;
+    if (!std::filesystem::is_directory(dir, ec)) return format.status();
+    return LoadScanFolders(dir, options);
+  }
+  absl::StatusOr<Scene> scene = LoadScene(dir, options);
+  if (!scene.ok()) return scene.status();
+  if (scene->num_time_steps() > 1) return FromTimeSteps(*scene);
+  return SplitIntoTasks(*scene, num_tasks);
+}
+
 }  // namespace clnerf

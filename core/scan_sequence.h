@@ -39,6 +39,9 @@ struct ScanSequence {
   // All scans up to and including `last` as one Scene (for normalisation,
   // capacity and the upper-bound baseline).
   Scene Union(int last) const;
+  // Scan t as a Scene (the sequence's header fields + that scan's views):
+  // what ContinualUpdate takes as the new scan.
+  Scene ScanScene(int t) const;
 };
 
 // Cuts scene.train (in file order) into `num_tasks` contiguous tasks; test
@@ -48,6 +51,10 @@ absl::StatusOr<ScanSequence> SplitIntoTasks(const Scene& scene, int num_tasks);
 absl::StatusOr<ScanSequence> FromTimeSteps(const Scene& scene);
 // Each sorted subfolder of `dir` is one scan, loaded with LoadScene.
 absl::StatusOr<ScanSequence> LoadScanFolders(const std::string& dir, const DatasetOptions& options);
+// Any of the above, chosen by what `dir` holds: a dataset whose views carry
+// several time steps (COLMAP WAT) -> FromTimeSteps; a static dataset ->
+// SplitIntoTasks(num_tasks); no dataset but subfolders -> LoadScanFolders.
+absl::StatusOr<ScanSequence> LoadScanSequence(const std::string& dir, int num_tasks, const DatasetOptions& options);
 
 }  // namespace clnerf
 

@@ -84,5 +84,27 @@ TEST(ScanSequenceTest, LoadScanFoldersInSortedOrder) {
   std::filesystem::remove_all(dir);
 }
 
+TEST(ScanSequenceTest, LoadScanSequenceDetectsTheLayout) {
+  const std::string root = (std::filesystem::temp_directory_path() / "clnerf_load_scan_sequence_test").string();
+  std::filesystem::remove_all(root);
+  // A directory of scan folders -> one scan per folder.
+  ASSERT_TRUE(WriteScanFolders(Procedural(2, 3, 1), root + "/scans").ok());
+  absl::StatusOr<ScanSequence> folders = LoadScanSequence(root + "/scans", 7, {});
+  ASSERT_TRUE(folders.ok()) << folders.status();
+  EXPECT_EQ(folders->size(), 2);
+  // A static dataset -> cut into the requested number of tasks.
+  ASSERT_TRUE(WriteBlenderDataset(Procedural(1, 6, 2), root + "/static").ok());
+  absl::StatusOr<ScanSequence> tasks = LoadScanSequence(root + "/static", 3, {});
+  ASSERT_TRUE(tasks.ok()) << tasks.status();
+  ASSERT_EQ(tasks->size(), 3);
+  EXPECT_EQ(tasks->scans[2].train.size(), 2u);
+  // ScanScene(t) is the header plus that scan's views.
+  const Scene s2 = tasks->ScanScene(2);
+  EXPECT_EQ(s2.train.size(), 2u);
+  EXPECT_EQ(s2.world_scale_hint, tasks->world_scale_hint);
+  EXPECT_EQ(LoadScanSequence(root + "/missing", 3, {}).status().code(), absl::StatusCode::kNotFound);
+  std::filesystem::remove_all(root);
+}
+
 }  // namespace
 }  // namespace clnerf

@@ -1,0 +1,261 @@
+// `clnerf bench continual`: runs one method through every step of a scan
+// sequence (the paper's protocol), then reports accuracy, forgetting, time
+// and memory as a human-readable line plus JSON.
+#include <sys/resource.h>
+
+#include <chrono>
+#include <cstdio>
+#include <optional>
+
+#include "absl/strings/str_format.h"
+#include "client/commands.h"
+#include "client/progress_bar.h"
+#include "core/continual_update.h"
+#include "core/evaluate.h"
+#include "core/fit.h"
+#include "core/procedural_scene.h"
+#include "core/scan_sequence.h"
+#include "nlohmann/json.hpp"
+#include "spdlog/spdlog.h"
+
+namespace clnerf {
+namespace {
+
+double Since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+size_t PeakRssBytes() {
+  struct rusage u {};
+  getrusage(RUSAGE_SELF, &u);
+  return size_t(u.ru_maxrss) * 1024;  // Linux reports kilobytes.
+}
+
+// The project's changing scene: `scans` time steps with lighting and geometry
+// changes, 30 train + 10 test views each.
+absl::StatusOr<ScanSequence> ProceduralSequence(int scans, int size, uint64_t seed) {
+  ProceduralSceneOptions po;
+  po.name = "procedural";
+  po.width = po.height = size;
+  po.num_train_views = 30;
+  po.num_test_views = 10;
+  po.num_time_steps = scans;
+  po.seed = seed;
+  absl::StatusOr<Scene> scene = GenerateProceduralScene(po);
+  if (!scene.ok()) return scene.status();
+  return FromTimeSteps(*scene);
+}
+
+struct Scores {
+  std::vector<double> psnr;  // Mean PSNR per scan's test set.
+  double mean_psnr = 0, mean_ssim = 0;  // Means over all test images.
+  int images = 0;
+};
+
+// Scores `model` on the test views of scans 0..last.
+absl::StatusOr<Scores> Score(const NgpModel& model, const ScanSequence& seq, int last) {
+  Scores s;
+  for (int j = 0; j <= last; ++j) {
+    if (seq.scans[j].test.empty()) {
+      s.psnr.push_back(0);
+      continue;
+    }
+    absl::StatusOr<EvalResult> ev = EvaluateViews(model, seq.scans[j].test, EvalOptions{});
+    if (!ev.ok()) return ev.status();
+    s.psnr.push_back(ev->psnr);
+    for (const ViewScore& v : ev->views) {
+      s.mean_psnr += v.psnr;
+      s.mean_ssim += v.ssim;
+      ++s.images;
+    }
+  }
+  if (s.images > 0) {
+    s.mean_psnr /= s.images;
+    s.mean_ssim /= s.images;
+  }
+  return s;
+}
+
+}  // namespace
+
+int RunBenchContinual(const BenchContinualArgs& a) {
+  SetThreads(a.threads);
+  const bool ub = a.method == "ub";
+  UpdateOptions uo;
+  if (!ub) {
+    absl::StatusOr<ContinualMethod> m = ParseContinualMethod(a.method);
+    if (!m.ok()) return Fail(absl::InvalidArgumentError(absl::StrCat(m.status().message(), " or ub")));
+    uo.method = *m;
+  }
+  if (a.init != "warm" && a.init != "reinit") return Fail(absl::InvalidArgumentError("--init must be warm or reinit"));
+  if (a.replay != "offline" && a.replay != "online") {
+    return Fail(absl::InvalidArgumentError("--replay must be offline or online"));
+  }
+  uo.init = a.init == "warm" ? InitMode::kWarm : InitMode::kReinit;
+  uo.replay = a.replay == "offline" ? ReplayMode::kOffline : ReplayMode::kOnline;
+  uo.buffer_size = uo.method == ContinualMethod::kCLNeRFNoER ? 0 : a.buffer;
+  uo.prioritized_buffer = a.prioritized;
+  uo.ewc_lambda = a.ewc_lambda;
+  uo.warm_lr_scale = a.warm_lr_scale;
+  uo.train.iterations = a.iterations;
+  uo.train.seed = a.seed;
+  uo.train.threads = a.threads;
+  uo.model.network.use_embeddings = !a.no_embed;
+  if (absl::Status s = uo.Validate(); !s.ok()) return Fail(s);
+
+  const bool procedural = a.data == "procedural";
+  const int tasks = a.tasks > 0 ? a.tasks : (procedural ? 5 : 10);
+  absl::StatusOr<ScanSequence> seq_or = [&]() -> absl::StatusOr<ScanSequence> {
+    if (procedural) return ProceduralSequence(tasks, a.procedural_size, a.seed);
+    DatasetOptions dopt;
+    dopt.downscale = a.downscale;
+    return LoadScanSequence(a.data, tasks, dopt);
+  }();
+  if (!seq_or.ok()) return Fail(seq_or.status());
+  const ScanSequence& seq = *seq_or;
+  const int T = seq.size();
+  int num_test = 0;
+  for (const Scan& s : seq.scans) num_test += int(s.test.size());
+  spdlog::info("bench continual: method {} on '{}': {} steps, {} test images, {} iterations per step", a.method,
+               seq.name, T, num_test, a.iterations);
+
+  nlohmann::json j = {{"method", a.method},
+                      {"data", a.data},
+                      {"scene", seq.name},
+                      {"tasks", T},
+                      {"iterations", a.iterations},
+                      {"init", a.init},
+                      {"replay", a.replay},
+                      {"buffer", uo.buffer_size},
+                      {"prioritized", a.prioritized},
+                      {"embeddings", !a.no_embed},
+                      {"seed", a.seed},
+                      {"threads", a.threads},
+                      {"status", "ok"}};
+  if (uo.method == ContinualMethod::kEWC && !ub) j["ewc_lambda"] = a.ewc_lambda;
+  if (a.warm_lr_scale != 1.0f) j["warm_lr_scale"] = a.warm_lr_scale;
+  nlohmann::json matrix = nlohmann::json::array(), step_seconds = nlohmann::json::array();
+  nlohmann::json steps = nlohmann::json::array();
+  double total = 0, eval_seconds = 0;
+  std::shared_ptr<const NgpModel> final_model;
+  size_t replay_bytes = 0, camera_bytes = 0, max_cache = 0;
+  double bytes_per_camera = 0;
+
+  if (ub) {
+    // Upper bound: one training run on all scans (each view keeps its own
+    // time step), for the iterations of one update step.
+    FitOptions fo;
+    fo.train = uo.train;
+    fo.model = uo.model;
+    const Scene all = seq.Union(T - 1);
+    ProgressBar bar(absl::StrFormat("ub %d steps", T), a.iterations);
+    const auto t0 = std::chrono::steady_clock::now();
+    absl::StatusOr<FitResult> fit = FitScene(all, fo, [&](const StepStats& s, const Trainer&) {
+      bar.Update(s.step, absl::StrFormat("loss %.5f | psnr %.2f", s.loss, s.psnr));
+    });
+    if (!fit.ok()) {
+      std::fprintf(stderr, "\n");
+      return Fail(fit.status());
+    }
+    bar.Finish();
+    total = Since(t0);
+    step_seconds.push_back(total);
+    final_model = std::move(fit->model);
+  } else {
+    std::optional<ContinualState> state;
+    for (int t = 0; t < T; ++t) {
+      std::optional<ProgressBar> bar;
+      UpdatePhase phase = UpdatePhase::kFinalizing;
+      auto on_progress = [&](const UpdateProgress& p) {
+        if (!bar || p.phase != phase) {
+          if (bar) bar->Finish();
+          phase = p.phase;
+          bar.emplace(absl::StrFormat("step %d/%d %s", t + 1, T, UpdatePhaseName(p.phase)), std::max(1, p.total));
+        }
+        bar->Update(p.iteration, p.phase == UpdatePhase::kTraining
+                                     ? absl::StrFormat("loss %.5f | psnr %.2f", p.loss, p.psnr)
+                                     : std::string());
+      };
+      UpdateReport rep;
+      const auto t0 = std::chrono::steady_clock::now();
+      absl::StatusOr<ContinualState> next =
+          ContinualUpdate(seq.ScanScene(t), state ? &*state : nullptr, uo, on_progress, nullptr, &rep);
+      const double secs = Since(t0);
+      if (bar) bar->Finish();
+      if (!next.ok()) {
+        if (!absl::IsInternal(next.status())) return Fail(next.status());
+        // Divergence (NaN/Inf) is a result, not a crash: record where.
+        j["status"] = "diverged";
+        j["failed_step"] = t;
+        j["error"] = std::string(next.status().message());
+        j["psnr_matrix"] = matrix;
+        j["step_seconds"] = step_seconds;
+        std::printf("bench continual %s: diverged at update %d/%d: %s\n", a.method.c_str(), t + 1, T,
+                    std::string(next.status().message()).c_str());
+        if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
+        return 3;
+      }
+      state = std::move(*next);
+      total += secs;
+      step_seconds.push_back(secs);
+      max_cache = std::max(max_cache, rep.replay_cache_bytes);
+      steps.push_back({{"seconds", secs},
+                       {"train_seconds", rep.train_seconds},
+                       {"replay_prepare_seconds", rep.replay_prepare_seconds},
+                       {"replay_cache_bytes", rep.replay_cache_bytes},
+                       {"new_views", rep.new_views},
+                       {"replay_views", rep.replay_views},
+                       {"buffer_views", rep.buffer_views},
+                       {"samples", rep.samples}});
+      // Row t of the forgetting matrix: scans 0..t after step t.
+      const auto e0 = std::chrono::steady_clock::now();
+      absl::StatusOr<Scores> sc = Score(*state->model, seq, t);
+      if (!sc.ok()) return Fail(sc.status());
+      eval_seconds += Since(e0);
+      matrix.push_back(sc->psnr);
+      spdlog::info("step {}/{}: {:.1f}s (replay prep {:.1f}s); PSNR on scan {} {:.2f} dB, on scan 0 {:.2f} dB", t + 1,
+                   T, secs, rep.replay_prepare_seconds, t, sc->psnr.back(), sc->psnr.front());
+    }
+    final_model = state->model;
+    camera_bytes = state->memory.camera_bytes();
+    replay_bytes = camera_bytes + state->memory.buffer_bytes();
+    bytes_per_camera = state->memory.bytes_per_camera();
+  }
+
+  const auto e0 = std::chrono::steady_clock::now();
+  absl::StatusOr<Scores> final_scores = Score(*final_model, seq, T - 1);
+  if (!final_scores.ok()) return Fail(final_scores.status());
+  if (ub) {
+    eval_seconds += Since(e0);
+    matrix.push_back(final_scores->psnr);
+  }
+  const Scores& f = *final_scores;
+  j["psnr"] = f.mean_psnr;
+  j["ssim"] = f.mean_ssim;
+  j["num_images"] = f.images;
+  j["psnr_per_step"] = f.psnr;
+  j["psnr_matrix"] = matrix;
+  j["step_seconds"] = step_seconds;
+  j["total_seconds"] = total;
+  j["eval_seconds"] = eval_seconds;
+  j["steps"] = steps;
+  j["model_bytes"] = final_model->num_bytes();
+  j["replay_bytes"] = replay_bytes;
+  j["replay_camera_bytes"] = camera_bytes;
+  j["replay_bytes_per_camera"] = bytes_per_camera;
+  j["replay_cache_peak_bytes"] = max_cache;
+  j["peak_rss_bytes"] = PeakRssBytes();
+  if (!ub && T > 1) j["first_scan_drop_db"] = matrix[0][0].get<double>() - f.psnr[0];
+  std::printf(
+      "bench continual %s (%s, %s replay, K=%d%s) on %s: %d steps x %d iters | PSNR %.2f dB, SSIM %.4f over %d "
+      "images | scan 0 %.2f dB | total %.1fs | model %.2f MB | replay memory %zu B (%.1f B/camera) | peak RSS "
+      "%.0f MB\n",
+      a.method.c_str(), a.init.c_str(), a.replay.c_str(), uo.buffer_size, a.no_embed ? ", no-embed" : "",
+      seq.name.c_str(), T, a.iterations, f.mean_psnr, f.mean_ssim, f.images, f.psnr[0], total,
+      final_model->num_bytes() / 1e6, replay_bytes, bytes_per_camera, PeakRssBytes() / 1e6);
+  std::printf("%s\n", j.dump().c_str());
+  if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
+  return 0;
+}
+
+}  // namespace clnerf
