@@ -82,7 +82,7 @@ def main():
     except ImportError:
         print("matplotlib not installed (apt install python3-matplotlib); no chart written", file=sys.stderr)
         return
-    fig, ax = plt.subplots(figsize=(8, 5), dpi=120)
+    fig, ax = plt.subplots(figsize=(10, 5), dpi=120)
     labels = []
     for r in rows:
         if r["label"] not in labels:
@@ -105,7 +105,7 @@ def main():
     ax.set_ylabel("final mean PSNR over all test images (dB)")
     ax.set_title(f"Continual NeRF: accuracy vs time ({scene}); labels = iterations per step")
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, bbox_to_anchor=(1.02, 1), loc="upper left")
     fig.tight_layout()
     out = os.path.join(d, "continual.png")
     fig.savefig(out)

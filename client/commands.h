@@ -86,7 +86,7 @@ struct BenchContinualArgs {
   std::string method = "clnerf";  // nt|ewc|er|meil|clnerf|clnerf-noer|ub
   std::string data;               // Dataset, scan-folder directory, or "procedural".
   int tasks = 0;                  // 0 = 10 for a static dataset, 5 procedural scans.
-  int iterations = 400;           // Training steps per update (and for ub).
+  int iterations = 300;           // Training steps per update (and for ub).
   std::string init = "warm";      // reinit|warm
   std::string replay = "offline"; // offline|online
   int buffer = 10;                // K real images (clnerf, er).

@@ -246,12 +246,21 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   j["replay_cache_peak_bytes"] = max_cache;
   j["peak_rss_bytes"] = PeakRssBytes();
   if (!ub && T > 1) j["first_scan_drop_db"] = matrix[0][0].get<double>() - f.psnr[0];
+  // Only the settings that matter for this method.
+  std::string setting = ub ? "all scans at once" : a.init;
+  if (!ub && (uo.method == ContinualMethod::kCLNeRF || uo.method == ContinualMethod::kCLNeRFNoER ||
+              uo.method == ContinualMethod::kMEIL)) {
+    setting += ", " + a.replay + " replay";
+  }
+  if (!ub && (uo.method == ContinualMethod::kCLNeRF || uo.method == ContinualMethod::kER)) {
+    setting += absl::StrFormat(", K=%d%s", uo.buffer_size, a.prioritized ? " prioritized" : "");
+  }
+  if (a.no_embed) setting += ", no-embed";
   std::printf(
-      "bench continual %s (%s, %s replay, K=%d%s) on %s: %d steps x %d iters | PSNR %.2f dB, SSIM %.4f over %d "
+      "bench continual %s (%s) on %s: %d steps x %d iters | PSNR %.2f dB, SSIM %.4f over %d "
       "images | scan 0 %.2f dB | total %.1fs | model %.2f MB | replay memory %zu B (%.1f B/camera) | peak RSS "
       "%.0f MB\n",
-      a.method.c_str(), a.init.c_str(), a.replay.c_str(), uo.buffer_size, a.no_embed ? ", no-embed" : "",
-      seq.name.c_str(), T, a.iterations, f.mean_psnr, f.mean_ssim, f.images, f.psnr[0], total,
+      a.method.c_str(), setting.c_str(), seq.name.c_str(), T, a.iterations, f.mean_psnr, f.mean_ssim, f.images, f.psnr[0], total,
       final_model->num_bytes() / 1e6, replay_bytes, bytes_per_camera, PeakRssBytes() / 1e6);
   std::printf("%s\n", j.dump().c_str());
   if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);

@@ -3,6 +3,7 @@
 
 #include "CLI/CLI.hpp"
 #include "client/commands.h"
+#include "spdlog/sinks/stdout_color_sinks.h"
 #include "spdlog/spdlog.h"
 
 int main(int argc, char** argv) {
@@ -109,6 +110,8 @@ int main(int argc, char** argv) {
   bcc->add_option("--json", bc.json, "Write JSON here ('-' = stdout)");
 
   CLI11_PARSE(app, argc, argv);
+  // Logs go to stderr so stdout carries only results (lines and JSON).
+  spdlog::set_default_logger(spdlog::stderr_color_mt("clnerf"));
   spdlog::set_level(spdlog::level::from_str(log_level));
   spdlog::set_pattern("[%H:%M:%S.%e] [%^%l%$] %v");
   if (*t) return RunTrain(train);

@@ -66,6 +66,9 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
   if (absl::Status s = options.Validate(); !s.ok()) return s;
   if (scan.train.empty()) return absl::InvalidArgumentError("the new scan has no training views");
   if (absl::Status s = ValidateScene(scan); !s.ok()) return s;
+  if (prev != nullptr && (prev->model == nullptr || !prev->model->AllFinite())) {
+    return absl::FailedPreconditionError("the previous model is missing or has non-finite parameters");
+  }
   const int t = prev != nullptr ? prev->model->num_time_steps() : 0;
   for (const View& v : scan.train) {
     if (v.camera.time_step != t) {

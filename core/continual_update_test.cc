@@ -63,6 +63,50 @@ TEST(ContinualUpdateTest, PreviousModelAndMemoryAreUntouched) {
   }
 }
 
+// Stability: an update whose training blows up (learning rate 1e30: the
+// parameters overflow) fails with INTERNAL naming the divergence, produces no
+// model and leaves θ_{t-1} and M_{t-1} bit-identical, for every init and for
+// EWC (which the paper could not run on NGP). A non-finite θ_{t-1} is refused
+// up front, and a scan with a NaN pixel is rejected as bad input.
+TEST(ContinualUpdateTest, DivergenceFailsCleanlyAndKeepsThePreviousState) {
+  const ScanSequence seq = TinySequence(2, 16, 8);
+  absl::StatusOr<ContinualState> s0 =
+      ContinualUpdate(seq.ScanScene(0), nullptr, TinyOptions(ContinualMethod::kEWC, 20), nullptr, nullptr, nullptr);
+  ASSERT_TRUE(s0.ok()) << s0.status();
+  ASSERT_NE(s0->ewc, nullptr);
+  const std::string model_before = *SerializeCheckpoint(*s0->model);
+  const std::string memory_before = s0->memory.Serialize();
+  for (ContinualMethod method : {ContinualMethod::kCLNeRF, ContinualMethod::kEWC}) {
+    for (InitMode init : {InitMode::kWarm, InitMode::kReinit}) {
+      UpdateOptions o = TinyOptions(method, 20);
+      o.init = init;
+      o.train.learning_rate = 1e30f;
+      absl::StatusOr<ContinualState> s1 = ContinualUpdate(seq.ScanScene(1), &*s0, o, nullptr, nullptr, nullptr);
+      ASSERT_FALSE(s1.ok()) << ContinualMethodName(method);
+      EXPECT_EQ(s1.status().code(), absl::StatusCode::kInternal);
+      EXPECT_NE(s1.status().message().find("diverged"), std::string::npos) << s1.status();
+      EXPECT_EQ(*SerializeCheckpoint(*s0->model), model_before);
+      EXPECT_EQ(s0->memory.Serialize(), memory_before);
+    }
+  }
+  // Control: the same update with the default learning rate succeeds.
+  ASSERT_TRUE(ContinualUpdate(seq.ScanScene(1), &*s0, TinyOptions(ContinualMethod::kEWC, 20), nullptr, nullptr, nullptr).ok());
+
+  ContinualState bad = *s0;
+  auto poisoned = std::make_shared<NgpModel>(*s0->model);
+  poisoned->mutable_params().mlp[3] = NAN;
+  bad.model = poisoned;
+  absl::StatusOr<ContinualState> s2 =
+      ContinualUpdate(seq.ScanScene(1), &bad, TinyOptions(ContinualMethod::kCLNeRF, 20), nullptr, nullptr, nullptr);
+  EXPECT_EQ(s2.status().code(), absl::StatusCode::kFailedPrecondition) << s2.status();
+
+  Scene nan_scan = seq.ScanScene(1);
+  nan_scan.train[2].image.rgb[7] = NAN;
+  absl::StatusOr<ContinualState> s3 =
+      ContinualUpdate(nan_scan, &*s0, TinyOptions(ContinualMethod::kCLNeRF, 20), nullptr, nullptr, nullptr);
+  EXPECT_EQ(s3.status().code(), absl::StatusCode::kInvalidArgument) << s3.status();
+}
+
 TEST(ContinualUpdateTest, ReplayLabelsAreThePreviousModelsRenders) {
   const ScanSequence seq = TinySequence(2, 16, 8);
   absl::StatusOr<ContinualState> s0 =

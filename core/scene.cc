@@ -83,6 +83,11 @@ absl::Status ValidateScene(const Scene& scene) {
             "view '", v.name, "': image is ", v.image.width, "x", v.image.height,
             " but the camera says ", in.width, "x", in.height));
       }
+      for (float x : v.image.rgb) {
+        if (!std::isfinite(x)) {
+          return absl::InvalidArgumentError(absl::StrCat("view '", v.name, "': image has non-finite pixel values"));
+        }
+      }
       if (!v.mask.empty() && (v.mask.width != in.width || v.mask.height != in.height)) {
         return absl::InvalidArgumentError(absl::StrCat("view '", v.name, "': mask size mismatch"));
       }

@@ -9,7 +9,7 @@ PKGS=(
   libgrpc-dev libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libabsl-dev libeigen3-dev libopenimageio-dev openimageio-tools libspdlog-dev libfmt-dev
   libgtest-dev libgmock-dev nlohmann-json3-dev libcli11-dev
-  python3 linux-perf valgrind
+  python3 python3-matplotlib linux-perf valgrind
 )
 
 missing=()
