@@ -91,6 +91,16 @@ absl::StatusOr<Image> ReadImage(const std::string& path, const Eigen::Vector3f& 
   return ReadOpened(in.get(), path, background);
 }
 
+std::string SniffImageExtension(const std::string& b) {
+  auto starts = [&](const char* magic, size_t n) { return b.size() >= n && b.compare(0, n, magic, n) == 0; };
+  if (starts("\x89PNG\r\n\x1a\n", 8)) return ".png";
+  if (starts("\xff\xd8\xff", 3)) return ".jpg";
+  if (starts("\x76\x2f\x31\x01", 4)) return ".exr";
+  if (starts("II*\0", 4) || starts("MM\0*", 4)) return ".tif";
+  if (starts("BM", 2)) return ".bmp";
+  return "";
+}
+
 absl::StatusOr<Image> DecodeImage(const std::string& bytes, const std::string& name_hint,
                                   const Eigen::Vector3f& background) {
   if (bytes.empty()) {
@@ -111,19 +121,33 @@ absl::StatusOr<Image> DecodeImage(const std::string& bytes, const std::string& n
   return ReadOpened(in.get(), name_hint, background);
 }
 
-absl::StatusOr<Mask> ReadMask(const std::string& path, bool nonzero_is_exclude) {
-  auto img = ReadImage(path, Eigen::Vector3f::Zero());
-  if (!img.ok()) return img.status();
+namespace {
+Mask MaskFromImage(const Image& img, bool nonzero_is_exclude) {
   Mask m;
-  m.width = img->width;
-  m.height = img->height;
-  m.keep.resize(img->num_pixels());
+  m.width = img.width;
+  m.height = img.height;
+  m.keep.resize(img.num_pixels());
   for (size_t i = 0; i < m.keep.size(); ++i) {
-    const bool on = img->rgb[i * 3] > 0.5f;
+    const bool on = img.rgb[i * 3] > 0.5f;
     m.keep[i] = nonzero_is_exclude ? !on : on;
   }
   return m;
 }
+}  // namespace
+
+absl::StatusOr<Mask> DecodeMask(const std::string& bytes, const std::string& name_hint,
+                                bool nonzero_is_exclude) {
+  auto img = DecodeImage(bytes, name_hint, Eigen::Vector3f::Zero());
+  if (!img.ok()) return img.status();
+  return MaskFromImage(*img, nonzero_is_exclude);
+}
+
+absl::StatusOr<Mask> ReadMask(const std::string& path, bool nonzero_is_exclude) {
+  auto img = ReadImage(path, Eigen::Vector3f::Zero());
+  if (!img.ok()) return img.status();
+  return MaskFromImage(*img, nonzero_is_exclude);
+}
+
 
 namespace {
 absl::Status WriteU8(const std::string& path, int w, int h, int nc, const std::vector<uint8_t>& px) {
@@ -145,7 +169,35 @@ absl::Status WriteU8(const std::string& path, int w, int h, int nc, const std::v
   return absl::OkStatus();
 }
 uint8_t ToU8(float v) { return uint8_t(std::lround(std::clamp(v, 0.0f, 1.0f) * 255.0f)); }
+
+absl::StatusOr<std::string> EncodeU8Png(int w, int h, int nc, const std::vector<uint8_t>& px) {
+  if (w <= 0 || h <= 0) return absl::InvalidArgumentError("cannot encode an empty image");
+  std::vector<unsigned char> buf;
+  OIIO::Filesystem::IOVecOutput vec(buf);
+  auto out = OIIO::ImageOutput::create("memory.png");
+  if (!out) return absl::InternalError(absl::StrCat("no PNG writer: ", OIIO::geterror()));
+  OIIO::ImageSpec spec(w, h, nc, OIIO::TypeDesc::UINT8);
+  void* ptr = &vec;
+  spec.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &ptr);
+  if (!out->open("memory.png", spec) || !out->write_image(OIIO::TypeDesc::UINT8, px.data())) {
+    return absl::InternalError(absl::StrCat("cannot encode PNG: ", out->geterror()));
+  }
+  out->close();
+  return std::string(buf.begin(), buf.end());
+}
 }  // namespace
+
+absl::StatusOr<std::string> EncodePng(const Image& image) {
+  std::vector<uint8_t> px(image.rgb.size());
+  for (size_t i = 0; i < px.size(); ++i) px[i] = ToU8(image.rgb[i]);
+  return EncodeU8Png(image.width, image.height, 3, px);
+}
+
+absl::StatusOr<std::string> EncodeMaskPng(const Mask& mask) {
+  std::vector<uint8_t> px(mask.keep.size());
+  for (size_t i = 0; i < px.size(); ++i) px[i] = mask.keep[i] ? 255 : 0;
+  return EncodeU8Png(mask.width, mask.height, 1, px);
+}
 
 absl::Status WriteImage(const std::string& path, const Image& image) {
   std::vector<uint8_t> px(image.rgb.size());

@@ -50,6 +50,16 @@ absl::StatusOr<Image> ReadImage(const std::string& path,
 absl::StatusOr<Image> DecodeImage(const std::string& bytes, const std::string& name_hint,
                                   const Eigen::Vector3f& background = Eigen::Vector3f::Ones());
 
+// The file extension (".png", ".jpg", ".exr", ".tif", ".bmp") that matches the
+// magic bytes of an encoded image, or "" if the format is not recognised.
+std::string SniffImageExtension(const std::string& bytes);
+// Decodes a mask held in memory (same convention as ReadMask).
+absl::StatusOr<Mask> DecodeMask(const std::string& bytes, const std::string& name_hint,
+                                bool nonzero_is_exclude);
+// Encodes an image as an 8-bit RGB PNG in memory (values clamped, rounded).
+absl::StatusOr<std::string> EncodePng(const Image& image);
+// Encodes a mask as an 8-bit greyscale PNG: 255 = keep, 0 = exclude.
+absl::StatusOr<std::string> EncodeMaskPng(const Mask& mask);
 // Reads a mask image; any channel > 0.5 of the first channel means "keep"
 // unless `nonzero_is_exclude` (instant-ngp "dynamic_mask" convention) is set.
 absl::StatusOr<Mask> ReadMask(const std::string& path, bool nonzero_is_exclude);

@@ -1,0 +1,128 @@
+#include "core/durable_file.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <atomic>
+#include <cerrno>
+
+#include "absl/strings/str_cat.h"
+
+namespace clnerf {
+
+namespace {
+
+absl::Status WriteAll(int fd, std::string_view data, const std::string& name) {
+  while (!data.empty()) {
+    const ssize_t w = ::write(fd, data.data(), data.size());
+    if (w < 0) {
+      if (errno == EINTR) continue;
+      return absl::ErrnoToStatus(errno, absl::StrCat("cannot write '", name, "'"));
+    }
+    data.remove_prefix(size_t(w));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+std::string DirectoryOf(const std::string& path) {
+  const size_t slash = path.find_last_of('/');
+  if (slash == std::string::npos) return ".";
+  if (slash == 0) return "/";
+  return path.substr(0, slash);
+}
+
+absl::Status SyncDirectory(const std::string& dir) {
+  const int fd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (fd < 0) return absl::ErrnoToStatus(errno, absl::StrCat("cannot open directory '", dir, "'"));
+  int rc;
+  do {
+    rc = ::fsync(fd);
+  } while (rc != 0 && errno == EINTR);
+  const int err = errno;
+  ::close(fd);
+  // Some file systems cannot sync directories; that is not a failure.
+  if (rc != 0 && err != EINVAL && err != ENOTSUP) {
+    return absl::ErrnoToStatus(err, absl::StrCat("cannot fsync directory '", dir, "'"));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status WriteFileSynced(const std::string& path, std::string_view data) {
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0644);
+  if (fd < 0) return absl::ErrnoToStatus(errno, absl::StrCat("cannot create '", path, "'"));
+  absl::Status status = WriteAll(fd, data, path);
+  if (status.ok()) {
+    int rc;
+    do {
+      rc = ::fsync(fd);
+    } while (rc != 0 && errno == EINTR);
+    if (rc != 0) status = absl::ErrnoToStatus(errno, absl::StrCat("cannot fsync '", path, "'"));
+  }
+  if (::close(fd) != 0 && status.ok()) {
+    status = absl::ErrnoToStatus(errno, absl::StrCat("cannot close '", path, "'"));
+  }
+  return status;
+}
+
+absl::Status AtomicWriteFile(const std::string& path, std::string_view data) {
+  static std::atomic<uint64_t> counter{0};
+  const std::string tmp = absl::StrCat(path, ".tmp.", ::getpid(), ".", counter.fetch_add(1));
+  absl::Status status = WriteFileSynced(tmp, data);
+  if (status.ok() && ::rename(tmp.c_str(), path.c_str()) != 0) {
+    status = absl::ErrnoToStatus(errno, absl::StrCat("cannot rename '", tmp, "' to '", path, "'"));
+  }
+  if (!status.ok()) {
+    ::unlink(tmp.c_str());
+    return status;
+  }
+  // The new file is in place; an error from here on only means that the
+  // rename may not yet be durable.
+  return SyncDirectory(DirectoryOf(path));
+}
+
+absl::StatusOr<std::string> ReadFileToString(const std::string& path, absl::string_view what) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) {
+    if (errno == ENOENT) return absl::NotFoundError(absl::StrCat(what, " '", path, "' not found"));
+    return absl::ErrnoToStatus(errno, absl::StrCat("cannot open ", what, " '", path, "'"));
+  }
+  // Read the size fstat reports in one buffer, then keep reading in case the
+  // file is longer than reported (or not a regular file).
+  std::string out;
+  struct stat st;
+  if (::fstat(fd, &st) == 0 && S_ISREG(st.st_mode) && st.st_size > 0) out.resize(size_t(st.st_size));
+  size_t filled = 0;
+  std::string chunk;
+  while (true) {
+    char* dst;
+    size_t room;
+    if (filled < out.size()) {
+      dst = out.data() + filled;
+      room = out.size() - filled;
+    } else {
+      chunk.resize(size_t(1) << 20);
+      dst = chunk.data();
+      room = chunk.size();
+    }
+    const ssize_t r = ::read(fd, dst, room);
+    if (r < 0) {
+      if (errno == EINTR) continue;
+      const int err = errno;
+      ::close(fd);
+      return absl::ErrnoToStatus(err, absl::StrCat("cannot read ", what, " '", path, "'"));
+    }
+    if (r == 0) break;
+    if (dst == chunk.data()) {
+      out.append(chunk.data(), size_t(r));
+    }
+    filled += size_t(r);
+  }
+  out.resize(filled);
+  ::close(fd);
+  return out;
+}
+
+}  // namespace clnerf

@@ -1,0 +1,660 @@
+#!/usr/bin/env bash
+# Lints the deployment files without Docker, Kubernetes or a running systemd.
+# Prints one line per check (PASS / FAIL / SKIP) and exits non-zero if any
+# check fails. Usage: bash deploy/check.sh
+#
+# Environment:
+#   DEPLOY_DIR     directory to check (default: the directory of this script)
+#   CLNERF_SERVER  server binary for the flag check (default build/server/clnerf-server)
+#   CLNERF_CLIENT  client binary for the health-check flags (default build/client/clnerf)
+#   PYTHON         interpreter (default /usr/bin/python3, else python3 on PATH)
+#   CHECK_NO_PYYAML=1  behave as if PyYAML were missing (tests the fallback)
+#
+# Checks:
+#   yaml     every *.yaml parses (PyYAML), else a minimal structural check
+#   k8s      selectors/labels, ports (container == probes == Service targetPort),
+#            volume and ConfigMap references, --config file provided by a ConfigMap
+#   docker   build stage runs scripts/install-deps.sh with the portable flags,
+#            Dockerfile.dockerignore keeps the sources, runtime packages are
+#            known to dpkg/apt-cache and cover the NEEDED libraries of the
+#            built binaries
+#   compose  one service, named store volume, CLNERF_TOKEN, stop_grace_period >= 60s
+#   consistency  listen port, store path and health check agree across
+#            Dockerfile, compose, systemd and k8s
+#   flags    every --flag passed to clnerf-server appears in its --help
+#   systemd  key settings + `systemd-analyze verify`
+set -uo pipefail
+
+ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+export CHECK_ROOT=$ROOT
+export DEPLOY_DIR=${DEPLOY_DIR:-$ROOT/deploy}
+export CLNERF_SERVER=${CLNERF_SERVER:-$ROOT/build/server/clnerf-server}
+export CLNERF_CLIENT=${CLNERF_CLIENT:-$ROOT/build/client/clnerf}
+
+PY=${PYTHON:-/usr/bin/python3}
+if [ ! -x "$PY" ]; then PY=$(command -v python3 || true); fi
+if [ -z "$PY" ]; then
+  echo "FAIL  python3 not found (needed for the checks)"
+  exit 1
+fi
+if [ ! -d "$DEPLOY_DIR" ]; then
+  echo "FAIL  DEPLOY_DIR $DEPLOY_DIR is not a directory"
+  exit 1
+fi
+
+exec "$PY" - <<'PY'
+import json, os, re, shlex, shutil, subprocess, sys
+
+ROOT = os.environ["CHECK_ROOT"]
+D = os.path.abspath(os.environ["DEPLOY_DIR"])
+fails = 0
+counts = {"PASS": 0, "FAIL": 0, "SKIP": 0}
+
+def rel(p):
+    return os.path.relpath(p, os.path.dirname(D))
+
+def report(status, msg):
+    global fails
+    counts[status] += 1
+    if status == "FAIL":
+        fails += 1
+    print(f"{status:<5} {msg}", flush=True)
+
+def check(ok, msg, detail=""):
+    report("PASS" if ok else "FAIL", msg if ok or not detail else f"{msg}: {detail}")
+    return ok
+
+def run(cmd, timeout=30):
+    try:
+        p = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                           text=True, timeout=timeout)
+        return p.returncode, p.stdout
+    except (OSError, subprocess.TimeoutExpired) as e:
+        return -1, str(e)
+
+def seconds(v):
+    """'60s', '1m30s', '60', '1min' -> seconds (None if unparseable)."""
+    s = str(v).strip()
+    if re.fullmatch(r"\d+", s):
+        return int(s)
+    total, pos = 0.0, 0
+    for m in re.finditer(r"(\d+(?:\.\d+)?)\s*(ms|msec|sec|s|min|m|h)", s):
+        if m.start() != pos:
+            return None
+        n, u = float(m.group(1)), m.group(2)
+        total += n * {"ms": 0.001, "msec": 0.001, "s": 1, "sec": 1, "m": 60, "min": 60, "h": 3600}[u]
+        pos = m.end()
+    return total if pos == len(s) and pos else None
+
+def flags_of(args):
+    return [a.split("=", 1)[0] for a in args if a.startswith("--")]
+
+def arg_value(args, flag):
+    for i, a in enumerate(args):
+        if a == flag and i + 1 < len(args):
+            return args[i + 1]
+        if a.startswith(flag + "="):
+            return a.split("=", 1)[1]
+    return None
+
+def port_of(hostport):
+    m = re.search(r":(\d+)$", hostport or "")
+    return int(m.group(1)) if m else None
+
+# Collected for the cross-file checks: source -> list of server args.
+server_args = {}
+facts = {}   # name -> {source: value}
+def fact(name, source, value):
+    facts.setdefault(name, {})[source] = value
+
+# ----------------------------------------------------------------- files
+paths = {
+    "dockerfile": os.path.join(D, "Dockerfile"),
+    "compose": os.path.join(D, "compose.yaml"),
+    "unit": os.path.join(D, "clnerf-server.service"),
+    "k8s": os.path.join(D, "k8s"),
+}
+for k, p in paths.items():
+    check(os.path.exists(p), f"exists: {rel(p)}")
+
+yaml_files = sorted(
+    os.path.join(dp, f) for dp, _, fs in os.walk(D) for f in fs
+    if f.endswith((".yaml", ".yml")))
+
+# ----------------------------------------------------------------- (a) YAML
+yaml = None
+if os.environ.get("CHECK_NO_PYYAML") != "1":
+    try:
+        import yaml  # noqa: F811
+    except ImportError:
+        yaml = None
+
+docs = {}  # path -> list of documents (PyYAML only)
+if yaml is not None:
+    for p in yaml_files:
+        try:
+            with open(p, encoding="utf-8") as f:
+                docs[p] = [d for d in yaml.safe_load_all(f) if d is not None]
+            check(bool(docs[p]), f"yaml: {rel(p)} parses", "no documents")
+        except Exception as e:  # yaml.YAMLError, UnicodeError
+            report("FAIL", f"yaml: {rel(p)} does not parse: {str(e).splitlines()[0]}")
+else:
+    report("SKIP", "skipped full YAML parse (no PyYAML); structural check only")
+    for p in yaml_files:
+        problems = []
+        try:
+            text = open(p, encoding="utf-8").read()
+        except UnicodeError as e:
+            text, problems = "", [f"not UTF-8 ({e})"]
+        body = [l for l in text.splitlines() if l.strip() and not l.lstrip().startswith("#")]
+        if not body:
+            problems.append("empty")
+        block = None  # indent of the key that opened a block scalar (| or >)
+        for n, l in enumerate(text.splitlines(), 1):
+            if re.match(r"^ *\t", l):
+                problems.append(f"line {n}: tab in indentation")
+            ind = len(l) - len(l.lstrip(" "))
+            if block is not None:
+                if not l.strip() or ind > block:
+                    continue
+                block = None
+            if re.search(r":\s*[|>][-+0-9]*\s*(#.*)?$", l):
+                block = ind
+            code = re.sub(r"\s#.*$", "", re.sub(r"\"[^\"]*\"|'[^']*'", "", l))
+            if code.count("[") != code.count("]") or code.count("{") != code.count("}"):
+                problems.append(f"line {n}: unbalanced brackets")
+        if "/k8s/" in p:
+            for i, doc in enumerate(re.split(r"(?m)^---\s*$", text)):
+                if re.search(r"(?m)^[^#\s]", doc) and not (
+                        re.search(r"(?m)^apiVersion:", doc) and re.search(r"(?m)^kind:", doc)):
+                    problems.append(f"document {i}: no top-level apiVersion/kind")
+        check(not problems, f"yaml (structural): {rel(p)}", "; ".join(problems))
+
+def flow_list(line):
+    m = re.search(r"\[(.*)\]", line)
+    if not m:
+        return []
+    return [t.strip().strip("\"'") for t in m.group(1).split(",") if t.strip()]
+
+# ----------------------------------------------------------------- Dockerfile
+def dockerfile_instructions(path):
+    out, cur = [], ""
+    for line in open(path, encoding="utf-8").read().splitlines():
+        s = line.strip()
+        if s.startswith("#") or (not s and not cur):
+            continue
+        if s.endswith("\\"):
+            cur += s[:-1] + " "
+            continue
+        cur += s
+        if cur.strip():
+            parts = cur.strip().split(None, 1)
+            out.append((parts[0].upper(), parts[1] if len(parts) > 1 else ""))
+        cur = ""
+    return out
+
+def exec_form(rest):
+    rest = rest.strip()
+    if rest.startswith("["):
+        try:
+            return json.loads(rest)
+        except ValueError:
+            return None
+    return shlex.split(rest)
+
+runtime_pkgs = []
+if os.path.exists(paths["dockerfile"]):
+    ins = dockerfile_instructions(paths["dockerfile"])
+    stages = []
+    for op, rest in ins:
+        if op == "FROM":
+            m = re.match(r"(?:--\S+\s+)*(\S+)(?:\s+AS\s+(\S+))?", rest, re.I)
+            stages.append({"image": m.group(1), "name": (m.group(2) or "").lower(), "ins": []})
+        elif stages:
+            stages[-1]["ins"].append((op, rest))
+    ok = len(stages) >= 2
+    check(ok, "docker: multi-stage Dockerfile", f"{len(stages)} stage(s)")
+    if ok:
+        build = next((s for s in stages if s["name"] == "build"), None)
+        rt = stages[-1]
+        check(build is not None and build["image"].startswith("debian:bookworm"),
+              "docker: build stage is 'FROM debian:bookworm AS build'",
+              build["image"] if build else "no stage named build")
+        check(rt["image"] == "debian:bookworm-slim", "docker: runtime stage is debian:bookworm-slim",
+              rt["image"])
+        if build:
+            runs = " ; ".join(r for o, r in build["ins"] if o == "RUN")
+            check(re.search(r"scripts/install-deps\.sh", runs) is not None,
+                  "docker: build stage runs scripts/install-deps.sh")
+            m = re.search(r"scripts/build\.sh([^;&|]*)", runs)
+            bargs = m.group(1) if m else ""
+            check(m is not None and "-DCLNERF_NATIVE=OFF" in bargs and "-DCLNERF_BUILD_TESTS=OFF" in bargs,
+                  "docker: build stage runs scripts/build.sh -DCLNERF_NATIVE=OFF -DCLNERF_BUILD_TESTS=OFF",
+                  "not found")
+        # runtime packages
+        for o, r in rt["ins"]:
+            if o != "RUN":
+                continue
+            for seg in re.split(r"&&|;|\|\|", r):
+                toks = shlex.split(seg)
+                if "apt-get" in toks and "install" in toks:
+                    after = toks[toks.index("install") + 1:]
+                    runtime_pkgs += [t for t in after if not t.startswith("-")]
+        check(bool(runtime_pkgs), "docker: runtime stage installs packages with apt-get",
+              "no apt-get install found")
+        dev = [p for p in runtime_pkgs if p.endswith("-dev") or p in ("build-essential", "cmake")]
+        check(not dev, "docker: runtime stage has no build-only packages", " ".join(dev))
+        copies = " ".join(r for o, r in rt["ins"] if o == "COPY")
+        check("clnerf-server" in copies and re.search(r"/clnerf(\s|$)", copies) is not None
+              and "/usr/local/bin" in copies,
+              "docker: runtime copies clnerf-server and clnerf to /usr/local/bin")
+        user = [r for o, r in rt["ins"] if o == "USER"]
+        check(bool(user) and user[-1].split(":")[0] not in ("root", "0"),
+              "docker: runtime runs as a non-root USER", user[-1] if user else "no USER")
+        ep = [exec_form(r) for o, r in rt["ins"] if o == "ENTRYPOINT"]
+        cmd = [exec_form(r) for o, r in rt["ins"] if o == "CMD"]
+        epv = ep[-1] if ep else None
+        if check(bool(epv) and os.path.basename(epv[0]) == "clnerf-server",
+                 "docker: ENTRYPOINT is clnerf-server (exec form)", repr(epv)):
+            args = epv[1:] + ((cmd[-1] or []) if cmd else [])
+            server_args["Dockerfile ENTRYPOINT/CMD"] = args
+            fact("listen port", "Dockerfile --listen", port_of(arg_value(args, "--listen")))
+            fact("store path", "Dockerfile --store", arg_value(args, "--store"))
+            facts.setdefault("image", {})["entrypoint"] = args
+        for o, r in rt["ins"]:
+            if o == "EXPOSE":
+                for t in r.split():
+                    fact("listen port", "Dockerfile EXPOSE", int(t.split("/")[0]))
+            if o == "VOLUME":
+                v = exec_form(r) or []
+                fact("store path", "Dockerfile VOLUME", v[0] if v else None)
+            if o == "HEALTHCHECK":
+                hc = re.sub(r"^(--\S+\s+)*", "", r.strip())
+                if hc.upper().startswith("CMD"):
+                    fact("health check", "Dockerfile HEALTHCHECK", ["CMD"] + (exec_form(hc[3:]) or []))
+
+# build context filter must keep the sources
+ign = os.path.join(D, "Dockerfile.dockerignore")
+if os.path.exists(ign):
+    import fnmatch
+    pats = [l.strip() for l in open(ign, encoding="utf-8")
+            if l.strip() and not l.lstrip().startswith(("#", "!"))]
+    needed = ["CMakeLists.txt", "scripts/install-deps.sh", "scripts/build.sh",
+              "core/CMakeLists.txt", "proto/CMakeLists.txt", "server/CMakeLists.txt",
+              "client/CMakeLists.txt"]
+    def ignored(path):
+        parts = path.split("/")
+        for pat in pats:
+            pat = pat.strip("/")
+            for i in range(1, len(parts) + 1):  # a matched parent dir excludes its files
+                prefix = "/".join(parts[:i])
+                if fnmatch.fnmatchcase(prefix, pat) or (
+                        pat.startswith("**/") and fnmatch.fnmatchcase(parts[i - 1], pat[3:])):
+                    return pat
+        return None
+    hits = [f"{p} ({ignored(p)})" for p in needed if ignored(p)]
+    check(not hits, "docker: Dockerfile.dockerignore keeps the build sources", "excluded: " + ", ".join(hits))
+
+# (d) runtime packages known locally
+if runtime_pkgs:
+    dpkg_q, aptc = shutil.which("dpkg-query"), shutil.which("apt-cache")
+    if not dpkg_q and not aptc:
+        report("SKIP", "docker: runtime package names not verified (no dpkg-query or apt-cache)")
+    else:
+        unknown = []
+        for p in runtime_pkgs:
+            known = False
+            if dpkg_q:
+                rc, out = run([dpkg_q, "-W", "-f=${Status}", p])
+                known = rc == 0 and "installed" in out
+            if not known and aptc:
+                rc, out = run([aptc, "show", "--no-all-versions", p])
+                known = rc == 0 and re.search(r"(?m)^Package: ", out) is not None
+            if not known:
+                unknown.append(p)
+        check(not unknown, f"docker: {len(runtime_pkgs)} runtime packages exist in dpkg/apt-cache",
+              "unknown: " + " ".join(unknown))
+
+# (d) runtime packages cover the NEEDED libraries of the built binaries
+BASE_IMAGE_PKGS = {"libc6", "libgcc-s1", "libstdc++6", "zlib1g"}  # in debian:bookworm-slim
+def needed_libs(binary):
+    tool = shutil.which("readelf")
+    if not tool:
+        return None
+    rc, out = run([tool, "-d", binary])
+    return re.findall(r"\(NEEDED\)\s+Shared library: \[([^\]]+)\]", out) if rc == 0 else None
+
+def lib_package(lib, ldcache):
+    cands = []
+    if lib in ldcache:
+        cands += [ldcache[lib], os.path.realpath(ldcache[lib])]
+    for d in ("/lib/x86_64-linux-gnu", "/usr/lib/x86_64-linux-gnu", "/lib", "/usr/lib", "/lib64"):
+        cands.append(os.path.join(d, lib))
+    for c in cands:
+        for path in {c, os.path.realpath(c)}:
+            rc, out = run(["dpkg", "-S", path])
+            if rc == 0 and out.strip():
+                first = out.strip().splitlines()[0].rsplit(": ", 1)[0]
+                return {x.strip().split(":")[0] for x in first.split(",")}
+    return None
+
+bins = [b for b in (os.environ["CLNERF_SERVER"], os.environ["CLNERF_CLIENT"]) if os.access(b, os.X_OK)]
+if not runtime_pkgs:
+    pass
+elif not bins:
+    report("SKIP", "docker: library coverage not checked (no built binaries)")
+elif not shutil.which("dpkg") or not shutil.which("readelf"):
+    report("SKIP", "docker: library coverage not checked (needs dpkg and readelf)")
+else:
+    ldcache = {}
+    rc, out = run(["ldconfig", "-p"]) if shutil.which("ldconfig") else (1, "")
+    if rc != 0 and os.path.exists("/sbin/ldconfig"):
+        rc, out = run(["/sbin/ldconfig", "-p"])
+    for m in re.finditer(r"^\s*(\S+) \(([^)]*)\) => (\S+)", out, re.M):
+        if "x86-64" in m.group(2) or "x86-64" not in out:
+            ldcache.setdefault(m.group(1), m.group(3))
+    for b in bins:
+        with open(b, "rb") as f:
+            if f.read(4) != b"\x7fELF":
+                report("SKIP", f"docker: {b} is not an ELF binary; library coverage not checked")
+                continue
+        libs = needed_libs(b)
+        if libs is None:
+            report("FAIL", f"docker: cannot read NEEDED entries of {b}")
+            continue
+        missing, unowned = [], []
+        for lib in libs:
+            pk = lib_package(lib, ldcache)
+            if pk is None:
+                unowned.append(lib)
+            elif not pk & (set(runtime_pkgs) | BASE_IMAGE_PKGS):
+                missing.append(f"{lib} ({'/'.join(sorted(pk))})")
+        check(not missing and not unowned,
+              f"docker: runtime packages cover the {len(libs)} libraries {os.path.basename(b)} links",
+              "; ".join(missing + [f"{l} (no package owns it)" for l in unowned]))
+
+# ----------------------------------------------------------------- compose
+def compose_checks(c):
+    svcs = (c or {}).get("services") or {}
+    if not check(len(svcs) == 1, "compose: exactly one service", f"{len(svcs)}"):
+        return
+    name, s = next(iter(svcs.items()))
+    b = s.get("build") or {}
+    if isinstance(b, str):
+        b = {"context": b}
+    df = os.path.normpath(os.path.join(D, b.get("context", "."), b.get("dockerfile", "Dockerfile")))
+    check(df == os.path.normpath(paths["dockerfile"]),
+          "compose: build uses deploy/Dockerfile with the repo root as context", df)
+    if "entrypoint" in s:
+        report("FAIL", "compose: overrides the image ENTRYPOINT (keep it in the Dockerfile)")
+    cmd = s.get("command", [])
+    cmd = shlex.split(cmd) if isinstance(cmd, str) else list(cmd or [])
+    server_args["compose command"] = facts.get("image", {}).get("entrypoint", []) + cmd
+    ports = [str(p) for p in s.get("ports", [])]
+    for p in ports:
+        fact("listen port", f"compose ports {p}", int(p.split(":")[-1].split("/")[0]))
+    env = s.get("environment") or {}
+    names = list(env) if isinstance(env, dict) else [e.split("=", 1)[0] for e in env]
+    check("CLNERF_TOKEN" in names, "compose: CLNERF_TOKEN passed from the environment")
+    vols = (c.get("volumes") or {})
+    store = [v for v in s.get("volumes", []) if isinstance(v, str) and ":" in v]
+    named = [v.split(":")[0] for v in store if not v.startswith((".", "/", "~"))]
+    check(bool(named) and all(n in vols for n in named), "compose: store on a declared named volume",
+          f"{store} vs {list(vols)}")
+    for v in store:
+        fact("store path", f"compose volume {v.split(':')[0]}", v.split(":")[1])
+    hc = (s.get("healthcheck") or {}).get("test")
+    fact("health check", "compose healthcheck", hc)
+    g = seconds(s.get("stop_grace_period", "10s"))
+    check(g is not None and g >= 60, "compose: stop_grace_period >= 60s", str(s.get("stop_grace_period")))
+
+if os.path.exists(paths["compose"]):
+    if yaml is not None and paths["compose"] in docs:
+        compose_checks(docs[paths["compose"]][0])
+    elif yaml is None:
+        report("SKIP", "compose: semantic checks need PyYAML")
+        for l in open(paths["compose"], encoding="utf-8"):
+            if re.match(r"\s*command:", l):
+                server_args["compose command"] = facts.get("image", {}).get("entrypoint", []) + flow_list(l)
+
+# ----------------------------------------------------------------- k8s
+def k8s_checks(all_docs):
+    by_kind = {}
+    for p, ds in all_docs.items():
+        for d in ds:
+            if isinstance(d, dict):
+                by_kind.setdefault(d.get("kind"), []).append((p, d))
+    sts = by_kind.get("StatefulSet", [])
+    if not check(len(sts) == 1, "k8s: exactly one StatefulSet", str(len(sts))):
+        return
+    _, st = sts[0]
+    spec = st.get("spec") or {}
+    tmpl = spec.get("template") or {}
+    tlabels = (tmpl.get("metadata") or {}).get("labels") or {}
+    sel = (spec.get("selector") or {}).get("matchLabels") or {}
+    check(bool(sel) and all(tlabels.get(k) == v for k, v in sel.items()),
+          "k8s: StatefulSet selector matches template labels", f"{sel} vs {tlabels}")
+    check(spec.get("replicas", 1) == 1, "k8s: StatefulSet replicas == 1 (single writer of the store)",
+          str(spec.get("replicas")))
+    svcs = [d for _, d in by_kind.get("Service", [])]
+    svc_names = [(s.get("metadata") or {}).get("name") for s in svcs]
+    check(spec.get("serviceName") in svc_names, "k8s: StatefulSet serviceName is a Service in deploy/k8s",
+          f"{spec.get('serviceName')} not in {svc_names}")
+    pspec = tmpl.get("spec") or {}
+    g = pspec.get("terminationGracePeriodSeconds", 30)
+    check(isinstance(g, int) and g >= 60, "k8s: terminationGracePeriodSeconds >= 60", str(g))
+    psc = pspec.get("securityContext") or {}
+    check(psc.get("runAsNonRoot") is True, "k8s: pod securityContext runAsNonRoot")
+    ctrs = pspec.get("containers") or []
+    c = next((c for c in ctrs if "clnerf-server" in str(c.get("image", ""))), None)
+    if not check(c is not None, "k8s: a container runs the clnerf-server image"):
+        return
+    if c.get("command"):
+        args = [str(a) for a in c["command"][1:]] + [str(a) for a in c.get("args", [])]
+    else:
+        args = facts.get("image", {}).get("entrypoint", []) + [str(a) for a in c.get("args", [])]
+    server_args["k8s container command/args"] = args
+    # ports
+    cports = {p.get("name"): p.get("containerPort") for p in c.get("ports", [])}
+    for n, p in cports.items():
+        fact("listen port", f"k8s containerPort {n}", p)
+    probe_ports = {}
+    for pk in ("startupProbe", "livenessProbe", "readinessProbe"):
+        pr = c.get(pk)
+        if pr is None:
+            continue
+        if not check("grpc" in pr, f"k8s: {pk} is a native gRPC probe"):
+            continue
+        pp = pr["grpc"].get("port")
+        probe_ports[pk] = pp
+        fact("listen port", f"k8s {pk} grpc.port", pp)
+    check("livenessProbe" in probe_ports and "readinessProbe" in probe_ports,
+          "k8s: liveness and readiness probes present")
+    check(bool(probe_ports) and all(p in cports.values() for p in probe_ports.values()),
+          f"k8s: probe ports {sorted(set(probe_ports.values()))} == containerPort",
+          f"probes {probe_ports} vs container ports {cports}")
+    rsvc = (c.get("readinessProbe") or {}).get("grpc", {}).get("service")
+    check(rsvc in (None, "", "clnerf.v1.ClnerfService"),
+          "k8s: readiness probe service is '' or clnerf.v1.ClnerfService", str(rsvc))
+    for s in svcs:
+        sname = (s.get("metadata") or {}).get("name")
+        ssel = (s.get("spec") or {}).get("selector") or {}
+        check(bool(ssel) and all(tlabels.get(k) == v for k, v in ssel.items()),
+              f"k8s: Service {sname} selector matches pod labels", f"{ssel} vs {tlabels}")
+        for sp in (s.get("spec") or {}).get("ports", []):
+            tp = sp.get("targetPort", sp.get("port"))
+            resolved = cports.get(tp) if isinstance(tp, str) else tp
+            check(resolved is not None and resolved in cports.values(),
+                  f"k8s: Service {sname} port {sp.get('name')} targetPort {tp} -> containerPort {resolved}",
+                  f"no container port {tp!r} (have {cports})")
+            fact("listen port", f"k8s Service {sname} targetPort", resolved)
+            check(sp.get("name") == "grpc" and sp.get("appProtocol") == "grpc",
+                  f"k8s: Service {sname} port named grpc with appProtocol grpc",
+                  f"name={sp.get('name')} appProtocol={sp.get('appProtocol')}")
+    # volumes
+    vct = [(v.get("metadata") or {}).get("name") for v in spec.get("volumeClaimTemplates", [])]
+    vols = {v.get("name"): v for v in pspec.get("volumes", [])}
+    for m in c.get("volumeMounts", []):
+        n = m.get("name")
+        check(n in vols or n in vct, f"k8s: volumeMount {n} -> {'volumeClaimTemplate' if n in vct else 'volume'}",
+              f"no volume or volumeClaimTemplate named {n!r} (templates {vct}, volumes {list(vols)})")
+        if n in vct:
+            fact("store path", f"k8s volumeClaimTemplate {n} mountPath", m.get("mountPath"))
+    check(any(m.get("name") in vct for m in c.get("volumeMounts", [])),
+          "k8s: the store is mounted from a volumeClaimTemplate", f"templates {vct}")
+    cms = {(d.get("metadata") or {}).get("name"): d for _, d in by_kind.get("ConfigMap", [])}
+    for n, v in vols.items():
+        if "configMap" in v:
+            cm = v["configMap"].get("name")
+            check(cm in cms, f"k8s: volume {n} references ConfigMap {cm} defined in deploy/k8s",
+                  f"defined: {list(cms)}")
+    for e in c.get("env", []):
+        ref = (e.get("valueFrom") or {}).get("secretKeyRef")
+        if ref:
+            check(ref.get("optional") is True,
+                  f"k8s: env {e.get('name')} from Secret {ref.get('name')} is optional (Secret not shipped)")
+    # --config file is provided by a ConfigMap key and is valid JSON
+    cfg = arg_value(args, "--config")
+    if cfg:
+        found = None
+        for m in c.get("volumeMounts", []):
+            v = vols.get(m.get("name")) or {}
+            if "configMap" not in v:
+                continue
+            mp = m.get("mountPath", "").rstrip("/")
+            key = m.get("subPath") if m.get("subPath") else (
+                cfg[len(mp) + 1:] if cfg.startswith(mp + "/") else None)
+            if (m.get("subPath") and cfg != mp) or not key:
+                continue
+            items = v["configMap"].get("items")
+            if items:
+                key = next((i.get("key") for i in items if i.get("path") == key), None)
+            data = ((cms.get(v["configMap"].get("name")) or {}).get("data") or {})
+            if key in data:
+                found = (v["configMap"].get("name"), key, data[key])
+        if check(found is not None, f"k8s: --config {cfg} is a key of a mounted ConfigMap"):
+            try:
+                json.loads(found[2])
+                report("PASS", f"k8s: ConfigMap {found[0]} key {found[1]} is valid JSON")
+            except ValueError as e:
+                report("FAIL", f"k8s: ConfigMap {found[0]} key {found[1]} is not valid JSON: {e}")
+
+k8s_files = [p for p in yaml_files if os.path.dirname(p) == paths["k8s"]]
+if yaml is not None:
+    if all(p in docs for p in k8s_files):
+        k8s_checks({p: docs[p] for p in k8s_files})
+    else:
+        report("FAIL", "k8s: consistency not checked (a manifest does not parse)")
+else:
+    report("SKIP", "k8s: consistency checks need PyYAML")
+    for p in k8s_files:
+        for l in open(p, encoding="utf-8"):
+            if re.match(r"\s*args:", l):
+                server_args["k8s container command/args"] = facts.get("image", {}).get("entrypoint", []) + flow_list(l)
+
+# ----------------------------------------------------------------- systemd
+if os.path.exists(paths["unit"]):
+    sect, kv = None, {}
+    for l in open(paths["unit"], encoding="utf-8").read().replace("\\\n", " ").splitlines():
+        l = l.strip()
+        if not l or l.startswith(("#", ";")):
+            continue
+        if l.startswith("["):
+            sect = l.strip("[]")
+            continue
+        k, _, v = l.partition("=")
+        kv.setdefault((sect, k.strip()), []).append(v.strip())
+    get = lambda k: (kv.get(("Service", k)) or [None])[-1]
+    for k, want in (("Type", "simple"), ("User", "clnerf"), ("StateDirectory", "clnerf"),
+                    ("Restart", "on-failure"), ("KillSignal", "SIGTERM"), ("NoNewPrivileges", "true"),
+                    ("ProtectSystem", "strict")):
+        check(get(k) == want, f"systemd: {k}={want}", f"found {get(k)}")
+    t = seconds(get("TimeoutStopSec") or "90")
+    check(t is not None and t >= 60, "systemd: TimeoutStopSec >= 60", str(get("TimeoutStopSec")))
+    check(any("/etc/clnerf/env" in v for v in kv.get(("Service", "EnvironmentFile"), [])),
+          "systemd: EnvironmentFile=-/etc/clnerf/env (CLNERF_TOKEN)")
+    ex = get("ExecStart")
+    if check(ex is not None, "systemd: ExecStart present"):
+        toks = shlex.split(ex.lstrip("-@:+!"))
+        check(os.path.basename(toks[0]) == "clnerf-server", "systemd: ExecStart runs clnerf-server", toks[0])
+        # $VARS expand at run time; only literal arguments are checked
+        server_args["systemd ExecStart"] = [t for t in toks[1:] if not t.startswith("$")]
+        store = arg_value(toks, "--store")
+        fact("store path", "systemd --store", store)
+        fact("store path", "systemd StateDirectory", "/var/lib/" + (get("StateDirectory") or "?"))
+        fact("listen port", "systemd --listen", port_of(arg_value(toks, "--listen")))
+        rw = " ".join(kv.get(("Service", "ReadWritePaths"), [])).split()
+        check(store in rw or any(store and store.startswith(p.rstrip("/") + "/") for p in rw),
+              "systemd: ReadWritePaths covers --store", f"{store} not in {rw}")
+    sa = shutil.which("systemd-analyze")
+    if not sa:
+        report("SKIP", "systemd: systemd-analyze verify (systemd-analyze not installed)")
+    else:
+        rc, out = run([sa, "verify", paths["unit"]], timeout=60)
+        lines = [l for l in out.splitlines() if l.strip()]
+        absent = [l for l in lines if re.search(r"Command /\S+ is not executable: No such file", l)]
+        other = [l for l in lines if l not in absent]
+        if other or (rc != 0 and not absent):
+            report("FAIL", "systemd: systemd-analyze verify: " + " | ".join(other or [f"exit {rc}"]))
+        elif absent:
+            report("PASS", "systemd: systemd-analyze verify (only complaint: binary not installed here)")
+        else:
+            report("PASS", "systemd: systemd-analyze verify")
+
+# ----------------------------------------------------------------- consistency
+for name, vals in facts.items():
+    if name in ("image",):
+        continue
+    distinct = {json.dumps(v) for v in vals.values()}
+    detail = ", ".join(f"{k}={v}" for k, v in vals.items())
+    if name == "health check":
+        ok = all(isinstance(v, list) and v[:3] == ["CMD", "clnerf", "info"] for v in vals.values())
+        port = facts.get("listen port", {}).get("Dockerfile --listen")
+        ok = ok and all(f"localhost:{port}" in v for v in vals.values())
+        check(ok, f"consistency: health checks run 'clnerf info --server localhost:{port}'", detail)
+    else:
+        check(len(distinct) == 1 and None not in vals.values(),
+              f"consistency: {name} agrees across {len(vals)} places ({next(iter(vals.values()))})", detail)
+
+# ----------------------------------------------------------------- (c) flags
+def help_text(cmd):
+    rc, out = run(cmd, timeout=20)
+    return out if out.strip() and rc in (0, 1) else None
+
+server = os.environ["CLNERF_SERVER"]
+if not os.access(server, os.X_OK):
+    report("SKIP", f"flags: no server binary at {server} (set CLNERF_SERVER); --flag check skipped")
+    report("SKIP", "flags: client health-check flags not checked (needs the server build)")
+else:
+    h = help_text([server, "--help"])
+    if check(h is not None, f"flags: {server} --help runs"):
+        for src, args in server_args.items():
+            fl = sorted(set(flags_of(args)))
+            bad = [f for f in fl if not re.search(r"(?<![\w-])" + re.escape(f) + r"(?![\w-])", h)]
+            check(not bad, f"flags: {src}: {' '.join(fl) or '(none)'} accepted by clnerf-server",
+                  "not in --help: " + " ".join(bad))
+    client = os.environ["CLNERF_CLIENT"]
+    hc = [v for v in facts.get("health check", {}).values() if isinstance(v, list)]
+    if not os.access(client, os.X_OK):
+        report("SKIP", f"flags: no client binary at {client}; health-check flags not checked")
+    elif hc:
+        sub = hc[0][2] if len(hc[0]) > 2 else "info"
+        h = help_text([client, sub, "--help"])
+        fl = sorted(set(flags_of(hc[0])))
+        bad = [f for f in fl if h is None or not re.search(r"(?<![\w-])" + re.escape(f) + r"(?![\w-])", h)]
+        check(h is not None and not bad, f"flags: health check 'clnerf {sub} {' '.join(fl)}' accepted by the client",
+              f"'clnerf {sub} --help' failed" if h is None else "not in --help: " + " ".join(bad))
+
+# ----------------------------------------------------------------- shell
+sc = shutil.which("shellcheck")
+me = os.path.join(D, "check.sh")
+if os.path.exists(me):
+    if sc:
+        rc, out = run([sc, "-S", "warning", me])
+        check(rc == 0, "shell: shellcheck check.sh", out.strip().replace("\n", " | ")[:300])
+    else:
+        report("SKIP", "shell: shellcheck not installed")
+
+print(f"check.sh: {counts['PASS']} passed, {counts['FAIL']} failed, {counts['SKIP']} skipped ({rel(D)})")
+sys.exit(1 if fails else 0)
+PY

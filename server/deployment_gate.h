@@ -1,0 +1,43 @@
+// DeploymentGate: the checks a freshly trained θ_t must pass before the
+// server publishes it. This is where "stability where methods fail" meets the
+// product: a diverged or forgetful update is refused with a reason and
+// θ_{t-1} stays deployed.
+//
+// Checks, in order (the first failure is reported, metrics are filled as far
+// as they were computed):
+//  1. every parameter of θ_t is finite;
+//  2. PSNR on the new scan's held-out test frames (or, without any, on an
+//     evenly spaced subset of its training frames) >= min_new_psnr;
+//  3. on the real images buffered from earlier scans, θ_t's PSNR is at most
+//     max_replay_drop_db below θ_{t-1}'s;
+//  4. on other past views (cameras only), θ_t's render matches θ_{t-1}'s to
+//     at least min_replay_consistency_psnr.
+//
+// Thread-safety: a pure function of const inputs.
+#ifndef CLNERF_SERVER_DEPLOYMENT_GATE_H_
+#define CLNERF_SERVER_DEPLOYMENT_GATE_H_
+
+#include <map>
+#include <string>
+
+#include "absl/status/status.h"
+#include "core/ngp_model.h"
+#include "core/replay_memory.h"
+#include "core/scene.h"
+#include "server/server_options.h"
+
+namespace clnerf {
+
+struct GateReport {
+  absl::Status status;  // OK = publish; FAILED_PRECONDITION with the reason otherwise.
+  std::map<std::string, double> metrics;
+};
+
+// `scan` holds the new scan (time steps already assigned). `prev` and
+// `prev_memory` are null for the first version.
+GateReport RunDeploymentGate(const NgpModel& next, const Scene& scan, const NgpModel* prev,
+                             const ReplayMemory* prev_memory, const GateOptions& options, int threads);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_SERVER_DEPLOYMENT_GATE_H_

@@ -1,0 +1,92 @@
+#include "server/grpc_server.h"
+
+#include <fstream>
+#include <sstream>
+
+#include "absl/strings/str_cat.h"
+#include "grpcpp/ext/proto_server_reflection_plugin.h"
+#include "grpcpp/health_check_service_interface.h"
+#include "grpcpp/resource_quota.h"
+#include "grpcpp/security/server_credentials.h"
+#include "grpcpp/server_builder.h"
+#include "spdlog/spdlog.h"
+
+namespace clnerf {
+
+namespace {
+
+absl::StatusOr<std::string> ReadPem(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return absl::NotFoundError(absl::StrCat("cannot read '", path, "'"));
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<GrpcServer>> GrpcServer::Start(const ServerOptions& options) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  std::unique_ptr<GrpcServer> srv(new GrpcServer());
+  absl::StatusOr<std::unique_ptr<ModelHost>> host = ModelHost::Open(options);
+  if (!host.ok()) return host.status();
+  srv->host_ = *std::move(host);
+  srv->service_ = std::make_unique<ClnerfServiceImpl>(srv->host_.get(), options.token);
+
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  grpc::ServerBuilder builder;
+  std::shared_ptr<grpc::ServerCredentials> creds = grpc::InsecureServerCredentials();
+  if (!options.tls_cert.empty()) {
+    absl::StatusOr<std::string> cert = ReadPem(options.tls_cert);
+    absl::StatusOr<std::string> key = ReadPem(options.tls_key);
+    if (!cert.ok()) return cert.status();
+    if (!key.ok()) return key.status();
+    grpc::SslServerCredentialsOptions ssl;
+    ssl.pem_key_cert_pairs.push_back({*key, *cert});
+    creds = grpc::SslServerCredentials(ssl);
+  }
+  builder.AddListeningPort(options.listen, creds, &srv->port_);
+  builder.RegisterService(srv->service_.get());
+  builder.SetMaxReceiveMessageSize(options.max_message_bytes);
+  builder.SetMaxSendMessageSize(std::max(options.max_message_bytes, int(options.max_render_pixels * 12 + (1 << 16))));
+  grpc::ResourceQuota quota("clnerf-server");
+  quota.SetMaxThreads(options.grpc_threads);
+  builder.SetResourceQuota(quota);
+  srv->server_ = builder.BuildAndStart();
+  if (!srv->server_ || srv->port_ == 0) {
+    return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen, " (address in use or invalid?)"));
+  }
+  grpc::HealthCheckServiceInterface* health = srv->server_->GetHealthCheckService();
+  if (health != nullptr) {
+    health->SetServingStatus(true);
+    health->SetServingStatus("clnerf.v1.ClnerfService", true);
+  }
+  spdlog::info("clnerf-server listening on port {} (store {}, auth {}, tls {})", srv->port_, options.store_dir,
+               options.token.empty() ? "off" : "on", options.tls_cert.empty() ? "off" : "on");
+  return srv;
+}
+
+void GrpcServer::Shutdown() {
+  std::call_once(shutdown_once_, [this] {
+    spdlog::info("shutting down: health NOT_SERVING, finishing in-flight calls");
+    if (grpc::HealthCheckServiceInterface* health = server_->GetHealthCheckService()) {
+      health->SetServingStatus(false);
+    }
+    // Stop training first so long WatchJob streams and the worker end
+    // promptly; new uploads and renders are refused (UNAVAILABLE).
+    host_->Shutdown();
+    const auto deadline = std::chrono::system_clock::now() +
+                          std::chrono::milliseconds(int64_t(host_->options().shutdown_grace_seconds * 1000));
+    server_->Shutdown(deadline);
+    spdlog::info("shutdown complete");
+  });
+}
+
+void GrpcServer::Wait() { server_->Wait(); }
+
+GrpcServer::~GrpcServer() {
+  if (server_) Shutdown();
+}
+
+}  // namespace clnerf

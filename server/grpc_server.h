@@ -1,0 +1,47 @@
+// GrpcServer: a running clnerf-server — the ModelHost plus a grpc::Server
+// with the ClnerfService, the standard grpc.health.v1 health service and
+// server reflection (so grpcurl works). Used by main() and, in-process on
+// localhost:0, by the integration tests.
+//
+// Shutdown: health goes NOT_SERVING, new calls get UNAVAILABLE, in-flight
+// calls get `shutdown_grace_seconds` to finish, then the update worker is
+// cancelled (its scan stays stored and is retrained on the next start).
+//
+// Thread-safety: Start/Shutdown/Wait from one controlling thread;
+// Shutdown() may also be called from another thread while Wait() blocks.
+#ifndef CLNERF_SERVER_GRPC_SERVER_H_
+#define CLNERF_SERVER_GRPC_SERVER_H_
+
+#include <memory>
+#include <mutex>
+
+#include "absl/status/statusor.h"
+#include "grpcpp/server.h"
+#include "server/grpc_service.h"
+#include "server/model_host.h"
+#include "server/server_options.h"
+
+namespace clnerf {
+
+class GrpcServer {
+ public:
+  static absl::StatusOr<std::unique_ptr<GrpcServer>> Start(const ServerOptions& options);
+  ~GrpcServer();
+
+  int port() const { return port_; }  // The bound port (useful with port 0).
+  ModelHost& host() { return *host_; }
+  void Shutdown();
+  void Wait();
+
+ private:
+  GrpcServer() = default;
+  std::unique_ptr<ModelHost> host_;
+  std::unique_ptr<ClnerfServiceImpl> service_;
+  std::unique_ptr<grpc::Server> server_;
+  int port_ = 0;
+  std::once_flag shutdown_once_;
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_SERVER_GRPC_SERVER_H_

@@ -1,0 +1,51 @@
+// ClnerfServiceImpl: the clnerf.v1.ClnerfService RPCs, each a thin shell that
+// checks auth, converts the request (proto_convert), calls the ModelHost and
+// converts the answer. No model logic lives here.
+//
+// Auth: when a token is configured, mutating calls (UploadScan, CancelJob,
+// SetDeployedVersion) need "authorization: Bearer <token>" metadata, else
+// UNAUTHENTICATED. Read-only calls are open.
+//
+// Thread-safety: gRPC calls the handlers from its thread pool concurrently;
+// the implementation keeps no mutable state of its own.
+#ifndef CLNERF_SERVER_GRPC_SERVICE_H_
+#define CLNERF_SERVER_GRPC_SERVICE_H_
+
+#include <string>
+
+#include "clnerf/v1/clnerf.grpc.pb.h"
+#include "server/model_host.h"
+
+namespace clnerf {
+
+class ClnerfServiceImpl final : public v1::ClnerfService::Service {
+ public:
+  ClnerfServiceImpl(ModelHost* host, std::string token) : host_(host), token_(std::move(token)) {}
+
+  grpc::Status UploadScan(grpc::ServerContext* ctx, grpc::ServerReader<v1::UploadScanRequest>* reader,
+                          v1::UploadScanResponse* response) override;
+  grpc::Status GetJob(grpc::ServerContext* ctx, const v1::GetJobRequest* req, v1::Job* resp) override;
+  grpc::Status ListJobs(grpc::ServerContext* ctx, const v1::ListJobsRequest* req, v1::ListJobsResponse* resp) override;
+  grpc::Status WatchJob(grpc::ServerContext* ctx, const v1::WatchJobRequest* req,
+                        grpc::ServerWriter<v1::Job>* writer) override;
+  grpc::Status CancelJob(grpc::ServerContext* ctx, const v1::CancelJobRequest* req, v1::Job* resp) override;
+  grpc::Status Render(grpc::ServerContext* ctx, const v1::RenderRequest* req, v1::RenderResponse* resp) override;
+  grpc::Status RenderStream(grpc::ServerContext* ctx, const v1::RenderStreamRequest* req,
+                            grpc::ServerWriter<v1::RenderChunk>* writer) override;
+  grpc::Status ListVersions(grpc::ServerContext* ctx, const v1::ListVersionsRequest* req,
+                            v1::ListVersionsResponse* resp) override;
+  grpc::Status GetVersion(grpc::ServerContext* ctx, const v1::GetVersionRequest* req, v1::Version* resp) override;
+  grpc::Status SetDeployedVersion(grpc::ServerContext* ctx, const v1::SetDeployedVersionRequest* req,
+                                  v1::Version* resp) override;
+  grpc::Status GetServerInfo(grpc::ServerContext* ctx, const v1::GetServerInfoRequest* req,
+                             v1::ServerInfo* resp) override;
+
+ private:
+  grpc::Status CheckAuth(const grpc::ServerContext* ctx) const;
+  ModelHost* host_;
+  const std::string token_;
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_SERVER_GRPC_SERVICE_H_

@@ -1,0 +1,128 @@
+// clnerf-server: hosts the deployed model, accepts scans, retrains in the
+// background and serves renders. Flags (and an optional JSON config file) are
+// parsed here and only here; every default is documented by --help and in
+// server/server_options.h.
+#include <pthread.h>
+#include <signal.h>
+
+#include <cstdio>
+#include <cstdlib>
+#include <thread>
+
+#include "CLI/CLI.hpp"
+#include "server/grpc_server.h"
+#include "spdlog/pattern_formatter.h"
+#include "spdlog/sinks/stdout_color_sinks.h"
+#include "spdlog/spdlog.h"
+
+namespace {
+
+// %j: the log message, JSON-escaped, for one-object-per-line logs.
+class JsonMessageFlag : public spdlog::custom_flag_formatter {
+ public:
+  void format(const spdlog::details::log_msg& msg, const std::tm&, spdlog::memory_buf_t& dest) override {
+    for (char c : std::string_view(msg.payload.data(), msg.payload.size())) {
+      switch (c) {
+        case '"': dest.append(std::string_view("\\\"")); break;
+        case '\\': dest.append(std::string_view("\\\\")); break;
+        case '\n': dest.append(std::string_view("\\n")); break;
+        case '\t': dest.append(std::string_view("\\t")); break;
+        default:
+          if (static_cast<unsigned char>(c) < 0x20) {
+            char buf[8];
+            std::snprintf(buf, sizeof(buf), "\\u%04x", c);
+            dest.append(std::string_view(buf));
+          } else {
+            dest.push_back(c);
+          }
+      }
+    }
+  }
+  std::unique_ptr<custom_flag_formatter> clone() const override { return std::make_unique<JsonMessageFlag>(); }
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  using namespace clnerf;
+  ServerOptions o;
+  std::string config, log_level = "info", log_format = "text";
+  int iters = 0;
+  CLI::App app{"clnerf-server: continual NeRF model-update service (gRPC)"};
+  app.set_version_flag("--version", "clnerf-server 0.1.0");
+  app.add_option("--listen", o.listen, "HOST:PORT to listen on (port 0 = any free port)")->capture_default_str();
+  app.add_option("--store", o.store_dir, "Store directory (scans, versions, manifest)")->capture_default_str();
+  app.add_option("--token", o.token, "Bearer token required for mutating calls (default: $CLNERF_TOKEN; empty = no auth)");
+  app.add_option("--config", config, "JSON config file (keys: see README 'Server configuration'); flags override it");
+  app.add_option("--tls-cert", o.tls_cert, "PEM certificate chain (enables TLS with --tls-key)");
+  app.add_option("--tls-key", o.tls_key, "PEM private key");
+  app.add_option("--iters", iters, "Training iterations per update (default 300)");
+  app.add_option("--max-queue", o.max_queue, "Scans that may wait for training")->capture_default_str();
+  app.add_option("--render-concurrency", o.render_concurrency, "Renders running at once")->capture_default_str();
+  app.add_option("--render-threads", o.render_threads, "Threads per render")->capture_default_str();
+  app.add_option("--train-threads", o.train_threads, "Threads of the update worker")->capture_default_str();
+  app.add_option("--log-level", log_level, "trace|debug|info|warn|error")->capture_default_str();
+  app.add_option("--log-format", log_format, "text|json (one JSON object per line)")->capture_default_str();
+  CLI11_PARSE(app, argc, argv);
+
+  // Config file first, then explicit flags win.
+  if (!config.empty()) {
+    ServerOptions from_file;
+    if (absl::Status s = ApplyConfigFile(config, &from_file); !s.ok()) {
+      std::fprintf(stderr, "clnerf-server: %s\n", s.ToString().c_str());
+      return 2;
+    }
+    ServerOptions flags = o;
+    o = from_file;
+    if (app.count("--listen")) o.listen = flags.listen;
+    if (app.count("--store")) o.store_dir = flags.store_dir;
+    if (app.count("--token")) o.token = flags.token;
+    if (app.count("--tls-cert")) o.tls_cert = flags.tls_cert;
+    if (app.count("--tls-key")) o.tls_key = flags.tls_key;
+    if (app.count("--max-queue")) o.max_queue = flags.max_queue;
+    if (app.count("--render-concurrency")) o.render_concurrency = flags.render_concurrency;
+    if (app.count("--render-threads")) o.render_threads = flags.render_threads;
+    if (app.count("--train-threads")) o.train_threads = flags.train_threads;
+  }
+  if (iters > 0) o.update.train.iterations = iters;
+  if (o.token.empty()) {
+    if (const char* env = std::getenv("CLNERF_TOKEN")) o.token = env;
+  }
+
+  auto logger = spdlog::stderr_color_mt("clnerf-server");
+  spdlog::set_default_logger(logger);
+  spdlog::set_level(spdlog::level::from_str(log_level));
+  if (log_format == "json") {
+    auto f = std::make_unique<spdlog::pattern_formatter>();
+    f->add_flag<JsonMessageFlag>('j').set_pattern(
+        R"({"time":"%Y-%m-%dT%H:%M:%S.%e%z","level":"%l","thread":%t,"msg":"%j"})");
+    spdlog::set_formatter(std::move(f));
+  } else if (log_format == "text") {
+    spdlog::set_pattern("[%Y-%m-%d %H:%M:%S.%e] [%^%l%$] %v");
+  } else {
+    std::fprintf(stderr, "clnerf-server: --log-format must be text or json\n");
+    return 2;
+  }
+
+  // Block SIGINT/SIGTERM in every thread; the main thread waits for them.
+  sigset_t sigs;
+  sigemptyset(&sigs);
+  sigaddset(&sigs, SIGINT);
+  sigaddset(&sigs, SIGTERM);
+  pthread_sigmask(SIG_BLOCK, &sigs, nullptr);
+
+  absl::StatusOr<std::unique_ptr<GrpcServer>> server = GrpcServer::Start(o);
+  if (!server.ok()) {
+    std::fprintf(stderr, "clnerf-server: %s\n", server.status().ToString().c_str());
+    return 1;
+  }
+  // Machine-readable line for scripts (the port matters with :0).
+  std::printf("clnerf-server listening on port %d\n", (*server)->port());
+  std::fflush(stdout);
+  int sig = 0;
+  sigwait(&sigs, &sig);
+  spdlog::info("received {}", sig == SIGINT ? "SIGINT" : "SIGTERM");
+  (*server)->Shutdown();
+  (*server)->Wait();
+  return 0;
+}

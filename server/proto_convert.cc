@@ -1,0 +1,103 @@
+#include "server/proto_convert.h"
+
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+
+namespace clnerf {
+
+grpc::Status ToGrpcStatus(const absl::Status& s) {
+  if (s.ok()) return grpc::Status::OK;
+  // absl and gRPC share the canonical code numbering.
+  return grpc::Status(static_cast<grpc::StatusCode>(static_cast<int>(s.code())), std::string(s.message()));
+}
+
+absl::StatusOr<Camera> CameraFromProto(const v1::CameraSpec& spec, const std::string& what) {
+  auto bad = [&](const std::string& why) { return absl::InvalidArgumentError(absl::StrCat(what, ": ", why)); };
+  if (spec.pose_size() != 16) return bad(absl::StrCat("pose must have 16 numbers (4x4 row-major), got ", spec.pose_size()));
+  for (float v : spec.pose()) {
+    if (!std::isfinite(v)) return bad("pose has NaN/Inf entries");
+  }
+  if (std::abs(spec.pose(12)) > 1e-4f || std::abs(spec.pose(13)) > 1e-4f || std::abs(spec.pose(14)) > 1e-4f ||
+      std::abs(spec.pose(15) - 1.0f) > 1e-4f) {
+    return bad("pose bottom row must be 0 0 0 1");
+  }
+  Pose p;
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) p(r, c) = spec.pose(r * 4 + c);
+  PoseConvention conv;
+  switch (spec.convention()) {
+    case v1::POSE_CONVENTION_UNSPECIFIED:
+    case v1::POSE_CONVENTION_OPENGL: conv = PoseConvention::kOpenGL; break;
+    case v1::POSE_CONVENTION_OPENCV: conv = PoseConvention::kOpenCV; break;
+    default: return bad(absl::StrCat("unknown pose convention ", int(spec.convention())));
+  }
+  if (!spec.has_intrinsics()) return bad("intrinsics are missing");
+  const v1::Intrinsics& in = spec.intrinsics();
+  Camera cam;
+  cam.intrinsics = Intrinsics{in.width(), in.height(), in.fx(), in.fy(), in.cx(), in.cy(),
+                              in.k1(),    in.k2(),     in.p1(), in.p2()};
+  cam.c2w = ConvertPose(p, conv);
+  if (absl::Status s = ValidateCamera(cam); !s.ok()) return bad(std::string(s.message()));
+  return cam;
+}
+
+absl::StatusOr<ScanUpload> ScanFromHeader(const v1::ScanHeader& h) {
+  ScanUpload up;
+  up.name = h.name();
+  up.scene_kind = h.scene_kind();
+  up.mask_nonzero_is_exclude = h.mask_nonzero_is_exclude();
+  if (h.frames_size() == 0) return absl::InvalidArgumentError("scan header lists no training frames");
+  const int n = h.frames_size() + h.test_frames_size();
+  for (int i = 0; i < n; ++i) {
+    const bool test = i >= h.frames_size();
+    const v1::Frame& f = test ? h.test_frames(i - h.frames_size()) : h.frames(i);
+    const std::string what = absl::StrCat(test ? "test frame " : "frame ", test ? i - h.frames_size() : i);
+    absl::StatusOr<Camera> cam = CameraFromProto(f.camera(), what);
+    if (!cam.ok()) return cam.status();
+    if (f.image_bytes() <= 0) return absl::InvalidArgumentError(absl::StrCat(what, ": image_bytes must be > 0"));
+    if (f.mask_bytes() < 0) return absl::InvalidArgumentError(absl::StrCat(what, ": mask_bytes must be >= 0"));
+    ScanFrame sf;
+    sf.name = f.name().empty() ? absl::StrCat(test ? "test_" : "frame_", i) : f.name();
+    sf.camera = *cam;
+    sf.test = test;
+    up.frames.push_back(std::move(sf));
+  }
+  return up;
+}
+
+v1::Job ToProto(const JobStatus& j) {
+  v1::Job p;
+  p.set_job_id(j.job_id);
+  p.set_scan_id(j.scan_id);
+  p.set_scan_name(j.scan_name);
+  p.set_phase(static_cast<v1::JobPhase>(static_cast<int>(j.phase) + 1));
+  p.set_time_step(j.time_step);
+  p.set_iteration(j.iteration);
+  p.set_total_iterations(j.total_iterations);
+  p.set_elapsed_seconds(j.elapsed_seconds);
+  p.set_eta_seconds(j.eta_seconds);
+  p.set_loss(j.loss);
+  p.set_psnr(j.psnr);
+  p.set_version(j.version);
+  p.set_error(j.error);
+  p.set_created_unix_ms(j.created_unix_ms);
+  p.set_finished_unix_ms(j.finished_unix_ms);
+  for (const auto& [k, v] : j.metrics) (*p.mutable_metrics())[k] = v;
+  return p;
+}
+
+v1::Version ToProto(const VersionInfo& v, int64_t deployed_version) {
+  v1::Version p;
+  p.set_version(v.version);
+  p.set_parent(v.parent);
+  p.set_time_steps(v.time_steps);
+  p.set_size_bytes(v.size_bytes);
+  p.set_created_unix_ms(v.created_unix_ms);
+  p.set_scan_id(v.scan_id);
+  p.set_deployed(v.version == deployed_version);
+  for (const auto& [k, val] : v.metrics) (*p.mutable_metrics())[k] = val;
+  return p;
+}
+
+}  // namespace clnerf

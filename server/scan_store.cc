@@ -1,0 +1,253 @@
+#include "server/scan_store.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <set>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "core/durable_file.h"
+#include "core/image.h"
+#include "nlohmann/json.hpp"
+
+namespace clnerf {
+
+namespace fs = std::filesystem;
+
+int64_t ScanUpload::num_bytes() const {
+  int64_t n = 0;
+  for (const ScanFrame& f : frames) n += int64_t(f.image.size() + f.mask.size());
+  return n;
+}
+
+namespace {
+
+constexpr char kTmpPrefix[] = ".tmp-";
+
+nlohmann::json CameraToJson(const Camera& c) {
+  nlohmann::json pose = nlohmann::json::array();
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 4; ++k) pose.push_back(c.c2w(r, k));
+  const Intrinsics& in = c.intrinsics;
+  return {{"pose_opencv", pose},
+          {"width", in.width}, {"height", in.height},
+          {"fx", in.fx}, {"fy", in.fy}, {"cx", in.cx}, {"cy", in.cy},
+          {"k1", in.k1}, {"k2", in.k2}, {"p1", in.p1}, {"p2", in.p2}};
+}
+
+Camera CameraFromJson(const nlohmann::json& j) {
+  Camera c;
+  const auto& pose = j.at("pose_opencv");
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 4; ++k) c.c2w(r, k) = pose.at(r * 4 + k).get<float>();
+  Intrinsics& in = c.intrinsics;
+  in.width = j.at("width");
+  in.height = j.at("height");
+  in.fx = j.at("fx");
+  in.fy = j.at("fy");
+  in.cx = j.at("cx");
+  in.cy = j.at("cy");
+  in.k1 = j.at("k1");
+  in.k2 = j.at("k2");
+  in.p1 = j.at("p1");
+  in.p2 = j.at("p2");
+  return c;
+}
+
+std::string FrameFile(int i, bool mask, const std::string& ext) {
+  return absl::StrFormat("%s_%05d%s", mask ? "mask" : "frame", i, ext);
+}
+
+absl::Status FrameError(const ScanFrame& f, size_t i, const absl::Status& s) {
+  return absl::InvalidArgumentError(absl::StrCat(f.test ? "test " : "", "frame ", i, " ('", f.name, "'): ", s.message()));
+}
+
+}  // namespace
+
+absl::Status ValidateScanUpload(const ScanUpload& scan) {
+  if (scan.frames.empty()) return absl::InvalidArgumentError("scan has no frames");
+  int train = 0;
+  std::set<std::string> names;
+  for (size_t i = 0; i < scan.frames.size(); ++i) {
+    const ScanFrame& f = scan.frames[i];
+    if (!f.test) ++train;
+    if (!names.insert(f.name).second) {
+      return absl::InvalidArgumentError(absl::StrCat("frame name '", f.name, "' appears twice"));
+    }
+    if (absl::Status s = ValidateCamera(f.camera); !s.ok()) return FrameError(f, i, s);
+    const std::string ext = SniffImageExtension(f.image);
+    if (ext.empty()) return FrameError(f, i, absl::InvalidArgumentError("image is not PNG, JPEG, EXR, TIFF or BMP"));
+    absl::StatusOr<Image> img = DecodeImage(f.image, f.name + ext);
+    if (!img.ok()) return FrameError(f, i, img.status());
+    if (img->width != f.camera.intrinsics.width || img->height != f.camera.intrinsics.height) {
+      return FrameError(f, i, absl::InvalidArgumentError(absl::StrCat(
+                                  "image is ", img->width, "x", img->height, " but the intrinsics say ",
+                                  f.camera.intrinsics.width, "x", f.camera.intrinsics.height)));
+    }
+    for (float v : img->rgb) {
+      if (!std::isfinite(v)) return FrameError(f, i, absl::InvalidArgumentError("image has non-finite pixels"));
+    }
+    if (!f.mask.empty()) {
+      const std::string mext = SniffImageExtension(f.mask);
+      if (mext.empty()) return FrameError(f, i, absl::InvalidArgumentError("mask is not a known image format"));
+      absl::StatusOr<Mask> m = DecodeMask(f.mask, f.name + "_mask" + mext, scan.mask_nonzero_is_exclude);
+      if (!m.ok()) return FrameError(f, i, m.status());
+      if (m->width != img->width || m->height != img->height) {
+        return FrameError(f, i, absl::InvalidArgumentError(absl::StrCat("mask is ", m->width, "x", m->height,
+                                                                        " but the image is ", img->width, "x",
+                                                                        img->height)));
+      }
+    }
+  }
+  if (train == 0) return absl::InvalidArgumentError("scan has only test frames; at least one training frame is needed");
+  if (!scan.scene_kind.empty() && scan.scene_kind != "bounded" && scan.scene_kind != "unbounded") {
+    return absl::InvalidArgumentError(absl::StrCat("scene_kind '", scan.scene_kind, "' is not bounded|unbounded"));
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::unique_ptr<ScanStore>> ScanStore::Open(const std::string& root) {
+  const std::string dir = (fs::path(root) / "scans").string();
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot create '", dir, "': ", ec.message()));
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    if (e.path().filename().string().rfind(kTmpPrefix, 0) == 0) fs::remove_all(e.path(), ec);
+  }
+  return std::unique_ptr<ScanStore>(new ScanStore(dir));
+}
+
+absl::Status ScanStore::Save(const ScanRecord& record, const ScanUpload& scan) {
+  const fs::path final_dir = fs::path(dir_) / record.scan_id;
+  const fs::path tmp = fs::path(dir_) / (kTmpPrefix + record.scan_id);
+  std::error_code ec;
+  if (fs::exists(final_dir, ec)) return absl::AlreadyExistsError(absl::StrCat("scan ", record.scan_id, " exists"));
+  fs::remove_all(tmp, ec);
+  fs::create_directories(tmp, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot create '", tmp.string(), "': ", ec.message()));
+  auto fail = [&](absl::Status s) {
+    fs::remove_all(tmp, ec);
+    return s;
+  };
+  nlohmann::json frames = nlohmann::json::array();
+  for (size_t i = 0; i < scan.frames.size(); ++i) {
+    const ScanFrame& f = scan.frames[i];
+    nlohmann::json fj = {{"name", f.name}, {"test", f.test}, {"camera", CameraToJson(f.camera)}};
+    const std::string img = FrameFile(int(i), false, SniffImageExtension(f.image));
+    if (absl::Status s = WriteFileSynced((tmp / img).string(), f.image); !s.ok()) return fail(s);
+    fj["image"] = img;
+    if (!f.mask.empty()) {
+      const std::string m = FrameFile(int(i), true, SniffImageExtension(f.mask));
+      if (absl::Status s = WriteFileSynced((tmp / m).string(), f.mask); !s.ok()) return fail(s);
+      fj["mask"] = m;
+    }
+    frames.push_back(std::move(fj));
+  }
+  nlohmann::json j = {{"scan_id", record.scan_id},
+                      {"job_id", record.job_id},
+                      {"name", record.name},
+                      {"scene_kind", record.scene_kind},
+                      {"mask_nonzero_is_exclude", record.mask_nonzero_is_exclude},
+                      {"created_unix_ms", record.created_unix_ms},
+                      {"num_frames", record.num_frames},
+                      {"num_test_frames", record.num_test_frames},
+                      {"num_bytes", record.num_bytes},
+                      {"frames", frames}};
+  if (absl::Status s = WriteFileSynced((tmp / "scan.json").string(), j.dump(1)); !s.ok()) return fail(s);
+  if (absl::Status s = SyncDirectory(tmp.string()); !s.ok()) return fail(s);
+  fs::rename(tmp, final_dir, ec);
+  if (ec) return fail(absl::InternalError(absl::StrCat("cannot publish scan ", record.scan_id, ": ", ec.message())));
+  return SyncDirectory(dir_);
+}
+
+namespace {
+
+absl::StatusOr<nlohmann::json> ReadScanJson(const fs::path& dir) {
+  absl::StatusOr<std::string> text = ReadFileToString((dir / "scan.json").string(), "scan manifest");
+  if (!text.ok()) return text.status();
+  try {
+    return nlohmann::json::parse(*text);
+  } catch (const std::exception& e) {
+    return absl::DataLossError(absl::StrCat("corrupt ", (dir / "scan.json").string(), ": ", e.what()));
+  }
+}
+
+}  // namespace
+
+absl::StatusOr<std::vector<ScanRecord>> ScanStore::List() const {
+  std::vector<ScanRecord> out;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir_, ec)) {
+    const std::string name = e.path().filename().string();
+    if (!e.is_directory() || name.rfind(kTmpPrefix, 0) == 0) continue;
+    absl::StatusOr<nlohmann::json> j = ReadScanJson(e.path());
+    if (!j.ok()) return j.status();
+    try {
+      ScanRecord r;
+      r.scan_id = j->at("scan_id");
+      r.job_id = j->at("job_id");
+      r.name = j->at("name");
+      r.scene_kind = j->at("scene_kind");
+      r.mask_nonzero_is_exclude = j->at("mask_nonzero_is_exclude");
+      r.created_unix_ms = j->at("created_unix_ms");
+      r.num_frames = j->at("num_frames");
+      r.num_test_frames = j->at("num_test_frames");
+      r.num_bytes = j->at("num_bytes");
+      out.push_back(std::move(r));
+    } catch (const std::exception& ex) {
+      return absl::DataLossError(absl::StrCat("corrupt scan manifest in ", e.path().string(), ": ", ex.what()));
+    }
+  }
+  if (ec) return absl::InternalError(absl::StrCat("cannot list '", dir_, "': ", ec.message()));
+  std::sort(out.begin(), out.end(), [](const ScanRecord& a, const ScanRecord& b) { return a.scan_id < b.scan_id; });
+  return out;
+}
+
+absl::StatusOr<Scene> ScanStore::Load(const std::string& scan_id, int time_step,
+                                      const Eigen::Vector3f& background) const {
+  const fs::path dir = fs::path(dir_) / scan_id;
+  absl::StatusOr<nlohmann::json> j = ReadScanJson(dir);
+  if (!j.ok()) return j.status();
+  Scene scene;
+  try {
+    scene.name = j->at("name");
+    scene.kind = j->at("scene_kind") == "unbounded" ? SceneKind::kUnbounded : SceneKind::kBounded;
+    scene.background = background;
+    const bool nonzero_excl = j->at("mask_nonzero_is_exclude");
+    for (const auto& fj : j->at("frames")) {
+      View v;
+      v.name = fj.at("name");
+      v.camera = CameraFromJson(fj.at("camera"));
+      v.camera.time_step = time_step;
+      const std::string img_file = fj.at("image");
+      absl::StatusOr<std::string> bytes = ReadFileToString((dir / img_file).string(), "scan image");
+      if (!bytes.ok()) return bytes.status();
+      absl::StatusOr<Image> img = DecodeImage(*bytes, img_file, background);
+      if (!img.ok()) return img.status();
+      v.image = *std::move(img);
+      if (fj.contains("mask")) {
+        const std::string mask_file = fj.at("mask");
+        absl::StatusOr<std::string> mb = ReadFileToString((dir / mask_file).string(), "scan mask");
+        if (!mb.ok()) return mb.status();
+        absl::StatusOr<Mask> m = DecodeMask(*mb, mask_file, nonzero_excl);
+        if (!m.ok()) return m.status();
+        v.mask = *std::move(m);
+      }
+      (fj.at("test").get<bool>() ? scene.test : scene.train).push_back(std::move(v));
+    }
+  } catch (const std::exception& e) {
+    return absl::DataLossError(absl::StrCat("corrupt scan ", scan_id, ": ", e.what()));
+  }
+  return scene;
+}
+
+absl::Status ScanStore::Remove(const std::string& scan_id) {
+  std::error_code ec;
+  fs::remove_all(fs::path(dir_) / scan_id, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot remove scan ", scan_id, ": ", ec.message()));
+  return SyncDirectory(dir_);
+}
+
+}  // namespace clnerf

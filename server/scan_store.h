@@ -1,0 +1,87 @@
+// ScanStore: the durable inbox of uploaded scans, <store>/scans/<scan_id>/.
+//
+// A scan is written to scans/.tmp-<scan_id>/ (every file fsync'd), the
+// directory is renamed to scans/<scan_id> and scans/ is fsync'd: the scan is
+// either wholly there or absent after a crash, and the server acknowledges an
+// upload only after Save() returned OK. A scan stays until the update worker
+// has trained it into a published version (or its job failed or was
+// cancelled); its buffered real images, if any, live on in the version's
+// replay memory, so the folder itself can go.
+//
+// Thread-safety: Save/Load/List/Remove may be called from any thread; each
+// scan id is written once (ids are unique), so no locking is needed beyond
+// what the file system gives.
+#ifndef CLNERF_SERVER_SCAN_STORE_H_
+#define CLNERF_SERVER_SCAN_STORE_H_
+
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/camera.h"
+#include "core/scene.h"
+
+namespace clnerf {
+
+// One uploaded frame: camera (OpenCV convention) and encoded bytes.
+struct ScanFrame {
+  std::string name;
+  Camera camera;
+  bool test = false;  // Held-out frame (deployment gate), not trained on.
+  std::string image;  // Encoded image (PNG, JPEG, EXR, ...).
+  std::string mask;   // Encoded mask image, or empty.
+};
+
+// An upload after transport: what the server received.
+struct ScanUpload {
+  std::string name;
+  std::string scene_kind;  // "bounded", "unbounded" or "" (inherit / bounded).
+  bool mask_nonzero_is_exclude = false;
+  std::vector<ScanFrame> frames;
+  int64_t num_bytes() const;
+};
+
+// What the store records about a scan besides its frames.
+struct ScanRecord {
+  std::string scan_id;  // "scan-000001": zero-padded, so names sort in upload order.
+  std::string job_id;
+  std::string name;
+  std::string scene_kind;
+  bool mask_nonzero_is_exclude = false;
+  int64_t created_unix_ms = 0;
+  int num_frames = 0, num_test_frames = 0;
+  int64_t num_bytes = 0;
+};
+
+class ScanStore {
+ public:
+  // Opens (creating if needed) <root>/scans and removes temporaries left by
+  // a crash during Save().
+  static absl::StatusOr<std::unique_ptr<ScanStore>> Open(const std::string& root);
+
+  // Writes the scan durably. `record.scan_id` must be new.
+  absl::Status Save(const ScanRecord& record, const ScanUpload& scan);
+  // Every stored scan, in scan-id (upload) order.
+  absl::StatusOr<std::vector<ScanRecord>> List() const;
+  // Decodes the scan into views with time step `time_step`, compositing onto
+  // `background`: train frames into scene.train, test frames into scene.test.
+  absl::StatusOr<Scene> Load(const std::string& scan_id, int time_step,
+                             const Eigen::Vector3f& background) const;
+  absl::Status Remove(const std::string& scan_id);
+  const std::string& dir() const { return dir_; }
+
+ private:
+  explicit ScanStore(std::string dir) : dir_(std::move(dir)) {}
+  std::string dir_;
+};
+
+// Decodes and checks one upload fully (images decode, sizes match the
+// intrinsics, masks match the images, cameras are rigid and finite, names are
+// unique). INVALID_ARGUMENT naming the first bad frame otherwise.
+absl::Status ValidateScanUpload(const ScanUpload& scan);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_SERVER_SCAN_STORE_H_

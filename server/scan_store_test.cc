@@ -1,0 +1,110 @@
+#include "server/scan_store.h"
+
+#include <cmath>
+#include <filesystem>
+
+#include "gtest/gtest.h"
+#include "server/server_test_util.h"
+
+namespace clnerf {
+namespace {
+
+using testing_util::TempDir;
+using testing_util::TinyScans;
+using testing_util::UploadOf;
+
+ScanRecord Record(const std::string& id, const ScanUpload& up) {
+  ScanRecord r;
+  r.scan_id = id;
+  r.job_id = "job-" + id;
+  r.name = up.name;
+  r.scene_kind = "bounded";
+  r.num_frames = int(up.frames.size());
+  r.num_bytes = up.num_bytes();
+  return r;
+}
+
+TEST(ScanStoreTest, SaveListLoadRemove) {
+  const Scene scene = TinyScans(1, 16, 4, 2);
+  ScanUpload up = UploadOf(scene, 0);
+  up.frames[1].mask = *EncodeMaskPng(Mask{16, 16, std::vector<uint8_t>(256, 1)});
+  const std::string root = TempDir("scanstore");
+  auto store = ScanStore::Open(root);
+  ASSERT_TRUE(store.ok()) << store.status();
+  ASSERT_TRUE((*store)->Save(Record("scan-000002", up), up).ok());
+  ASSERT_TRUE((*store)->Save(Record("scan-000001", up), up).ok());
+  EXPECT_EQ((*store)->Save(Record("scan-000001", up), up).code(), absl::StatusCode::kAlreadyExists);
+  auto list = (*store)->List();
+  ASSERT_TRUE(list.ok());
+  ASSERT_EQ(list->size(), 2u);
+  EXPECT_EQ((*list)[0].scan_id, "scan-000001");  // Upload order.
+  EXPECT_EQ((*list)[0].job_id, "job-scan-000001");
+
+  auto loaded = (*store)->Load("scan-000001", 3, Eigen::Vector3f::Ones());
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  ASSERT_EQ(loaded->train.size(), 4u);
+  ASSERT_EQ(loaded->test.size(), 2u);
+  EXPECT_EQ(loaded->train[0].camera.time_step, 3);
+  EXPECT_TRUE(loaded->train[0].camera.c2w.isApprox(up.frames[0].camera.c2w, 1e-6f));
+  EXPECT_FALSE(loaded->train[1].mask.empty());
+  // Pixels survive to 8-bit precision.
+  const Image& orig = scene.train[0].image;
+  for (size_t i = 0; i < orig.rgb.size(); ++i) ASSERT_NEAR(loaded->train[0].image.rgb[i], orig.rgb[i], 0.5f / 255 + 1e-6f);
+
+  ASSERT_TRUE((*store)->Remove("scan-000001").ok());
+  EXPECT_EQ((*store)->List()->size(), 1u);
+}
+
+TEST(ScanStoreTest, CrashLeftoversAreIgnoredAndCleaned) {
+  const std::string root = TempDir("scanstore_tmp");
+  std::filesystem::create_directories(root + "/scans/.tmp-scan-000009");
+  auto store = ScanStore::Open(root);
+  ASSERT_TRUE(store.ok());
+  EXPECT_TRUE((*store)->List()->empty());
+  EXPECT_FALSE(std::filesystem::exists(root + "/scans/.tmp-scan-000009"));
+}
+
+TEST(ScanStoreTest, ValidationNamesTheBadFrame) {
+  const Scene scene = TinyScans(1, 16, 3, 1);
+  const ScanUpload good = UploadOf(scene, 0);
+  EXPECT_TRUE(ValidateScanUpload(good).ok());
+
+  ScanUpload corrupt = good;
+  corrupt.frames[1].image = corrupt.frames[1].image.substr(0, 40);
+  EXPECT_EQ(ValidateScanUpload(corrupt).code(), absl::StatusCode::kInvalidArgument);
+
+  ScanUpload garbage = good;
+  garbage.frames[0].image = "definitely not an image";
+  absl::Status s = ValidateScanUpload(garbage);
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("frame 0"), std::string::npos) << s;
+
+  ScanUpload size = good;
+  size.frames[2].camera.intrinsics.width = 20;
+  s = ValidateScanUpload(size);
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("16x16"), std::string::npos) << s;
+
+  ScanUpload nan = good;
+  nan.frames[0].camera.c2w(0, 3) = std::nanf("");
+  EXPECT_EQ(ValidateScanUpload(nan).code(), absl::StatusCode::kInvalidArgument);
+
+  ScanUpload scaled = good;
+  scaled.frames[0].camera.c2w.block<3, 3>(0, 0) *= 1.5f;  // Not a rotation.
+  EXPECT_EQ(ValidateScanUpload(scaled).code(), absl::StatusCode::kInvalidArgument);
+
+  ScanUpload mask = good;
+  mask.frames[0].mask = *EncodeMaskPng(Mask{8, 8, std::vector<uint8_t>(64, 1)});
+  EXPECT_EQ(ValidateScanUpload(mask).code(), absl::StatusCode::kInvalidArgument);
+
+  ScanUpload only_test = good;
+  for (ScanFrame& f : only_test.frames) f.test = true;
+  EXPECT_EQ(ValidateScanUpload(only_test).code(), absl::StatusCode::kInvalidArgument);
+
+  ScanUpload dup = good;
+  dup.frames[1].name = dup.frames[0].name;
+  EXPECT_EQ(ValidateScanUpload(dup).code(), absl::StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace clnerf

@@ -1,0 +1,158 @@
+#include "server/server_options.h"
+
+#include <fstream>
+#include <sstream>
+
+#include "absl/strings/str_cat.h"
+#include "nlohmann/json.hpp"
+
+namespace clnerf {
+
+absl::Status GateOptions::Validate() const {
+  if (!(min_new_psnr >= 0 && min_new_psnr < 100)) return absl::InvalidArgumentError("gate.min_new_psnr must be in [0, 100)");
+  if (!(max_replay_drop_db >= 0)) return absl::InvalidArgumentError("gate.max_replay_drop_db must be >= 0");
+  if (!(min_replay_consistency_psnr >= 0 && min_replay_consistency_psnr < 100)) {
+    return absl::InvalidArgumentError("gate.min_replay_consistency_psnr must be in [0, 100)");
+  }
+  if (validation_views < 1) return absl::InvalidArgumentError("gate.validation_views must be >= 1");
+  return absl::OkStatus();
+}
+
+UpdateOptions ServerOptions::DefaultUpdateOptions() {
+  UpdateOptions u;
+  u.method = ContinualMethod::kCLNeRF;
+  u.init = InitMode::kWarm;
+  u.replay = ReplayMode::kOffline;
+  u.train.iterations = 300;
+  return u;
+}
+
+absl::Status ServerOptions::Validate() const {
+  if (listen.empty() || listen.find(':') == std::string::npos) {
+    return absl::InvalidArgumentError(absl::StrCat("listen address '", listen, "' is not HOST:PORT"));
+  }
+  if (store_dir.empty()) return absl::InvalidArgumentError("store directory must be set");
+  if (tls_cert.empty() != tls_key.empty()) {
+    return absl::InvalidArgumentError("TLS needs both a certificate and a key");
+  }
+  if (max_queue < 1) return absl::InvalidArgumentError("max_queue must be >= 1");
+  if (render_concurrency < 1) return absl::InvalidArgumentError("render_concurrency must be >= 1");
+  if (render_threads < 1) return absl::InvalidArgumentError("render_threads must be >= 1");
+  if (!(render_wait_seconds > 0)) return absl::InvalidArgumentError("render_wait_seconds must be > 0");
+  if (train_threads < 1) return absl::InvalidArgumentError("train_threads must be >= 1");
+  if (grpc_threads < 2) return absl::InvalidArgumentError("grpc_threads must be >= 2");
+  if (max_message_bytes < (1 << 20) + 4096) {
+    return absl::InvalidArgumentError("max_message_bytes must exceed a 1 MiB upload chunk");
+  }
+  if (max_scan_bytes < 1) return absl::InvalidArgumentError("max_scan_bytes must be >= 1");
+  if (max_frames < 1 || max_frames > 65535) return absl::InvalidArgumentError("max_frames must be in [1, 65535]");
+  if (max_render_pixels < 1) return absl::InvalidArgumentError("max_render_pixels must be >= 1");
+  if (cached_versions < 0) return absl::InvalidArgumentError("cached_versions must be >= 0");
+  if (!(shutdown_grace_seconds >= 0)) return absl::InvalidArgumentError("shutdown_grace_seconds must be >= 0");
+  if (update.method == ContinualMethod::kEWC) {
+    // The Fisher penalty is not part of a stored version, so it would not
+    // survive a restart.
+    return absl::InvalidArgumentError("method ewc is benchmark-only; the server supports nt, er, meil, clnerf, clnerf-noer");
+  }
+  if (absl::Status s = update.Validate(); !s.ok()) return s;
+  return gate.Validate();
+}
+
+namespace {
+
+template <typename T>
+absl::Status Get(const nlohmann::json& j, const char* key, T* out) {
+  try {
+    *out = j.get<T>();
+  } catch (const std::exception& e) {
+    return absl::InvalidArgumentError(absl::StrCat("config key '", key, "': ", e.what()));
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ApplyGate(const nlohmann::json& g, GateOptions* o) {
+  if (!g.is_object()) return absl::InvalidArgumentError("config key 'gate' must be an object");
+  for (auto it = g.begin(); it != g.end(); ++it) {
+    const std::string& k = it.key();
+    absl::Status s;
+    if (k == "min_new_psnr") s = Get(*it, "gate.min_new_psnr", &o->min_new_psnr);
+    else if (k == "max_replay_drop_db") s = Get(*it, "gate.max_replay_drop_db", &o->max_replay_drop_db);
+    else if (k == "min_replay_consistency_psnr") s = Get(*it, "gate.min_replay_consistency_psnr", &o->min_replay_consistency_psnr);
+    else if (k == "validation_views") s = Get(*it, "gate.validation_views", &o->validation_views);
+    else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'gate.", k, "'"));
+    if (!s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
+  nlohmann::json j;
+  try {
+    j = nlohmann::json::parse(json_text);
+  } catch (const std::exception& e) {
+    return absl::InvalidArgumentError(absl::StrCat("config is not valid JSON: ", e.what()));
+  }
+  if (!j.is_object()) return absl::InvalidArgumentError("config must be a JSON object");
+  for (auto it = j.begin(); it != j.end(); ++it) {
+    const std::string& k = it.key();
+    absl::Status s;
+    std::string str;
+    if (k == "listen") s = Get(*it, "listen", &o->listen);
+    else if (k == "store") s = Get(*it, "store", &o->store_dir);
+    else if (k == "token") s = Get(*it, "token", &o->token);
+    else if (k == "tls_cert") s = Get(*it, "tls_cert", &o->tls_cert);
+    else if (k == "tls_key") s = Get(*it, "tls_key", &o->tls_key);
+    else if (k == "max_queue") s = Get(*it, "max_queue", &o->max_queue);
+    else if (k == "render_concurrency") s = Get(*it, "render_concurrency", &o->render_concurrency);
+    else if (k == "render_threads") s = Get(*it, "render_threads", &o->render_threads);
+    else if (k == "render_wait_seconds") s = Get(*it, "render_wait_seconds", &o->render_wait_seconds);
+    else if (k == "train_threads") s = Get(*it, "train_threads", &o->train_threads);
+    else if (k == "grpc_threads") s = Get(*it, "grpc_threads", &o->grpc_threads);
+    else if (k == "max_message_bytes") s = Get(*it, "max_message_bytes", &o->max_message_bytes);
+    else if (k == "max_scan_bytes") s = Get(*it, "max_scan_bytes", &o->max_scan_bytes);
+    else if (k == "max_frames") s = Get(*it, "max_frames", &o->max_frames);
+    else if (k == "max_render_pixels") s = Get(*it, "max_render_pixels", &o->max_render_pixels);
+    else if (k == "cached_versions") s = Get(*it, "cached_versions", &o->cached_versions);
+    else if (k == "shutdown_grace_seconds") s = Get(*it, "shutdown_grace_seconds", &o->shutdown_grace_seconds);
+    else if (k == "iterations_per_update") s = Get(*it, k.c_str(), &o->update.train.iterations);
+    else if (k == "buffer_size") s = Get(*it, k.c_str(), &o->update.buffer_size);
+    else if (k == "seed") s = Get(*it, k.c_str(), &o->update.train.seed);
+    else if (k == "learning_rate") s = Get(*it, k.c_str(), &o->update.train.learning_rate);
+    else if (k == "method") {
+      s = Get(*it, k.c_str(), &str);
+      if (s.ok()) {
+        auto m = ParseContinualMethod(str);
+        if (!m.ok()) return m.status();
+        o->update.method = *m;
+      }
+    } else if (k == "init") {
+      s = Get(*it, k.c_str(), &str);
+      if (s.ok() && str != "warm" && str != "reinit") return absl::InvalidArgumentError("config 'init' must be warm|reinit");
+      if (s.ok()) o->update.init = str == "warm" ? InitMode::kWarm : InitMode::kReinit;
+    } else if (k == "replay") {
+      s = Get(*it, k.c_str(), &str);
+      if (s.ok() && str != "offline" && str != "online") return absl::InvalidArgumentError("config 'replay' must be offline|online");
+      if (s.ok()) o->update.replay = str == "offline" ? ReplayMode::kOffline : ReplayMode::kOnline;
+    } else if (k == "gate") {
+      s = ApplyGate(*it, &o->gate);
+    } else {
+      return absl::InvalidArgumentError(absl::StrCat("unknown config key '", k, "'"));
+    }
+    if (!s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ApplyConfigFile(const std::string& path, ServerOptions* options) {
+  std::ifstream in(path);
+  if (!in) return absl::NotFoundError(absl::StrCat("cannot read config file '", path, "'"));
+  std::stringstream ss;
+  ss << in.rdbuf();
+  absl::Status s = ApplyConfigJson(ss.str(), options);
+  if (!s.ok()) return absl::Status(s.code(), absl::StrCat(path, ": ", s.message()));
+  return absl::OkStatus();
+}
+
+}  // namespace clnerf

@@ -1,0 +1,78 @@
+// ServerOptions: every setting of clnerf-server, with its default, in one
+// commented struct. main() fills it from flags and an optional JSON config
+// file (keys are the field names below; nested "update", "gate"); nothing
+// else parses flags. Validate() reports the first bad setting.
+//
+// How the cores are shared: one update worker trains with `train_threads`
+// OpenMP threads; at most `render_concurrency` renders run at once, each with
+// `render_threads` threads, and further render requests wait (up to
+// `render_wait_seconds`, then RESOURCE_EXHAUSTED). On the 2-core target the
+// defaults (2 training threads, 2 renders of 1 thread) let renders preempt
+// part of training rather than queue behind it.
+//
+// A plain value type; not synchronised.
+#ifndef CLNERF_SERVER_SERVER_OPTIONS_H_
+#define CLNERF_SERVER_SERVER_OPTIONS_H_
+
+#include <cstdint>
+#include <string>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "core/continual_update.h"
+
+namespace clnerf {
+
+// The deployment gate: a trained θ_t is published only if all checks pass.
+struct GateOptions {
+  // Minimum PSNR (dB) of θ_t on the new scan's held-out test frames (on up to
+  // `validation_views` of its training frames when the upload has none).
+  float min_new_psnr = 15.0f;
+  // Past views: the largest PSNR drop (dB) of θ_t against θ_{t-1} allowed on
+  // the buffered real images of earlier scans.
+  float max_replay_drop_db = 2.0f;
+  // Past views without a real image: minimum PSNR of θ_t against θ_{t-1}'s
+  // own render (generative-replay consistency).
+  float min_replay_consistency_psnr = 18.0f;
+  // Views rendered per check (evenly spaced), to bound validation time.
+  int validation_views = 8;
+  absl::Status Validate() const;
+};
+
+struct ServerOptions {
+  std::string listen = "0.0.0.0:50051";  // host:port; port 0 picks a free one.
+  std::string store_dir = "clnerf-store";
+  std::string token;     // Bearer token for mutating calls ("" = no auth).
+  std::string tls_cert;  // PEM certificate chain; with tls_key enables TLS.
+  std::string tls_key;
+
+  int max_queue = 8;                    // Scans waiting for training; more -> RESOURCE_EXHAUSTED.
+  int render_concurrency = 2;           // Renders running at once.
+  int render_threads = 1;               // OpenMP threads per render.
+  double render_wait_seconds = 30;      // Longest wait for a render slot.
+  int train_threads = 2;                // OpenMP threads of the update worker.
+  int grpc_threads = 16;                // Upper bound on gRPC's sync-server threads.
+  int max_message_bytes = 4 << 20;      // Per gRPC message (upload chunks are <= 1 MiB).
+  int64_t max_scan_bytes = int64_t(1) << 30;  // Encoded image + mask bytes of one scan.
+  int max_frames = 4000;                // Frames (train + test) per scan.
+  int64_t max_render_pixels = 4096 * 4096;  // Largest render request.
+  int cached_versions = 4;              // Non-deployed versions kept in memory.
+  double shutdown_grace_seconds = 20;   // In-flight RPCs get this long on shutdown.
+
+  UpdateOptions update = DefaultUpdateOptions();
+  GateOptions gate;
+
+  // CLNeRF with warm start, offline replay, 300 iterations per update
+  // (a lego_100 task in ~35 s on 2 cores; see README).
+  static UpdateOptions DefaultUpdateOptions();
+  absl::Status Validate() const;
+};
+
+// Applies a JSON config (an object whose keys are field names above; unknown
+// keys are errors so typos do not pass silently) on top of `options`.
+absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* options);
+absl::Status ApplyConfigFile(const std::string& path, ServerOptions* options);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_SERVER_SERVER_OPTIONS_H_

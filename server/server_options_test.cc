@@ -1,0 +1,42 @@
+#include "server/server_options.h"
+
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+TEST(ServerOptionsTest, DefaultsAreValidAndConfigOverrides) {
+  ServerOptions o;
+  ASSERT_TRUE(o.Validate().ok()) << o.Validate();
+  EXPECT_EQ(o.update.train.iterations, 300);
+  ASSERT_TRUE(ApplyConfigJson(R"({"max_queue": 3, "iterations_per_update": 120, "method": "clnerf-noer",
+                                  "gate": {"min_new_psnr": 21.5}})", &o).ok());
+  EXPECT_EQ(o.max_queue, 3);
+  EXPECT_EQ(o.update.train.iterations, 120);
+  EXPECT_EQ(o.update.method, ContinualMethod::kCLNeRFNoER);
+  EXPECT_FLOAT_EQ(o.gate.min_new_psnr, 21.5f);
+  EXPECT_TRUE(o.Validate().ok());
+}
+
+TEST(ServerOptionsTest, BadConfigIsRejectedWithTheKey) {
+  ServerOptions o;
+  absl::Status s = ApplyConfigJson(R"({"max_queu": 3})", &o);
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("max_queu"), std::string::npos);
+  EXPECT_FALSE(ApplyConfigJson(R"({"max_queue": "three"})", &o).ok());
+  EXPECT_FALSE(ApplyConfigJson("not json", &o).ok());
+  EXPECT_FALSE(ApplyConfigJson(R"({"gate": {"nope": 1}})", &o).ok());
+  EXPECT_EQ(ApplyConfigFile("/nonexistent/server.json", &o).code(), absl::StatusCode::kNotFound);
+  ServerOptions bad;
+  bad.max_queue = 0;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad = ServerOptions();
+  bad.tls_cert = "cert.pem";
+  EXPECT_FALSE(bad.Validate().ok());
+  bad = ServerOptions();
+  bad.update.method = ContinualMethod::kEWC;
+  EXPECT_FALSE(bad.Validate().ok());
+}
+
+}  // namespace
+}  // namespace clnerf

@@ -1,0 +1,140 @@
+// Test helpers for server/ tests: tiny procedural scans as uploads, tiny
+// server options, and a gRPC upload helper. Header-only; test code only.
+#ifndef CLNERF_SERVER_SERVER_TEST_UTIL_H_
+#define CLNERF_SERVER_SERVER_TEST_UTIL_H_
+
+#include <filesystem>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "clnerf/v1/clnerf.grpc.pb.h"
+#include "core/image.h"
+#include "core/procedural_scene.h"
+#include "gtest/gtest.h"
+#include "server/scan_store.h"
+#include "server/server_options.h"
+
+namespace clnerf {
+namespace testing_util {
+
+// A fresh empty directory under the test temp dir.
+inline std::string TempDir(const std::string& name) {
+  std::string dir = absl::StrCat(::testing::TempDir(), "/clnerf_", name, "_", std::random_device{}());
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  return dir;
+}
+
+// `steps` time steps of the procedural changing scene, tiny.
+inline Scene TinyScans(int steps, int size = 24, int train = 12, int test = 3) {
+  ProceduralSceneOptions po;
+  po.width = po.height = size;
+  po.num_train_views = train;
+  po.num_test_views = test;
+  po.num_time_steps = steps;
+  po.samples_per_axis = 1;
+  po.seed = 5;
+  absl::StatusOr<Scene> s = GenerateProceduralScene(po);
+  EXPECT_TRUE(s.ok()) << s.status();
+  return *s;
+}
+
+// The frames of time step t as an upload (PNG bytes).
+inline ScanUpload UploadOf(const Scene& scene, int t) {
+  ScanUpload up;
+  up.name = absl::StrCat("scan_t", t);
+  up.scene_kind = "bounded";
+  for (int split = 0; split < 2; ++split) {
+    for (const View& v : split == 0 ? scene.train : scene.test) {
+      if (v.camera.time_step != t) continue;
+      ScanFrame f;
+      f.name = absl::StrCat(split ? "test/" : "train/", v.name);
+      f.camera = v.camera;
+      f.camera.time_step = 0;
+      f.test = split == 1;
+      absl::StatusOr<std::string> png = EncodePng(v.image);
+      EXPECT_TRUE(png.ok());
+      f.image = *png;
+      up.frames.push_back(std::move(f));
+    }
+  }
+  return up;
+}
+
+inline ServerOptions TinyServerOptions(const std::string& store, int iterations = 30) {
+  ServerOptions o;
+  o.listen = "localhost:0";
+  o.store_dir = store;
+  o.train_threads = 2;
+  o.render_threads = 1;
+  o.update.train.iterations = iterations;
+  o.update.train.target_samples = 1 << 13;
+  o.update.train.batch_rays = 512;
+  o.update.model.grid.levels = 8;
+  o.update.capacity.max_log2_table_size = 14;
+  o.update.model.occupancy.warmup_iterations = 64;
+  o.gate.min_new_psnr = 8.0f;  // A 30-iteration model is blurry but far above noise.
+  o.gate.min_replay_consistency_psnr = 10.0f;
+  o.gate.max_replay_drop_db = 10.0f;
+  o.gate.validation_views = 2;
+  o.shutdown_grace_seconds = 2;
+  return o;
+}
+
+// --- gRPC side ---------------------------------------------------------------
+
+inline void FillCamera(const Camera& c, v1::CameraSpec* spec) {
+  for (int r = 0; r < 3; ++r)
+    for (int k = 0; k < 4; ++k) spec->add_pose(c.c2w(r, k));
+  for (float v : {0.f, 0.f, 0.f, 1.f}) spec->add_pose(v);
+  spec->set_convention(v1::POSE_CONVENTION_OPENCV);
+  auto* in = spec->mutable_intrinsics();
+  in->set_width(c.intrinsics.width);
+  in->set_height(c.intrinsics.height);
+  in->set_fx(c.intrinsics.fx);
+  in->set_fy(c.intrinsics.fy);
+  in->set_cx(c.intrinsics.cx);
+  in->set_cy(c.intrinsics.cy);
+}
+
+// The header and chunks (<= chunk_bytes) of an upload, in order.
+inline std::vector<v1::UploadScanRequest> UploadMessages(const ScanUpload& up, size_t chunk_bytes = 1 << 20) {
+  std::vector<v1::UploadScanRequest> msgs(1);
+  v1::ScanHeader* h = msgs[0].mutable_header();
+  h->set_name(up.name);
+  h->set_scene_kind(up.scene_kind);
+  std::vector<const ScanFrame*> order;
+  for (const ScanFrame& f : up.frames)
+    if (!f.test) order.push_back(&f);
+  for (const ScanFrame& f : up.frames)
+    if (f.test) order.push_back(&f);
+  for (const ScanFrame* f : order) {
+    v1::Frame* pf = f->test ? h->add_test_frames() : h->add_frames();
+    pf->set_name(f->name);
+    FillCamera(f->camera, pf->mutable_camera());
+    pf->set_image_bytes(int64_t(f->image.size()));
+    pf->set_mask_bytes(int64_t(f->mask.size()));
+  }
+  for (size_t i = 0; i < order.size(); ++i) {
+    for (int m = 0; m < 2; ++m) {
+      const std::string& bytes = m ? order[i]->mask : order[i]->image;
+      for (size_t off = 0; off < bytes.size(); off += chunk_bytes) {
+        v1::UploadScanRequest r;
+        v1::Chunk* c = r.mutable_chunk();
+        c->set_frame_index(int(i));
+        c->set_is_mask(m == 1);
+        c->set_offset(int64_t(off));
+        c->set_data(bytes.substr(off, chunk_bytes));
+        msgs.push_back(std::move(r));
+      }
+    }
+  }
+  return msgs;
+}
+
+}  // namespace testing_util
+}  // namespace clnerf
+
+#endif  // CLNERF_SERVER_SERVER_TEST_UTIL_H_

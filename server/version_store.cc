@@ -1,0 +1,156 @@
+#include "server/version_store.h"
+
+#include <algorithm>
+#include <filesystem>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "core/checkpoint.h"
+#include "core/durable_file.h"
+#include "nlohmann/json.hpp"
+
+namespace clnerf {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+constexpr char kMemorySection[] = "replay_memory";
+
+nlohmann::json InfoToJson(const VersionInfo& v) {
+  return {{"version", v.version},       {"parent", v.parent},
+          {"time_steps", v.time_steps}, {"size_bytes", v.size_bytes},
+          {"created_unix_ms", v.created_unix_ms}, {"scan_id", v.scan_id},
+          {"metrics", v.metrics}};
+}
+
+absl::StatusOr<VersionInfo> InfoFromJson(const std::string& text, const std::string& source) {
+  try {
+    const nlohmann::json j = nlohmann::json::parse(text);
+    VersionInfo v;
+    v.version = j.at("version");
+    v.parent = j.at("parent");
+    v.time_steps = j.at("time_steps");
+    v.size_bytes = j.at("size_bytes");
+    v.created_unix_ms = j.at("created_unix_ms");
+    v.scan_id = j.at("scan_id");
+    v.metrics = j.at("metrics").get<std::map<std::string, double>>();
+    return v;
+  } catch (const std::exception& e) {
+    return absl::DataLossError(absl::StrCat("corrupt ", source, ": ", e.what()));
+  }
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<VersionStore>> VersionStore::Open(const std::string& root) {
+  const std::string dir = (fs::path(root) / "versions").string();
+  std::error_code ec;
+  fs::create_directories(dir, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot create '", dir, "': ", ec.message()));
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    if (e.path().filename().string().rfind(".tmp-", 0) == 0) fs::remove_all(e.path(), ec);
+  }
+  return std::unique_ptr<VersionStore>(new VersionStore(root, dir));
+}
+
+std::string VersionStore::VersionDir(int64_t v) const {
+  return (fs::path(dir_) / absl::StrFormat("%06d", v)).string();
+}
+
+absl::StatusOr<VersionInfo> VersionStore::Write(const NgpModel& model, const ReplayMemory& memory,
+                                                VersionInfo info) {
+  const std::string final_dir = VersionDir(info.version);
+  const std::string tmp = (fs::path(dir_) / absl::StrFormat(".tmp-%06d", info.version)).string();
+  std::error_code ec;
+  if (fs::exists(final_dir, ec)) return absl::AlreadyExistsError(absl::StrCat("version ", info.version, " exists"));
+  fs::remove_all(tmp, ec);
+  fs::create_directories(tmp, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot create '", tmp, "': ", ec.message()));
+  CheckpointExtras extras;
+  extras.metadata["version"] = absl::StrCat(info.version);
+  extras.metadata["parent"] = absl::StrCat(info.parent);
+  extras.sections.emplace_back(kMemorySection, memory.Serialize());
+  absl::StatusOr<std::string> bytes = SerializeCheckpoint(model, extras);
+  absl::Status s = bytes.status();
+  if (s.ok()) {
+    info.size_bytes = int64_t(bytes->size());
+    s = WriteFileSynced(tmp + "/model.ckpt", *bytes);
+  }
+  if (s.ok()) s = WriteFileSynced(tmp + "/version.json", InfoToJson(info).dump(1));
+  if (s.ok()) s = SyncDirectory(tmp);
+  if (s.ok()) {
+    fs::rename(tmp, final_dir, ec);
+    if (ec) s = absl::InternalError(absl::StrCat("cannot publish version ", info.version, ": ", ec.message()));
+  }
+  if (!s.ok()) {
+    fs::remove_all(tmp, ec);
+    return s;
+  }
+  if (absl::Status d = SyncDirectory(dir_); !d.ok()) return d;
+  return info;
+}
+
+absl::StatusOr<VersionInfo> VersionStore::Info(int64_t version) const {
+  const std::string path = VersionDir(version) + "/version.json";
+  absl::StatusOr<std::string> text = ReadFileToString(path, "version");
+  if (!text.ok()) {
+    if (absl::IsNotFound(text.status())) return absl::NotFoundError(absl::StrCat("version ", version, " does not exist"));
+    return text.status();
+  }
+  return InfoFromJson(*text, path);
+}
+
+absl::StatusOr<LoadedVersion> VersionStore::Load(int64_t version) const {
+  absl::StatusOr<VersionInfo> info = Info(version);
+  if (!info.ok()) return info.status();
+  absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(VersionDir(version) + "/model.ckpt");
+  if (!ck.ok()) return ck.status();
+  const std::string* mem = ck->extras.FindSection(kMemorySection);
+  if (mem == nullptr) return absl::DataLossError(absl::StrCat("version ", version, " has no replay memory"));
+  absl::StatusOr<ReplayMemory> memory = ReplayMemory::Deserialize(*mem);
+  if (!memory.ok()) return memory.status();
+  return LoadedVersion{*std::move(info), std::move(ck->model), *std::move(memory)};
+}
+
+absl::StatusOr<std::vector<VersionInfo>> VersionStore::List() const {
+  std::vector<VersionInfo> out;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir_, ec)) {
+    int64_t v;
+    if (!e.is_directory() || !absl::SimpleAtoi(e.path().filename().string(), &v)) continue;
+    absl::StatusOr<VersionInfo> info = Info(v);
+    if (!info.ok()) return info.status();
+    out.push_back(*std::move(info));
+  }
+  if (ec) return absl::InternalError(absl::StrCat("cannot list '", dir_, "': ", ec.message()));
+  std::sort(out.begin(), out.end(), [](const VersionInfo& a, const VersionInfo& b) { return a.version < b.version; });
+  return out;
+}
+
+absl::StatusOr<Manifest> VersionStore::ReadManifest() const {
+  const std::string path = (fs::path(root_) / "manifest.json").string();
+  absl::StatusOr<std::string> text = ReadFileToString(path, "manifest");
+  if (absl::IsNotFound(text.status())) return Manifest{};
+  if (!text.ok()) return text.status();
+  try {
+    const nlohmann::json j = nlohmann::json::parse(*text);
+    Manifest m;
+    m.deployed = j.at("deployed");
+    m.next_version = j.at("next_version");
+    m.next_scan = j.at("next_scan");
+    m.next_job = j.at("next_job");
+    return m;
+  } catch (const std::exception& e) {
+    return absl::DataLossError(absl::StrCat("corrupt ", path, ": ", e.what()));
+  }
+}
+
+absl::Status VersionStore::WriteManifest(const Manifest& m) {
+  const nlohmann::json j = {{"deployed", m.deployed},   {"next_version", m.next_version},
+                            {"next_scan", m.next_scan}, {"next_job", m.next_job}};
+  return AtomicWriteFile((fs::path(root_) / "manifest.json").string(), j.dump(1));
+}
+
+}  // namespace clnerf

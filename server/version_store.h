@@ -1,0 +1,76 @@
+// VersionStore: published model versions and the deployment manifest.
+//
+//   <store>/versions/<000007>/model.ckpt   θ (checkpoint) + replay memory M
+//   <store>/versions/<000007>/version.json metadata (parent, metrics, ...)
+//   <store>/manifest.json                  deployed version and id counters
+//
+// A version is written into versions/.tmp-<n>/ (files fsync'd), renamed to
+// versions/<n> and versions/ is fsync'd, so a version directory is complete
+// or absent. The manifest is replaced atomically (temp file, fsync, rename).
+// The deployed version changes only through WriteManifest, after the
+// version it names is durable.
+//
+// Thread-safety: Write/Load/List are safe concurrently for different
+// versions; the manifest has a single writer (the server serialises it).
+#ifndef CLNERF_SERVER_VERSION_STORE_H_
+#define CLNERF_SERVER_VERSION_STORE_H_
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/ngp_model.h"
+#include "core/replay_memory.h"
+
+namespace clnerf {
+
+struct VersionInfo {
+  int64_t version = 0;
+  int64_t parent = 0;  // 0 = none.
+  int time_steps = 0;
+  int64_t size_bytes = 0;  // Checkpoint size on disk.
+  int64_t created_unix_ms = 0;
+  std::string scan_id;  // The scan this version was trained on.
+  std::map<std::string, double> metrics;
+};
+
+struct Manifest {
+  int64_t deployed = 0;  // 0 = nothing deployed yet.
+  int64_t next_version = 1;
+  int64_t next_scan = 1;
+  int64_t next_job = 1;
+};
+
+struct LoadedVersion {
+  VersionInfo info;
+  NgpModel model;
+  ReplayMemory memory;
+};
+
+class VersionStore {
+ public:
+  static absl::StatusOr<std::unique_ptr<VersionStore>> Open(const std::string& root);
+
+  // Writes version `info.version` durably; fills info.size_bytes.
+  absl::StatusOr<VersionInfo> Write(const NgpModel& model, const ReplayMemory& memory, VersionInfo info);
+  // NOT_FOUND for a version that does not exist.
+  absl::StatusOr<LoadedVersion> Load(int64_t version) const;
+  absl::StatusOr<VersionInfo> Info(int64_t version) const;
+  // All versions, ascending.
+  absl::StatusOr<std::vector<VersionInfo>> List() const;
+
+  absl::StatusOr<Manifest> ReadManifest() const;  // Defaults if absent.
+  absl::Status WriteManifest(const Manifest& manifest);
+
+ private:
+  VersionStore(std::string root, std::string dir) : root_(std::move(root)), dir_(std::move(dir)) {}
+  std::string VersionDir(int64_t v) const;
+  std::string root_, dir_;
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_SERVER_VERSION_STORE_H_
