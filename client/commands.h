@@ -8,6 +8,7 @@
 #include <string>
 
 #include "absl/status/status.h"
+#include "client/remote_commands.h"
 #include "nlohmann/json_fwd.hpp"
 
 namespace clnerf {
@@ -49,19 +50,25 @@ struct EvalArgs {
   float downscale = 1.0f;
 };
 
+// `render` renders locally with --model, else on the server (`remote`).
 struct RenderArgs {
-  std::string model;
+  std::string model;  // Empty: remote mode.
   std::string out;  // A PNG path for one view, or a directory for many.
-  // Either views from a dataset split...
+  // Either views from a dataset split (--data / --views-from)...
   std::string data;
   std::string split = "test";
   int index = -1;  // -1 = all views of the split.
-  // ...or an explicit camera (OpenGL/Blender c2w, row-major 4x4 or 3x4).
+  // ...or an explicit camera (OpenGL/Blender c2w, row-major 4x4 or 3x4)...
   std::string pose;
   int width = 100, height = 100;
   float focal = 0;  // Pixels; 0 = from camera_angle_x of 0.6911.
+  // ...or a nerfstudio camera_path.json.
+  std::string camera_path;
   int time_step = -1;
   int threads = 0;
+  // Remote mode only.
+  int64_t version = 0;  // 0 = the deployed version.
+  RemoteOptions remote;
 };
 
 struct DemoArgs {
@@ -111,7 +118,8 @@ absl::Status WriteJson(const std::string& path, const nlohmann::json& j);
 int RunTrain(const TrainArgs& args);
 int RunBenchRender(const BenchRenderArgs& args);
 int RunEval(const EvalArgs& args);
-int RunRender(const RenderArgs& args);
+int RunRender(const RenderArgs& args);  // Dispatches to RunRemoteRender without --model.
+int RunRemoteRender(const RenderArgs& args);
 int RunDemo(const DemoArgs& args);
 int RunBenchContinual(const BenchContinualArgs& args);
 

@@ -9,6 +9,7 @@
 
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
+#include "client/camera_path.h"
 #include "client/commands.h"
 #include "client/progress_bar.h"
 #include "core/checkpoint.h"
@@ -182,6 +183,7 @@ int RunEval(const EvalArgs& a) {
 }
 
 int RunRender(const RenderArgs& a) {
+  if (a.model.empty()) return RunRemoteRender(a);
   SetThreads(a.threads);
   absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
   if (!ck.ok()) return Fail(ck.status());
@@ -189,26 +191,15 @@ int RunRender(const RenderArgs& a) {
   std::vector<Camera> cams;
   std::vector<std::string> names;
   if (!a.pose.empty()) {
-    std::vector<float> v;
-    for (absl::string_view tok : absl::StrSplit(a.pose, absl::ByAnyChar(", "), absl::SkipEmpty())) {
-      float x;
-      if (!absl::SimpleAtof(tok, &x)) return Fail(absl::InvalidArgumentError("--pose must be 12 or 16 numbers"));
-      v.push_back(x);
-    }
-    if (v.size() != 12 && v.size() != 16) return Fail(absl::InvalidArgumentError("--pose must be 12 or 16 numbers"));
-    Pose p;
-    for (int r = 0; r < 3; ++r)
-      for (int c = 0; c < 4; ++c) p(r, c) = v[r * 4 + c];
-    Camera cam;
-    cam.c2w = ConvertPose(p, PoseConvention::kOpenGL);
-    cam.intrinsics.width = a.width;
-    cam.intrinsics.height = a.height;
-    const float f = a.focal > 0 ? a.focal : 0.5f * a.width / std::tan(0.5f * 0.6911112f);
-    cam.intrinsics.fx = cam.intrinsics.fy = f;
-    cam.intrinsics.cx = 0.5f * a.width;
-    cam.intrinsics.cy = 0.5f * a.height;
-    cams.push_back(cam);
+    absl::StatusOr<Camera> cam = ParsePoseCamera(a.pose, a.width, a.height, a.focal);
+    if (!cam.ok()) return Fail(cam.status());
+    cams.push_back(*cam);
     names.push_back("view");
+  } else if (!a.camera_path.empty()) {
+    absl::StatusOr<std::vector<Camera>> path = LoadNerfstudioCameraPath(a.camera_path);
+    if (!path.ok()) return Fail(path.status());
+    cams = std::move(*path);
+    for (size_t i = 0; i < cams.size(); ++i) names.push_back(absl::StrFormat("path_%05d", int(i)));
   } else if (!a.data.empty()) {
     DatasetOptions dopt;
     dopt.load_images = false;
@@ -223,7 +214,7 @@ int RunRender(const RenderArgs& a) {
     }
     if (cams.empty()) return Fail(absl::InvalidArgumentError(absl::StrFormat("--index %d out of range", a.index)));
   } else {
-    return Fail(absl::InvalidArgumentError("give --pose or --data"));
+    return Fail(absl::InvalidArgumentError("give --pose, --data or --camera-path"));
   }
   const bool single = cams.size() == 1 && std::filesystem::path(a.out).has_extension();
   ProgressBar bar("render", (long long)cams.size());

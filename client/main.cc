@@ -22,6 +22,17 @@ int main(int argc, char** argv) {
     c->add_option("--occupancy-res", m->occupancy_resolution, "Occupancy grid resolution (default: derived)");
     c->add_flag("--no-embed", m->no_embed, "Disable per-time-step embeddings");
   };
+  // Flags of every verb that talks to a server.
+  auto add_remote_flags = [](CLI::App* c, RemoteOptions* o) {
+    o->server = DefaultServer();
+    o->token = DefaultToken();
+    c->add_option("--server", o->server, "Server HOST:PORT (env CLNERF_SERVER)")->capture_default_str();
+    c->add_option("--token", o->token, "Bearer token for uploads, cancels and rollbacks (env CLNERF_TOKEN)");
+    c->add_option("--timeout", o->timeout_seconds,
+                  "Deadline per RPC in seconds (default: 30 for calls, 600 for a render, none for streams)");
+    c->add_option("--tls-ca", o->tls_ca, "PEM root certificate: connect with TLS");
+    c->add_flag("--json", o->json, "Machine-readable JSON on stdout");
+  };
 
   TrainArgs train;
   CLI::App* t = app.add_subcommand("train", "Train a model on a dataset (Blender, transforms.json or COLMAP)");
@@ -51,10 +62,13 @@ int main(int argc, char** argv) {
   e->add_option("--downscale", eval.downscale, "Shrink images by this factor")->capture_default_str();
 
   RenderArgs render;
-  CLI::App* r = app.add_subcommand("render", "Render views to PNG");
-  r->add_option("--model", render.model, "Model file")->required();
+  CLI::App* r = app.add_subcommand(
+      "render", "Render views to PNG: locally with --model, else on the server (remote flags apply)");
+  r->add_option("--model", render.model, "Model file (omit to render on the server)");
   r->add_option("--out", render.out, "PNG file (one view) or directory")->required();
-  r->add_option("--data", render.data, "Take cameras from this dataset's split");
+  r->add_option("--data,--views-from", render.data,
+                "Take cameras from this dataset's split (remote: and score the renders against its images)");
+  r->add_option("--camera-path", render.camera_path, "nerfstudio camera_path.json");
   r->add_option("--split", render.split, "train|val|test")->capture_default_str();
   r->add_option("--index", render.index, "Only this view of the split (-1 = all)")->capture_default_str();
   r->add_option("--pose", render.pose, "Camera-to-world matrix, OpenGL convention, 12 or 16 numbers row-major");
@@ -63,6 +77,44 @@ int main(int argc, char** argv) {
   r->add_option("--focal", render.focal, "Focal length in pixels for --pose (0 = NeRF-synthetic FOV)");
   r->add_option("--time-step", render.time_step, "Time step to render (-1 = latest)")->capture_default_str();
   r->add_option("--threads", render.threads, "Threads (0 = all cores)");
+  r->add_option("--version", render.version, "Remote: model version (0 = the deployed one)")->capture_default_str();
+  add_remote_flags(r, &render.remote);
+
+  UploadArgs upload;
+  CLI::App* up = app.add_subcommand("upload", "Upload a scan folder (Blender, transforms.json or COLMAP) to the server");
+  up->add_option("dir", upload.dir, "Dataset directory")->required();
+  up->add_option("--name", upload.name, "Scan name (default: the folder's name)");
+  up->add_option("--test-split", upload.test_split, "Held-out frames: test (falls back to val), val or none")
+      ->capture_default_str();
+  up->add_flag("--watch", upload.watch, "Then follow the update job until it ends");
+  add_remote_flags(up, &upload.remote);
+
+  JobArgs watch;
+  CLI::App* w = app.add_subcommand("watch", "Follow an update job until it is done, failed or cancelled");
+  w->add_option("job", watch.job_id, "Job id")->required();
+  add_remote_flags(w, &watch.remote);
+
+  ListArgs jobs;
+  CLI::App* js = app.add_subcommand("jobs", "List the server's update jobs");
+  add_remote_flags(js, &jobs.remote);
+
+  JobArgs cancel;
+  CLI::App* cj = app.add_subcommand("cancel", "Cancel a queued or running update job");
+  cj->add_option("job", cancel.job_id, "Job id")->required();
+  add_remote_flags(cj, &cancel.remote);
+
+  ListArgs versions;
+  CLI::App* vs = app.add_subcommand("versions", "List the server's model versions");
+  add_remote_flags(vs, &versions.remote);
+
+  RollbackArgs rollback;
+  CLI::App* rb = app.add_subcommand("rollback", "Deploy an existing model version");
+  rb->add_option("version", rollback.version, "Version to deploy")->required();
+  add_remote_flags(rb, &rollback.remote);
+
+  ListArgs info;
+  CLI::App* in = app.add_subcommand("info", "Show the server's state and health");
+  add_remote_flags(in, &info.remote);
 
   DemoArgs demo;
   CLI::App* d = app.add_subcommand("demo", "Main job: procedural scene -> train -> render -> PSNR (no data needed)");
@@ -120,5 +172,12 @@ int main(int argc, char** argv) {
   if (*d) return RunDemo(demo);
   if (*br) return RunBenchRender(bench_render);
   if (*bcc) return RunBenchContinual(bc);
+  if (*up) return RunUpload(upload);
+  if (*w) return RunWatch(watch);
+  if (*js) return RunJobs(jobs);
+  if (*cj) return RunCancel(cancel);
+  if (*vs) return RunVersions(versions);
+  if (*rb) return RunRollback(rollback);
+  if (*in) return RunInfo(info);
   return 1;
 }

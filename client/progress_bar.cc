@@ -33,8 +33,12 @@ ProgressBar::ProgressBar(std::string label, long long total, FILE* out, int log_
 
 std::string ProgressBar::Line(long long done, const std::string& metrics) const {
   const double frac = std::clamp(double(done) / double(total_), 0.0, 1.0);
-  const double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
-  const double eta = frac > 0 ? elapsed * (1.0 - frac) / frac : NAN;
+  double elapsed = std::chrono::duration<double>(std::chrono::steady_clock::now() - start_).count();
+  double eta = frac > 0 ? elapsed * (1.0 - frac) / frac : NAN;
+  if (external_timing_) {
+    elapsed = external_elapsed_;
+    eta = done >= total_ ? 0.0 : external_eta_;
+  }
   constexpr int kWidth = 24;
   const int fill = int(frac * kWidth);
   std::string bar(fill, '=');
@@ -50,6 +54,7 @@ void ProgressBar::Update(long long done, const std::string& metrics) {
   if (tty_) {
     if (now - last_draw_ < std::chrono::milliseconds(100) && done < total_) return;
     last_draw_ = now;
+    drawn_ = true;
     std::fprintf(out_, "\r\033[K%s", Line(done, metrics).c_str());
     std::fflush(out_);
     return;
@@ -67,6 +72,21 @@ void ProgressBar::Finish(const std::string& metrics) {
   finished_ = true;
   std::fprintf(out_, tty_ ? "\r\033[K%s\n" : "%s\n", Line(total_, metrics).c_str());
   std::fflush(out_);
+}
+
+void ProgressBar::Abort() {
+  if (finished_) return;
+  finished_ = true;
+  if (tty_ && drawn_) {
+    std::fprintf(out_, "\n");
+    std::fflush(out_);
+  }
+}
+
+void ProgressBar::SetTiming(double elapsed_seconds, double eta_seconds) {
+  external_timing_ = true;
+  external_elapsed_ = elapsed_seconds;
+  external_eta_ = eta_seconds;
 }
 
 }  // namespace clnerf

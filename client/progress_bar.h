@@ -18,6 +18,12 @@ class ProgressBar {
   void Update(long long done, const std::string& metrics = "");
   // Draws the final state and ends the line.
   void Finish(const std::string& metrics = "");
+  // Ends a TTY line left mid-way (e.g. before an error message) without
+  // drawing the final state.
+  void Abort();
+  // Uses these elapsed / remaining seconds instead of the bar's own clock,
+  // for work measured elsewhere (a server-side job followed from its middle).
+  void SetTiming(double elapsed_seconds, double eta_seconds);
 
  private:
   std::string Line(long long done, const std::string& metrics) const;
@@ -30,6 +36,9 @@ class ProgressBar {
   std::chrono::steady_clock::time_point start_;
   std::chrono::steady_clock::time_point last_draw_;
   bool finished_ = false;
+  bool drawn_ = false;
+  bool external_timing_ = false;
+  double external_elapsed_ = 0, external_eta_ = 0;
 };
 
 // "12.3s", "4m05s", "1h02m".

@@ -1,0 +1,71 @@
+// Remote verbs on update jobs: watch, jobs, cancel.
+#include <cstdio>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "client/job_watch.h"
+#include "client/progress_bar.h"
+#include "client/proto_json.h"
+#include "client/remote_client.h"
+#include "client/remote_commands.h"
+#include "client/remote_format.h"
+#include "client/text_table.h"
+
+namespace clnerf {
+
+int RunWatch(const JobArgs& a) {
+  absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
+  if (!client.ok()) return FailRemote("watch", client.status());
+  return ReportJob("watch", FollowJob(**client, a.job_id), a.remote);
+}
+
+int RunJobs(const ListArgs& a) {
+  absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
+  if (!client.ok()) return FailRemote("jobs", client.status());
+  clnerf::v1::ListJobsResponse response;
+  grpc::Status s =
+      (*client)->service().ListJobs((*client)->Context(kUnaryTimeoutSeconds).get(), clnerf::v1::ListJobsRequest(), &response);
+  if (!s.ok()) return FailRemote("jobs", s, a.remote);
+  if (a.remote.json) {
+    std::printf("%s\n", ProtoToJson(response).dump(2).c_str());
+    return 0;
+  }
+  if (response.jobs().empty()) {
+    std::printf("no jobs\n");
+    return 0;
+  }
+  TextTable table({"JOB", "SCAN", "NAME", "PHASE", "STEP", "PROGRESS", "VERSION", "CREATED", "RESULT"});
+  for (const clnerf::v1::Job& j : response.jobs()) {
+    const std::string progress =
+        j.total_iterations() > 0 ? absl::StrFormat("%d/%d", j.iteration(), j.total_iterations()) : "-";
+    std::string result = "-";
+    if (j.phase() == clnerf::v1::JOB_PHASE_FAILED || j.phase() == clnerf::v1::JOB_PHASE_CANCELLED) {
+      result = j.error().empty() ? "-" : j.error();
+    } else if (!j.metrics().empty()) {
+      result = FormatMetrics(j.metrics());
+    } else if (j.phase() == clnerf::v1::JOB_PHASE_TRAINING) {
+      result = absl::StrFormat("loss %.5f psnr %.2f eta %s", j.loss(), j.psnr(), FormatDuration(j.eta_seconds()));
+    }
+    table.AddRow({j.job_id(), j.scan_id(), j.scan_name().empty() ? "-" : j.scan_name(), PhaseName(j.phase()),
+                  absl::StrCat(j.time_step()), progress, j.version() > 0 ? absl::StrCat(j.version()) : "-",
+                  FormatUnixMs(j.created_unix_ms()), result});
+  }
+  table.Print();
+  return 0;
+}
+
+int RunCancel(const JobArgs& a) {
+  absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
+  if (!client.ok()) return FailRemote("cancel", client.status());
+  clnerf::v1::CancelJobRequest request;
+  request.set_job_id(a.job_id);
+  clnerf::v1::Job job;
+  grpc::Status s = (*client)->service().CancelJob((*client)->Context(kUnaryTimeoutSeconds).get(), request, &job);
+  if (!s.ok()) return FailRemote("cancel", s, a.remote);
+  if (a.remote.json) std::printf("%s\n", ProtoToJson(job).dump(2).c_str());
+  else if (IsTerminal(job.phase())) std::printf("job %s: %s\n", job.job_id().c_str(), PhaseName(job.phase()).c_str());
+  else std::printf("job %s: cancel requested (now %s)\n", job.job_id().c_str(), PhaseName(job.phase()).c_str());
+  return 0;
+}
+
+}  // namespace clnerf

@@ -1,0 +1,67 @@
+// The remote `clnerf` verbs: they talk to a clnerf server (clnerf.v1 over
+// gRPC) instead of running the engine in-process. main.cc parses flags into
+// these argument structs; each Run* function returns a process exit code and,
+// on failure, prints one line "clnerf <verb>: <CODE>: <message>" to stderr.
+// Results go to stdout (a human line or table, or JSON with --json); logs and
+// progress bars go to stderr. Not thread-safe (CLI entry points).
+//
+// Exit codes: 0 ok; 1 an RPC, I/O or argument error; 2 the watched job
+// FAILED; 3 the watched job was CANCELLED.
+#ifndef CLNERF_CLIENT_REMOTE_COMMANDS_H_
+#define CLNERF_CLIENT_REMOTE_COMMANDS_H_
+
+#include <cstdint>
+#include <string>
+
+namespace clnerf {
+
+// Flags shared by every remote verb (see remote_client.h for their meaning).
+struct RemoteOptions {
+  std::string server;           // HOST:PORT; DefaultServer() when not given.
+  std::string token;            // Bearer token; empty = none.
+  double timeout_seconds = -1;  // Per-RPC deadline; < 0 = the verb's default.
+  std::string tls_ca;           // PEM root certificate file; empty = plaintext.
+  bool json = false;            // Machine-readable output on stdout.
+};
+
+// $CLNERF_SERVER, else "localhost:50051".
+std::string DefaultServer();
+// $CLNERF_TOKEN, else "".
+std::string DefaultToken();
+
+inline constexpr int kExitJobFailed = 2;
+inline constexpr int kExitJobCancelled = 3;
+
+struct UploadArgs {
+  RemoteOptions remote;
+  std::string dir;                  // Any dataset LoadScene() reads.
+  std::string name;                 // Scan name; default: the folder's name.
+  std::string test_split = "test";  // test|val|none (test falls back to val).
+  bool watch = false;               // Then follow the job like `watch`.
+};
+
+struct JobArgs {  // watch, cancel.
+  RemoteOptions remote;
+  std::string job_id;
+};
+
+struct ListArgs {  // jobs, versions, info.
+  RemoteOptions remote;
+};
+
+struct RollbackArgs {
+  RemoteOptions remote;
+  int64_t version = 0;
+};
+
+int RunUpload(const UploadArgs& args);
+int RunWatch(const JobArgs& args);
+int RunJobs(const ListArgs& args);
+int RunCancel(const JobArgs& args);
+int RunVersions(const ListArgs& args);
+int RunRollback(const RollbackArgs& args);
+int RunInfo(const ListArgs& args);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CLIENT_REMOTE_COMMANDS_H_
