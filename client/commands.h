@@ -79,6 +79,15 @@ struct DemoArgs {
   int threads = 0;
 };
 
+struct ScansArgs {
+  std::string out = "clnerf-scans";
+  int scans = 3;
+  int size = 64;
+  int train_views = 50;
+  int test_views = 8;
+  uint64_t seed = 0;
+};
+
 struct BenchRenderArgs {
   std::string model;
   std::string data;
@@ -121,6 +130,7 @@ int RunEval(const EvalArgs& args);
 int RunRender(const RenderArgs& args);  // Dispatches to RunRemoteRender without --model.
 int RunRemoteRender(const RenderArgs& args);
 int RunDemo(const DemoArgs& args);
+int RunScans(const ScansArgs& args);
 int RunBenchContinual(const BenchContinualArgs& args);
 
 }  // namespace clnerf

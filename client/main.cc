@@ -124,6 +124,15 @@ int main(int argc, char** argv) {
   d->add_option("--seed", demo.seed, "Random seed")->capture_default_str();
   d->add_option("--threads", demo.threads, "Threads (0 = all cores)");
 
+  ScansArgs scans;
+  CLI::App* sc = app.add_subcommand("scans", "Write scans of the procedural changing scene (one folder per scan, for upload)");
+  sc->add_option("--out", scans.out, "Output directory")->capture_default_str();
+  sc->add_option("--scans", scans.scans, "Number of scans (time steps)")->capture_default_str();
+  sc->add_option("--size", scans.size, "Image size (pixels)")->capture_default_str();
+  sc->add_option("--train-views", scans.train_views, "Training views per scan")->capture_default_str();
+  sc->add_option("--test-views", scans.test_views, "Held-out views per scan")->capture_default_str();
+  sc->add_option("--seed", scans.seed, "Random seed")->capture_default_str();
+
   CLI::App* bench = app.add_subcommand("bench", "Benchmarks (print figures and JSON)");
   bench->require_subcommand(1);
   BenchRenderArgs bench_render;
@@ -170,6 +179,7 @@ int main(int argc, char** argv) {
   if (*e) return RunEval(eval);
   if (*r) return RunRender(render);
   if (*d) return RunDemo(demo);
+  if (*sc) return RunScans(scans);
   if (*br) return RunBenchRender(bench_render);
   if (*bcc) return RunBenchContinual(bc);
   if (*up) return RunUpload(upload);

@@ -1,0 +1,60 @@
+#!/usr/bin/env bash
+# The service's main job, on embedded data (nothing to download):
+#   1. writes 3 scans of the procedural changing scene (lighting + geometry
+#      change between scans),
+#   2. starts clnerf-server on a free local port with a fresh store,
+#   3. uploads the scans one by one and watches each update train, pass the
+#      deployment gate and go live,
+#   4. renders a past view (scan 0's test cameras at time step 0) and a present
+#      view (scan 2's at time step 2) and prints their PSNR against the held-out
+#      images,
+#   5. stops the server with SIGTERM (graceful shutdown).
+# Output: clnerf-service-demo/ (scans, store, renders, server.log).
+# Env: OUT (output dir), ITERS (iterations per update, default 300),
+#      SIZE (image size, default 64).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OUT=${OUT:-clnerf-service-demo}
+ITERS=${ITERS:-300}
+SIZE=${SIZE:-64}
+BIN=./build/client/clnerf
+SERVER=./build/server/clnerf-server
+[ -x "$BIN" ] && [ -x "$SERVER" ] || bash scripts/build.sh
+rm -rf "$OUT"
+mkdir -p "$OUT"
+
+echo "== 1. three scans of the procedural changing scene -> $OUT/scans"
+$BIN --log-level warn scans --out "$OUT/scans" --scans 3 --size "$SIZE"
+
+echo "== 2. clnerf-server (store $OUT/store, $ITERS iterations per update)"
+$SERVER --listen 127.0.0.1:0 --store "$OUT/store" --iters "$ITERS" > "$OUT/server.out" 2> "$OUT/server.log" &
+SERVER_PID=$!
+trap 'kill -TERM $SERVER_PID 2>/dev/null || true' EXIT
+PORT=""
+for _ in $(seq 1 100); do
+  PORT=$(sed -n 's/^clnerf-server listening on port \([0-9]*\)$/\1/p' "$OUT/server.out")
+  [ -n "$PORT" ] && break
+  kill -0 $SERVER_PID 2>/dev/null || { cat "$OUT/server.log"; exit 1; }
+  sleep 0.1
+done
+[ -n "$PORT" ] || { echo "server did not start"; cat "$OUT/server.log"; exit 1; }
+export CLNERF_SERVER=127.0.0.1:$PORT
+$BIN info
+
+echo "== 3. upload and train, scan by scan"
+for t in 0 1 2; do
+  $BIN upload "$OUT/scans/scan_00$t" --name "visit-$t" --watch
+done
+$BIN versions
+
+echo "== 4. render the past and the present"
+past=$($BIN render --views-from "$OUT/scans/scan_000" --time-step 0 --out "$OUT/renders/past_t0")
+present=$($BIN render --views-from "$OUT/scans/scan_002" --time-step 2 --out "$OUT/renders/present_t2")
+past_psnr=$(echo "$past" | sed -n 's/.*mean PSNR \([0-9.]*\) dB.*/\1/p')
+present_psnr=$(echo "$present" | sed -n 's/.*mean PSNR \([0-9.]*\) dB.*/\1/p')
+
+echo "== 5. graceful shutdown"
+kill -TERM $SERVER_PID
+wait $SERVER_PID || true
+trap - EXIT
+echo "service demo: past view (scan 0 at time step 0) PSNR ${past_psnr} dB | present view (scan 2 at time step 2) PSNR ${present_psnr} dB | renders in $OUT/renders"
