@@ -135,6 +135,19 @@ int main(int argc, char** argv) {
 
   CLI::App* bench = app.add_subcommand("bench", "Benchmarks (print figures and JSON)");
   bench->require_subcommand(1);
+  BenchServeArgs bench_serve;
+  CLI::App* bs = bench->add_subcommand("serve", "Render latency (idle / during an update), upload throughput and "
+                                                 "upload-to-served time against a running server");
+  bs->add_option("--data", bench_serve.data, "Dataset cut into tasks (scans 0 and 1 are uploaded) or 'procedural'")
+      ->capture_default_str();
+  bs->add_option("--tasks", bench_serve.tasks, "Tasks to cut a static dataset into")->capture_default_str();
+  bs->add_option("--sizes", bench_serve.sizes, "Comma-separated square render sizes")->capture_default_str();
+  bs->add_option("--clients", bench_serve.clients, "Comma-separated concurrent client counts")->capture_default_str();
+  bs->add_option("--renders", bench_serve.renders_per_client, "Requests per client per configuration")
+      ->capture_default_str();
+  bs->add_option("--json-out", bench_serve.json, "Write JSON here ('-' = stdout)");
+  add_remote_flags(bs, &bench_serve.remote);
+
   BenchRenderArgs bench_render;
   CLI::App* br = bench->add_subcommand("render", "Time renders of test views at several sizes");
   br->add_option("--model", bench_render.model, "Model file")->required();
@@ -181,6 +194,7 @@ int main(int argc, char** argv) {
   if (*d) return RunDemo(demo);
   if (*sc) return RunScans(scans);
   if (*br) return RunBenchRender(bench_render);
+  if (*bs) return RunBenchServe(bench_serve);
   if (*bcc) return RunBenchContinual(bc);
   if (*up) return RunUpload(upload);
   if (*w) return RunWatch(watch);

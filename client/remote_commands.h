@@ -54,7 +54,18 @@ struct RollbackArgs {
   int64_t version = 0;
 };
 
+struct BenchServeArgs {
+  RemoteOptions remote;
+  std::string data = "../shared/data/lego_100";  // Dataset cut into tasks, or "procedural".
+  int tasks = 10;                  // Tasks for a static dataset (scans 0 and 1 are used).
+  std::string sizes = "100,200";   // Square render sizes.
+  std::string clients = "1,8";     // Concurrent clients.
+  int renders_per_client = 6;      // Requests per client per configuration.
+  std::string json;
+};
+
 int RunUpload(const UploadArgs& args);
+int RunBenchServe(const BenchServeArgs& args);
 int RunWatch(const JobArgs& args);
 int RunJobs(const ListArgs& args);
 int RunCancel(const JobArgs& args);

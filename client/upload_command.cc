@@ -10,6 +10,7 @@
 #include "client/remote_client.h"
 #include "client/remote_commands.h"
 #include "client/remote_format.h"
+#include "client/scan_upload.h"
 #include "core/dataset.h"
 #include "spdlog/spdlog.h"
 
@@ -17,33 +18,6 @@ namespace clnerf {
 namespace {
 
 constexpr const char* kVerb = "upload";
-constexpr size_t kChunkBytes = size_t(1) << 20;  // The protocol's maximum.
-
-// One frame's encoded files.
-struct EncodedFrame {
-  std::string image;
-  std::string mask;  // Empty: no mask.
-};
-
-// Encodes `view` (image as RGB PNG, mask as greyscale PNG, 255 = keep) and
-// describes it in `frame`.
-absl::StatusOr<EncodedFrame> EncodeView(const View& view, clnerf::v1::Frame* frame) {
-  EncodedFrame out;
-  absl::StatusOr<std::string> png = EncodePng(view.image);
-  if (!png.ok()) return png.status();
-  out.image = std::move(*png);
-  if (!view.mask.empty()) {
-    absl::StatusOr<std::string> mask = EncodeMaskPng(view.mask);
-    if (!mask.ok()) return mask.status();
-    out.mask = std::move(*mask);
-  }
-  frame->set_name(view.name);
-  *frame->mutable_camera() = ToCameraSpec(view.camera);
-  frame->set_image_bytes(int64_t(out.image.size()));
-  frame->set_mask_bytes(int64_t(out.mask.size()));
-  return out;
-}
-
 // The held-out views to send with the scan (`split` is test, val or none).
 std::vector<View>* TestViews(Scene& scene, const std::string& split) {
   static std::vector<View> none;
@@ -66,66 +40,25 @@ int RunUpload(const UploadArgs& a) {
   if (scene->train.empty()) return FailRemote(kVerb, absl::InvalidArgumentError(a.dir + " has no training views"));
   std::vector<View>* test = TestViews(*scene, a.test_split);
 
-  clnerf::v1::UploadScanRequest header_request;
-  clnerf::v1::ScanHeader* header = header_request.mutable_header();
-  header->set_name(a.name.empty() ? scene->name : a.name);
-  header->set_scene_kind(scene->kind == SceneKind::kBounded ? "bounded" : "unbounded");
-  header->set_mask_nonzero_is_exclude(false);
-  std::vector<EncodedFrame> files;
-  int64_t total_bytes = 0;
-  for (std::vector<View>* views : {&scene->train, test}) {
-    for (View& view : *views) {
-      absl::StatusOr<EncodedFrame> f =
-          EncodeView(view, views == &scene->train ? header->add_frames() : header->add_test_frames());
-      if (!f.ok()) {
-        return FailRemote(kVerb, absl::Status(f.status().code(), view.name + ": " + std::string(f.status().message())));
-      }
-      total_bytes += int64_t(f->image.size() + f->mask.size());
-      files.push_back(std::move(*f));
-      view.image = Image();  // Only the encoded copy is needed from here on.
-      view.mask = Mask();
-    }
-  }
+  const std::string name = a.name.empty() ? scene->name : a.name;
+  absl::StatusOr<EncodedScan> scan = EncodeScan(name, scene->kind, scene->train, *test);
+  if (!scan.ok()) return FailRemote(kVerb, scan.status());
+  scene->train.clear();  // Only the encoded copy is needed from here on.
+  test->clear();
+  const clnerf::v1::ScanHeader* header = &scan->header.header();
   spdlog::info("scan '{}' from {} ({} scene): {} frames + {} test frames, {} encoded", header->name(), a.dir,
-               header->scene_kind(), header->frames_size(), header->test_frames_size(), FormatBytes(total_bytes));
+               header->scene_kind(), header->frames_size(), header->test_frames_size(),
+               FormatBytes(scan->total_bytes));
 
-  const auto start = std::chrono::steady_clock::now();
-  auto seconds_since_start = [&] {
-    return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  };
-  std::unique_ptr<grpc::ClientContext> ctx = (*client)->Context(kNoDeadline);
-  clnerf::v1::UploadScanResponse response;
-  std::unique_ptr<grpc::ClientWriter<clnerf::v1::UploadScanRequest>> writer =
-      (*client)->service().UploadScan(ctx.get(), &response);
-  ProgressBar bar("upload", total_bytes);
-  bool open = writer->Write(header_request);
-  int64_t sent = 0;
-  clnerf::v1::UploadScanRequest request;
-  clnerf::v1::Chunk* chunk = request.mutable_chunk();
-  for (size_t i = 0; open && i < files.size(); ++i) {
-    for (const bool is_mask : {false, true}) {
-      const std::string& bytes = is_mask ? files[i].mask : files[i].image;
-      for (size_t off = 0; open && off < bytes.size(); off += kChunkBytes) {
-        const size_t n = std::min(kChunkBytes, bytes.size() - off);
-        chunk->set_frame_index(int(i));
-        chunk->set_is_mask(is_mask);
-        chunk->set_offset(int64_t(off));
-        chunk->set_data(bytes.data() + off, n);
-        open = writer->Write(request);
-        if (!open) break;
-        sent += int64_t(n);
-        const double s = seconds_since_start();
-        bar.Update(sent, absl::StrFormat("%.2f MB/s", s > 0 ? sent / 1e6 / s : 0.0));
-      }
-    }
-  }
-  if (open) writer->WritesDone();
-  const grpc::Status status = writer->Finish();
-  const double seconds = seconds_since_start();
-  if (!status.ok()) {
+  ProgressBar bar("upload", scan->total_bytes);
+  const SendResult sent_scan = SendScan(**client, *scan, &bar);
+  if (!sent_scan.status.ok()) {
     bar.Abort();
-    return FailRemote(kVerb, status, a.remote);
+    return FailRemote(kVerb, sent_scan.status, a.remote);
   }
+  const clnerf::v1::UploadScanResponse& response = sent_scan.response;
+  const int64_t sent = sent_scan.bytes_sent;
+  const double seconds = sent_scan.seconds;
   const double mb = sent / 1e6, mb_per_s = seconds > 0 ? mb / seconds : 0.0;
   bar.Finish(absl::StrFormat("%.2f MB/s", mb_per_s));
 

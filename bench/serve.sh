@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Service benchmark: starts clnerf-server (default options: clnerf, warm
+# start, 300 iterations per update, 2 training threads, 2 render slots of 1
+# thread) on a fresh store and a free port, then runs `clnerf bench serve`:
+# upload throughput and upload-end -> served time for lego_100 tasks 0 and 1,
+# and render latency p50/p99 at 100x100 and 200x200 with 1 and 8 concurrent
+# clients, idle and while task 1 trains.
+# Usage: bench/serve.sh [OUT_DIR]   (default bench/results/serve)
+# Env: DATA (default ../shared/data/lego_100; "procedural" needs no data),
+#      EXTRA_ARGS (passed to `clnerf bench serve`), SERVER_ARGS.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+DATA=${DATA:-../shared/data/lego_100}
+OUT=${1:-bench/results/serve}
+if [ "$DATA" != procedural ] && [ ! -d "$DATA" ]; then
+  echo "bench/serve.sh: $DATA not found; skipping (DATA=procedural needs no data)" >&2
+  exit 0
+fi
+[ -x build/client/clnerf ] && [ -x build/server/clnerf-server ] || bash scripts/build.sh
+mkdir -p "$OUT"
+STORE=$(mktemp -d /tmp/clnerf-bench-store.XXXXXX)
+./build/server/clnerf-server --listen 127.0.0.1:0 --store "$STORE" ${SERVER_ARGS:-} > "$OUT/server.out" 2> "$OUT/server.log" &
+PID=$!
+trap 'kill -TERM $PID 2>/dev/null || true; wait $PID 2>/dev/null || true; rm -rf "$STORE"' EXIT
+PORT=""
+for _ in $(seq 1 100); do
+  PORT=$(sed -n 's/^clnerf-server listening on port \([0-9]*\)$/\1/p' "$OUT/server.out")
+  [ -n "$PORT" ] && break
+  sleep 0.1
+done
+[ -n "$PORT" ] || { echo "server did not start"; cat "$OUT/server.log"; exit 1; }
+./build/client/clnerf bench serve --server "127.0.0.1:$PORT" --data "$DATA" --json-out "$OUT/serve.json" ${EXTRA_ARGS:-} \
+  2> "$OUT/bench.log" | tee "$OUT/serve.txt"

@@ -1,0 +1,80 @@
+#include "client/scan_upload.h"
+
+#include <chrono>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "client/remote_format.h"
+#include "core/image.h"
+
+namespace clnerf {
+
+namespace {
+constexpr size_t kChunkBytes = size_t(1) << 20;  // The protocol's maximum.
+}  // namespace
+
+absl::StatusOr<EncodedScan> EncodeScan(const std::string& name, SceneKind kind, const std::vector<View>& train,
+                                       const std::vector<View>& test) {
+  EncodedScan out;
+  clnerf::v1::ScanHeader* header = out.header.mutable_header();
+  header->set_name(name);
+  header->set_scene_kind(kind == SceneKind::kBounded ? "bounded" : "unbounded");
+  header->set_mask_nonzero_is_exclude(false);
+  for (const std::vector<View>* views : {&train, &test}) {
+    for (const View& view : *views) {
+      absl::StatusOr<std::string> png = EncodePng(view.image);
+      if (!png.ok()) return absl::Status(png.status().code(), absl::StrCat(view.name, ": ", png.status().message()));
+      std::string mask;
+      if (!view.mask.empty()) {
+        absl::StatusOr<std::string> m = EncodeMaskPng(view.mask);
+        if (!m.ok()) return absl::Status(m.status().code(), absl::StrCat(view.name, ": ", m.status().message()));
+        mask = std::move(*m);
+      }
+      clnerf::v1::Frame* frame = views == &train ? header->add_frames() : header->add_test_frames();
+      frame->set_name(view.name);
+      *frame->mutable_camera() = ToCameraSpec(view.camera);
+      frame->set_image_bytes(int64_t(png->size()));
+      frame->set_mask_bytes(int64_t(mask.size()));
+      out.total_bytes += int64_t(png->size() + mask.size());
+      out.files.emplace_back(std::move(*png), std::move(mask));
+    }
+  }
+  return out;
+}
+
+SendResult SendScan(RemoteClient& client, const EncodedScan& scan, ProgressBar* bar) {
+  SendResult r;
+  const auto start = std::chrono::steady_clock::now();
+  auto seconds = [&] { return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count(); };
+  std::unique_ptr<grpc::ClientContext> ctx = client.Context(kNoDeadline);
+  std::unique_ptr<grpc::ClientWriter<clnerf::v1::UploadScanRequest>> writer =
+      client.service().UploadScan(ctx.get(), &r.response);
+  bool open = writer->Write(scan.header);
+  clnerf::v1::UploadScanRequest request;
+  clnerf::v1::Chunk* chunk = request.mutable_chunk();
+  for (size_t i = 0; open && i < scan.files.size(); ++i) {
+    for (const bool is_mask : {false, true}) {
+      const std::string& bytes = is_mask ? scan.files[i].second : scan.files[i].first;
+      for (size_t off = 0; open && off < bytes.size(); off += kChunkBytes) {
+        const size_t n = std::min(kChunkBytes, bytes.size() - off);
+        chunk->set_frame_index(int(i));
+        chunk->set_is_mask(is_mask);
+        chunk->set_offset(int64_t(off));
+        chunk->set_data(bytes.data() + off, n);
+        open = writer->Write(request);
+        if (!open) break;
+        r.bytes_sent += int64_t(n);
+        if (bar != nullptr) {
+          const double s = seconds();
+          bar->Update(r.bytes_sent, absl::StrFormat("%.2f MB/s", s > 0 ? r.bytes_sent / 1e6 / s : 0.0));
+        }
+      }
+    }
+  }
+  if (open) writer->WritesDone();
+  r.status = writer->Finish();
+  r.seconds = seconds();
+  return r;
+}
+
+}  // namespace clnerf

@@ -1,0 +1,299 @@
+// `clnerf bench serve`: measures a running clnerf server from the outside
+// (bench/serve.sh starts one on a fresh store):
+//   * upload throughput (MB/s) and the time from the end of an upload to the
+//     new version being served, for real scans (lego_100 tasks by default);
+//   * render latency p50/p99 at several image sizes and client counts, idle
+//     and while an update trains, and every failure.
+// Prints one human line and writes JSON.
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <thread>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
+#include "client/commands.h"
+#include "client/remote_client.h"
+#include "client/remote_commands.h"
+#include "client/remote_format.h"
+#include "client/scan_upload.h"
+#include "core/dataset.h"
+#include "core/procedural_scene.h"
+#include "core/scan_sequence.h"
+#include "nlohmann/json.hpp"
+#include "spdlog/spdlog.h"
+
+namespace clnerf {
+namespace {
+
+constexpr const char* kVerb = "bench serve";
+using Clock = std::chrono::steady_clock;
+
+double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
+
+struct Latency {
+  int size = 0, clients = 0, requests = 0, failures = 0;
+  double p50_ms = 0, p99_ms = 0, mean_ms = 0, max_ms = 0;
+  bool update_running_throughout = false;
+  std::string first_error;
+};
+
+double Percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  const double pos = q * (v.size() - 1);
+  const size_t lo = size_t(pos);
+  const size_t hi = std::min(lo + 1, v.size() - 1);
+  return v[lo] + (pos - lo) * (v[hi] - v[lo]);
+}
+
+Camera Resized(Camera c, int size) {
+  const float sx = float(size) / c.intrinsics.width, sy = float(size) / c.intrinsics.height;
+  c.intrinsics.width = c.intrinsics.height = size;
+  c.intrinsics.fx *= sx;
+  c.intrinsics.cx *= sx;
+  c.intrinsics.fy *= sy;
+  c.intrinsics.cy *= sy;
+  return c;
+}
+
+Latency MeasureRenders(RemoteClient& client, const std::vector<Camera>& cams, int size, int clients, int per_client) {
+  Latency out;
+  out.size = size;
+  out.clients = clients;
+  std::vector<std::vector<double>> ms(clients);
+  std::atomic<int> failures{0};
+  std::mutex err_mu;
+  std::vector<std::thread> threads;
+  for (int c = 0; c < clients; ++c) {
+    threads.emplace_back([&, c] {
+      for (int i = 0; i < per_client; ++i) {
+        clnerf::v1::RenderRequest req;
+        *req.mutable_camera() = ToCameraSpec(Resized(cams[size_t(c * per_client + i) % cams.size()], size));
+        clnerf::v1::RenderResponse resp;
+        auto ctx = client.Context(kRenderTimeoutSeconds);
+        const auto t0 = Clock::now();
+        grpc::Status s = client.service().Render(ctx.get(), req, &resp);
+        const double dt = Ms(Clock::now() - t0);
+        if (!s.ok()) {
+          failures++;
+          std::lock_guard<std::mutex> lock(err_mu);
+          if (out.first_error.empty()) out.first_error = StatusCodeName(s.error_code()) + (": " + s.error_message());
+          continue;
+        }
+        ms[c].push_back(dt);
+      }
+    });
+  }
+  for (auto& t : threads) t.join();
+  std::vector<double> all;
+  for (const auto& v : ms) all.insert(all.end(), v.begin(), v.end());
+  out.requests = clients * per_client;
+  out.failures = failures.load();
+  out.p50_ms = Percentile(all, 0.5);
+  out.p99_ms = Percentile(all, 0.99);
+  out.max_ms = all.empty() ? 0 : *std::max_element(all.begin(), all.end());
+  double sum = 0;
+  for (double v : all) sum += v;
+  out.mean_ms = all.empty() ? 0 : sum / all.size();
+  return out;
+}
+
+absl::StatusOr<clnerf::v1::Job> GetJob(RemoteClient& client, const std::string& id) {
+  clnerf::v1::GetJobRequest req;
+  req.set_job_id(id);
+  clnerf::v1::Job job;
+  auto ctx = client.Context(kUnaryTimeoutSeconds);
+  grpc::Status s = client.service().GetJob(ctx.get(), req, &job);
+  if (!s.ok()) return absl::UnavailableError(StatusCodeName(s.error_code()) + (": " + s.error_message()));
+  return job;
+}
+
+// Polls until the job leaves the given phases (or ends).
+absl::StatusOr<clnerf::v1::Job> WaitWhile(RemoteClient& client, const std::string& id,
+                                          std::initializer_list<clnerf::v1::JobPhase> phases) {
+  while (true) {
+    absl::StatusOr<clnerf::v1::Job> j = GetJob(client, id);
+    if (!j.ok()) return j;
+    if (IsTerminal(j->phase()) || std::find(phases.begin(), phases.end(), j->phase()) == phases.end()) return j;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+}
+
+struct UploadFigures {
+  int64_t bytes = 0;
+  double upload_seconds = 0, mb_per_s = 0;
+  double upload_end_to_served_seconds = 0;
+  int64_t version = 0;
+  std::string job_id;
+  Clock::time_point acked;
+};
+
+absl::StatusOr<UploadFigures> Upload(RemoteClient& client, const Scene& scan, const std::string& name) {
+  absl::StatusOr<EncodedScan> enc = EncodeScan(name, scan.kind, scan.train, scan.test);
+  if (!enc.ok()) return enc.status();
+  SendResult r = SendScan(client, *enc, nullptr);
+  if (!r.status.ok()) {
+    return absl::UnavailableError(absl::StrCat("upload: ", StatusCodeName(r.status.error_code()), ": ",
+                                               r.status.error_message()));
+  }
+  UploadFigures f;
+  f.acked = Clock::now();
+  f.bytes = r.bytes_sent;
+  f.upload_seconds = r.seconds;
+  f.mb_per_s = r.seconds > 0 ? r.bytes_sent / 1e6 / r.seconds : 0;
+  f.job_id = r.response.job_id();
+  return f;
+}
+
+// Waits for the upload's job and for a render that reports its version.
+absl::Status WaitServed(RemoteClient& client, const Camera& cam, UploadFigures* f) {
+  absl::StatusOr<clnerf::v1::Job> j = WaitWhile(
+      client, f->job_id,
+      {clnerf::v1::JOB_PHASE_QUEUED, clnerf::v1::JOB_PHASE_PREPARING_REPLAY, clnerf::v1::JOB_PHASE_TRAINING,
+       clnerf::v1::JOB_PHASE_VALIDATING, clnerf::v1::JOB_PHASE_PUBLISHING});
+  if (!j.ok()) return j.status();
+  if (j->phase() != clnerf::v1::JOB_PHASE_DONE) {
+    return absl::AbortedError(absl::StrCat("job ", f->job_id, " ended ", PhaseName(j->phase()), ": ", j->error()));
+  }
+  while (true) {
+    clnerf::v1::RenderRequest req;
+    *req.mutable_camera() = ToCameraSpec(Resized(cam, 8));
+    clnerf::v1::RenderResponse resp;
+    auto ctx = client.Context(kUnaryTimeoutSeconds);
+    grpc::Status s = client.service().Render(ctx.get(), req, &resp);
+    if (s.ok() && resp.version() >= j->version()) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  f->upload_end_to_served_seconds = std::chrono::duration<double>(Clock::now() - f->acked).count();
+  f->version = j->version();
+  return absl::OkStatus();
+}
+
+nlohmann::json ToJson(const Latency& l) {
+  return {{"size", l.size},     {"clients", l.clients}, {"requests", l.requests}, {"failures", l.failures},
+          {"p50_ms", l.p50_ms}, {"p99_ms", l.p99_ms},   {"mean_ms", l.mean_ms},   {"max_ms", l.max_ms},
+          {"update_running_throughout", l.update_running_throughout}, {"first_error", l.first_error}};
+}
+
+nlohmann::json ToJson(const UploadFigures& f) {
+  return {{"bytes", f.bytes}, {"upload_seconds", f.upload_seconds}, {"mb_per_s", f.mb_per_s},
+          {"upload_end_to_served_seconds", f.upload_end_to_served_seconds}, {"version", f.version},
+          {"job_id", f.job_id}};
+}
+
+absl::StatusOr<std::vector<int>> ParseInts(const std::string& csv) {
+  std::vector<int> out;
+  for (absl::string_view p : absl::StrSplit(csv, ',', absl::SkipEmpty())) {
+    int v;
+    if (!absl::SimpleAtoi(p, &v) || v <= 0) return absl::InvalidArgumentError(absl::StrCat("bad number '", p, "'"));
+    out.push_back(v);
+  }
+  return out;
+}
+
+}  // namespace
+
+int RunBenchServe(const BenchServeArgs& a) {
+  absl::StatusOr<std::vector<int>> sizes = ParseInts(a.sizes);
+  if (!sizes.ok()) return FailRemote(kVerb, sizes.status());
+  absl::StatusOr<std::vector<int>> clients = ParseInts(a.clients);
+  if (!clients.ok()) return FailRemote(kVerb, clients.status());
+  absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
+  if (!client.ok()) return FailRemote(kVerb, client.status());
+
+  absl::StatusOr<ScanSequence> seq;
+  if (a.data == "procedural") {
+    ProceduralSceneOptions po;
+    po.num_time_steps = 2;
+    po.width = po.height = 100;
+    po.num_train_views = 10;
+    po.num_test_views = 20;
+    absl::StatusOr<Scene> s = GenerateProceduralScene(po);
+    if (!s.ok()) return FailRemote(kVerb, s.status());
+    seq = FromTimeSteps(*s);
+  } else {
+    seq = LoadScanSequence(a.data, a.tasks, DatasetOptions{});
+  }
+  if (!seq.ok()) return FailRemote(kVerb, seq.status());
+  if (seq->size() < 2) return FailRemote(kVerb, absl::InvalidArgumentError("need at least 2 scans"));
+  const Scene scan0 = seq->ScanScene(0), scan1 = seq->ScanScene(1);
+  std::vector<Camera> cams;
+  for (const View& v : scan0.test) cams.push_back(v.camera);
+  if (cams.empty()) for (const View& v : scan0.train) cams.push_back(v.camera);
+
+  nlohmann::json j;
+  j["data"] = a.data;
+  // 1. First scan: upload throughput and upload -> served.
+  spdlog::info("uploading scan 0 ({} train + {} test views) and waiting for it to be served", scan0.train.size(),
+               scan0.test.size());
+  absl::StatusOr<UploadFigures> up0 = Upload(**client, scan0, "bench-scan-0");
+  if (!up0.ok()) return FailRemote(kVerb, up0.status());
+  if (absl::Status s = WaitServed(**client, cams[0], &*up0); !s.ok()) return FailRemote(kVerb, s);
+  spdlog::info("scan 0: {:.2f} MB/s upload, served {:.1f} s after the upload ended", up0->mb_per_s,
+               up0->upload_end_to_served_seconds);
+
+  // 2. Idle latencies.
+  std::vector<Latency> idle, busy;
+  for (int size : *sizes) {
+    for (int c : *clients) {
+      idle.push_back(MeasureRenders(**client, cams, size, c, a.renders_per_client));
+      spdlog::info("idle   {}px x {} clients: p50 {:.1f} ms p99 {:.1f} ms ({} failures)", size, c, idle.back().p50_ms,
+                   idle.back().p99_ms, idle.back().failures);
+    }
+  }
+  // 3. The same while the second scan trains.
+  absl::StatusOr<UploadFigures> up1 = Upload(**client, scan1, "bench-scan-1");
+  if (!up1.ok()) return FailRemote(kVerb, up1.status());
+  absl::StatusOr<clnerf::v1::Job> jt =
+      WaitWhile(**client, up1->job_id, {clnerf::v1::JOB_PHASE_QUEUED, clnerf::v1::JOB_PHASE_PREPARING_REPLAY});
+  if (!jt.ok()) return FailRemote(kVerb, jt.status());
+  for (int size : *sizes) {
+    for (int c : *clients) {
+      Latency l = MeasureRenders(**client, cams, size, c, a.renders_per_client);
+      absl::StatusOr<clnerf::v1::Job> now = GetJob(**client, up1->job_id);
+      l.update_running_throughout = now.ok() && now->phase() == clnerf::v1::JOB_PHASE_TRAINING;
+      busy.push_back(l);
+      spdlog::info("update {}px x {} clients: p50 {:.1f} ms p99 {:.1f} ms ({} failures, training throughout: {})",
+                   size, c, l.p50_ms, l.p99_ms, l.failures, l.update_running_throughout);
+    }
+  }
+  if (absl::Status s = WaitServed(**client, cams[0], &*up1); !s.ok()) return FailRemote(kVerb, s);
+
+  int failures = 0;
+  double worst_ratio = 0;
+  bool all_during = true;
+  nlohmann::json lat = nlohmann::json::array();
+  for (size_t i = 0; i < idle.size(); ++i) {
+    failures += idle[i].failures + busy[i].failures;
+    const double ratio = idle[i].p99_ms > 0 ? busy[i].p99_ms / idle[i].p99_ms : 0;
+    worst_ratio = std::max(worst_ratio, ratio);
+    all_during = all_during && busy[i].update_running_throughout;
+    lat.push_back({{"idle", ToJson(idle[i])}, {"during_update", ToJson(busy[i])}, {"p99_ratio", ratio}});
+  }
+  j["latency"] = lat;
+  j["uploads"] = {ToJson(*up0), ToJson(*up1)};
+  j["failures"] = failures;
+  j["worst_p99_ratio"] = worst_ratio;
+  j["target_p99_ratio"] = 3.0;
+  j["all_measured_during_training"] = all_during;
+  j["target_met"] = failures == 0 && worst_ratio <= 3.0;
+
+  std::string cells;
+  for (size_t i = 0; i < idle.size(); ++i) {
+    cells += absl::StrFormat(" %dpx x%d: %.0f/%.0f ms idle, %.0f/%.0f ms training;", idle[i].size, idle[i].clients,
+                             idle[i].p50_ms, idle[i].p99_ms, busy[i].p50_ms, busy[i].p99_ms);
+  }
+  std::printf("bench serve (%s): render p50/p99%s worst p99 ratio %.2f (target <= 3), %d failures | upload %.2f MB/s | "
+              "upload end -> served %.1f s (scan 0), %.1f s (scan 1)\n",
+              a.data.c_str(), cells.c_str(), worst_ratio, failures, up0->mb_per_s, up0->upload_end_to_served_seconds,
+              up1->upload_end_to_served_seconds);
+  if (!a.json.empty()) {
+    if (absl::Status s = WriteJson(a.json, j); !s.ok()) return FailRemote(kVerb, s);
+  }
+  return 0;
+}
+
+}  // namespace clnerf
