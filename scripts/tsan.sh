@@ -1,0 +1,15 @@
+#!/usr/bin/env bash
+# Builds the server tests with ThreadSanitizer (into build-tsan/) and runs
+# them. OpenMP runs single-threaded here (OMP_NUM_THREADS=1): libgomp is not
+# instrumented, so its own thread pool would only produce false reports; the
+# threads under test (gRPC handlers, the update worker, concurrent renders,
+# registry readers and writer) are all still there.
+# Usage: scripts/tsan.sh [gtest filter]
+set -euo pipefail
+cd "$(dirname "$0")/.."
+FILTER=${1:-*}
+cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCLNERF_TSAN=ON > build-tsan.configure.log 2>&1 || {
+  cat build-tsan.configure.log; exit 1; }
+cmake --build build-tsan -j "${JOBS:-$(nproc)}" --target server_tests
+OMP_NUM_THREADS=1 TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1" \
+  ./build-tsan/tests/server_tests --gtest_filter="$FILTER" --gtest_brief=1
