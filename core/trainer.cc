@@ -93,15 +93,21 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool 
   net.StepBiases(mlp, emb, model.num_time_steps(), &geo_bias, &app_bias);
 
   const int nblocks = (nrays + kBlockRays - 1) / kBlockRays;
-#pragma omp parallel num_threads(threads_)
-  {
-    ThreadScratch& s = *scratch_[omp_get_thread_num()];
+  // Reset every scratch, not only those of the threads that run: the OpenMP
+  // runtime may grant fewer threads than requested (OMP_THREAD_LIMIT, nested
+  // regions), and the reductions below read all of them.
+  for (const auto& sp : scratch_) {
+    ThreadScratch& s = *sp;
     s.grad_mlp.assign(model.params().mlp.size(), 0.0f);
     s.grad_emb.assign(model.params().emb.size(), 0.0f);
     s.store_pos.clear();
     s.store_dfeat.clear();
     s.sq_err = s.loss = 0;
     s.samples_marched = s.samples_used = 0;
+  }
+#pragma omp parallel num_threads(threads_)
+  {
+    ThreadScratch& s = *scratch_[omp_get_thread_num()];
 #pragma omp for schedule(static, 1)
     for (int b = 0; b < nblocks; ++b) {
       const int r0 = b * kBlockRays, nr = std::min(kBlockRays, nrays - r0);

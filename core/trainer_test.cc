@@ -4,6 +4,8 @@
 // Step(), and run-to-run determinism.
 #include "core/trainer.h"
 
+#include <omp.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -424,6 +426,40 @@ TEST(TrainerStepTest, FixedSeedTwoThreadsIsBitIdentical) {
   EXPECT_TRUE(SameBits(a.occupancy().density(), b.occupancy().density()));
   EXPECT_EQ(la, lb);
   ASSERT_EQ(la.size(), 5u);
+}
+
+// The OpenMP runtime may grant fewer threads than a trainer asks for (here:
+// a nested region with nesting off, as under OMP_THREAD_LIMIT). Training must
+// then equal a one-thread run bit for bit, not read stale per-thread scratch
+// (which crashed before the fix, found by the TSan run of the server tests).
+TEST(TrainerStepTest, FewerThreadsThanRequestedEqualsOneThread) {
+  const View view = MakeView(/*gradient_image=*/true);
+  auto run = [&view](int requested) {
+    NgpModel model = TinyModel(9, /*time_steps=*/1);
+    std::vector<float> losses;
+    const int saved = omp_get_max_active_levels();
+    omp_set_max_active_levels(1);
+#pragma omp parallel num_threads(2)
+    {
+      // Only the first thread trains; inside this active region every
+      // nested region gets one thread.
+      if (omp_get_thread_num() == 0) {
+        auto sampler = ImageRaySampler::Create({&view}, model);
+        EXPECT_TRUE(sampler.ok()) << sampler.status();
+        Trainer trainer(&model, sampler->get(), StepOptions(requested));
+        EXPECT_TRUE(trainer.Run([&losses](const StepStats& st) { losses.push_back(st.loss); }).ok());
+      }
+    }
+    omp_set_max_active_levels(saved);
+    return std::make_pair(model, losses);
+  };
+  const auto [one, l1] = run(1);
+  const auto [two, l2] = run(2);
+  ASSERT_EQ(l1.size(), 5u);
+  EXPECT_EQ(l1, l2);
+  EXPECT_TRUE(SameBits(one.params().grid, two.params().grid));
+  EXPECT_TRUE(SameBits(one.params().mlp, two.params().mlp));
+  EXPECT_TRUE(SameBits(one.params().emb, two.params().emb));
 }
 
 }  // namespace

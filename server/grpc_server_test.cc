@@ -53,7 +53,7 @@ class ServerFixture : public ::testing::Test {
   // Streams the job until it ends; returns its final state.
   v1::Job Watch(const std::string& job_id) {
     grpc::ClientContext ctx;
-    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(600));
     v1::WatchJobRequest req;
     req.set_job_id(job_id);
     auto reader = stub_->WatchJob(&ctx, req);
@@ -160,7 +160,7 @@ TEST_F(ServerFixture, UploadTrainPublishRenderAnyTimeStep) {
 
 TEST_F(ServerFixture, RendersDuringAnUpdateNeverFailAndSeeMonotonicVersions) {
   const std::string store = TempDir("srv_concurrent");
-  StartServer(TinyServerOptions(store, 120));
+  StartServer(TinyServerOptions(store, 60));
   const Scene scene = TinyScans(2);
   ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
   v1::UploadScanResponse ack;
