@@ -117,7 +117,7 @@ int main(int argc, char** argv) {
   add_remote_flags(in, &info.remote);
 
   DemoArgs demo;
-  CLI::App* d = app.add_subcommand("demo", "Main job: procedural scene -> train -> render -> PSNR (no data needed)");
+  CLI::App* d = app.add_subcommand("demo", "Engine-only demo: procedural scene -> train -> render -> PSNR in-process (no data needed)");
   d->add_option("--out", demo.out, "Output directory")->capture_default_str();
   d->add_option("--iters", demo.iterations, "Training steps")->capture_default_str();
   d->add_option("--size", demo.size, "Image size (pixels)")->capture_default_str();

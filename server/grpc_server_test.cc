@@ -228,6 +228,37 @@ TEST_F(ServerFixture, RollbackRedeploysAnOlderVersion) {
   EXPECT_EQ(Versions().back().parent(), 1);
 }
 
+TEST_F(ServerFixture, KeepVersionsPrunesTheOldest) {
+  const std::string store = TempDir("srv_prune");
+  ServerOptions o = TinyServerOptions(store);
+  o.keep_versions = 2;
+  StartServer(o);
+  const Scene scene = TinyScans(3);
+  for (int t = 0; t < 3; ++t) ASSERT_EQ(UploadAndWait(scene, t).phase(), v1::JOB_PHASE_DONE);
+  auto versions = Versions();
+  ASSERT_EQ(versions.size(), 2u);
+  EXPECT_EQ(versions[0].version(), 2);
+  EXPECT_EQ(versions[1].version(), 3);
+  v1::RenderResponse r;
+  EXPECT_EQ(Render(scene.test[0].camera, -1, 1, &r).error_code(), grpc::StatusCode::NOT_FOUND);
+  // Roll back to version 2 and train once more: version 4 (parent 2) is
+  // deployed and the oldest, 2, goes.
+  grpc::ClientContext ctx;
+  v1::SetDeployedVersionRequest req;
+  req.set_version(2);
+  v1::Version v;
+  ASSERT_TRUE(stub_->SetDeployedVersion(&ctx, req, &v).ok());
+  ASSERT_EQ(UploadAndWait(scene, 2).phase(), v1::JOB_PHASE_DONE);
+  versions = Versions();
+  ASSERT_EQ(versions.size(), 2u);
+  EXPECT_EQ(versions[0].version(), 3);
+  EXPECT_EQ(versions[1].version(), 4);
+  EXPECT_EQ(versions[1].parent(), 2);
+  EXPECT_TRUE(versions[1].deployed());
+  EXPECT_FALSE(std::filesystem::exists(store + "/versions/000002"));
+  EXPECT_EQ(Render(scene.test[0].camera, -1, 2, &r).error_code(), grpc::StatusCode::NOT_FOUND);
+}
+
 TEST_F(ServerFixture, RestartMidTrainingLosesNoScan) {
   const std::string store = TempDir("srv_restart");
   StartServer(TinyServerOptions(store, 100000));  // Would take hours.

@@ -53,11 +53,13 @@ int main(int argc, char** argv) {
   app.add_option("--listen", o.listen, "HOST:PORT to listen on (port 0 = any free port)")->capture_default_str();
   app.add_option("--store", o.store_dir, "Store directory (scans, versions, manifest)")->capture_default_str();
   app.add_option("--token", o.token, "Bearer token required for mutating calls (default: $CLNERF_TOKEN; empty = no auth)");
-  app.add_option("--config", config, "JSON config file (keys: see README 'Server configuration'); flags override it");
+  app.add_option("--config", config, "JSON config file (keys: README 'The service' > Operation, server/server_options.h); flags override it");
   app.add_option("--tls-cert", o.tls_cert, "PEM certificate chain (enables TLS with --tls-key)");
   app.add_option("--tls-key", o.tls_key, "PEM private key");
   app.add_option("--iters", iters, "Training iterations per update (default 300)");
   app.add_option("--max-queue", o.max_queue, "Scans that may wait for training")->capture_default_str();
+  app.add_option("--keep-versions", o.keep_versions, "Model versions kept on disk, oldest pruned first (0 = all)")
+      ->capture_default_str();
   app.add_option("--render-concurrency", o.render_concurrency, "Renders running at once")->capture_default_str();
   app.add_option("--render-threads", o.render_threads, "Threads per render")->capture_default_str();
   app.add_option("--train-threads", o.train_threads, "Threads of the update worker")->capture_default_str();
@@ -80,6 +82,7 @@ int main(int argc, char** argv) {
     if (app.count("--tls-cert")) o.tls_cert = flags.tls_cert;
     if (app.count("--tls-key")) o.tls_key = flags.tls_key;
     if (app.count("--max-queue")) o.max_queue = flags.max_queue;
+    if (app.count("--keep-versions")) o.keep_versions = flags.keep_versions;
     if (app.count("--render-concurrency")) o.render_concurrency = flags.render_concurrency;
     if (app.count("--render-threads")) o.render_threads = flags.render_threads;
     if (app.count("--train-threads")) o.train_threads = flags.train_threads;

@@ -245,6 +245,24 @@ void ModelHost::Shutdown() {
   if (worker_.joinable()) worker_.join();
 }
 
+void ModelHost::PruneVersions() {
+  if (options_.keep_versions <= 0) return;
+  absl::StatusOr<std::vector<VersionInfo>> all = versions_->List();
+  if (!all.ok()) return;
+  int excess = int(all->size()) - options_.keep_versions;
+  for (const VersionInfo& v : *all) {
+    if (excess <= 0) break;
+    if (v.version == manifest_.deployed) continue;
+    if (absl::Status s = versions_->Remove(v.version); !s.ok()) {
+      spdlog::warn("pruning version {}: {}", v.version, s.ToString());
+      continue;
+    }
+    registry_.Evict(v.version);
+    spdlog::info("pruned version {} (keep_versions = {})", v.version, options_.keep_versions);
+    --excess;
+  }
+}
+
 void ModelHost::WorkerLoop() {
   omp_set_num_threads(options_.train_threads);
   while (true) {
@@ -383,6 +401,7 @@ void ModelHost::RunJob(const std::string& job_id) {
   servable->memory = std::make_shared<const ReplayMemory>(std::move(next->memory));
   registry_.Deploy(std::move(servable));
   if (absl::Status s = scans_->Remove(scan_id); !s.ok()) spdlog::warn("job {}: {}", job_id, s.ToString());
+  PruneVersions();
   jobs_.Update(job_id, [&](JobStatus* j) {
     j->phase = JobPhase::kDone;
     j->version = info.version;

@@ -108,6 +108,7 @@ class ModelHost {
   void FinishJob(const std::string& job_id, const std::string& scan_id, JobPhase phase, const std::string& error,
                  bool remove_scan);
   absl::StatusOr<std::shared_ptr<const Servable>> LoadServable(int64_t version) const;
+  void PruneVersions();  // Applies keep_versions; caller holds manifest_mu_.
 
   const ServerOptions options_;
   const std::chrono::steady_clock::time_point started_;

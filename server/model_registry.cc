@@ -49,6 +49,11 @@ absl::StatusOr<std::shared_ptr<const Servable>> ModelRegistry::Get(int64_t versi
   return *loaded;
 }
 
+void ModelRegistry::Evict(int64_t version) {
+  std::lock_guard<std::mutex> lock(mu_);
+  cache_.remove_if([&](const std::shared_ptr<const Servable>& s) { return s->info.version == version; });
+}
+
 void ModelRegistry::Deploy(std::shared_ptr<const Servable> servable) {
   std::shared_ptr<const Servable> old;
   {

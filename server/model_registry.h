@@ -45,6 +45,8 @@ class ModelRegistry {
   absl::StatusOr<std::shared_ptr<const Servable>> Get(int64_t version) const;
   // Makes `servable` the deployed version (a publish or a rollback).
   void Deploy(std::shared_ptr<const Servable> servable);
+  // Drops a (non-deployed) version from the cache, e.g. after it was pruned.
+  void Evict(int64_t version);
 
  private:
   void CacheLocked(std::shared_ptr<const Servable> s) const;

@@ -48,6 +48,7 @@ absl::Status ServerOptions::Validate() const {
   if (max_frames < 1 || max_frames > 65535) return absl::InvalidArgumentError("max_frames must be in [1, 65535]");
   if (max_render_pixels < 1) return absl::InvalidArgumentError("max_render_pixels must be >= 1");
   if (cached_versions < 0) return absl::InvalidArgumentError("cached_versions must be >= 0");
+  if (keep_versions < 0) return absl::InvalidArgumentError("keep_versions must be >= 0");
   if (!(shutdown_grace_seconds >= 0)) return absl::InvalidArgumentError("shutdown_grace_seconds must be >= 0");
   if (update.method == ContinualMethod::kEWC) {
     // The Fisher penalty is not part of a stored version, so it would not
@@ -115,6 +116,7 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "max_frames") s = Get(*it, "max_frames", &o->max_frames);
     else if (k == "max_render_pixels") s = Get(*it, "max_render_pixels", &o->max_render_pixels);
     else if (k == "cached_versions") s = Get(*it, "cached_versions", &o->cached_versions);
+    else if (k == "keep_versions") s = Get(*it, "keep_versions", &o->keep_versions);
     else if (k == "shutdown_grace_seconds") s = Get(*it, "shutdown_grace_seconds", &o->shutdown_grace_seconds);
     else if (k == "iterations_per_update") s = Get(*it, k.c_str(), &o->update.train.iterations);
     else if (k == "buffer_size") s = Get(*it, k.c_str(), &o->update.buffer_size);

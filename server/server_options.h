@@ -57,6 +57,7 @@ struct ServerOptions {
   int max_frames = 4000;                // Frames (train + test) per scan.
   int64_t max_render_pixels = 4096 * 4096;  // Largest render request.
   int cached_versions = 4;              // Non-deployed versions kept in memory.
+  int keep_versions = 0;                // Versions kept on disk (oldest pruned, never the deployed one); 0 = all.
   double shutdown_grace_seconds = 20;   // In-flight RPCs get this long on shutdown.
 
   UpdateOptions update = DefaultUpdateOptions();

@@ -129,6 +129,18 @@ absl::StatusOr<std::vector<VersionInfo>> VersionStore::List() const {
   return out;
 }
 
+absl::Status VersionStore::Remove(int64_t version) {
+  const std::string dir = VersionDir(version);
+  const std::string aside = (fs::path(dir_) / absl::StrFormat(".tmp-del-%06d", version)).string();
+  std::error_code ec;
+  if (!fs::exists(dir, ec)) return absl::NotFoundError(absl::StrCat("version ", version, " does not exist"));
+  fs::rename(dir, aside, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot remove version ", version, ": ", ec.message()));
+  if (absl::Status s = SyncDirectory(dir_); !s.ok()) return s;
+  fs::remove_all(aside, ec);
+  return absl::OkStatus();
+}
+
 absl::StatusOr<Manifest> VersionStore::ReadManifest() const {
   const std::string path = (fs::path(root_) / "manifest.json").string();
   absl::StatusOr<std::string> text = ReadFileToString(path, "manifest");

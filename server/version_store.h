@@ -62,6 +62,10 @@ class VersionStore {
   // All versions, ascending.
   absl::StatusOr<std::vector<VersionInfo>> List() const;
 
+  // Deletes a version's folder (renamed aside first, so a crash leaves it
+  // whole or gone). NOT_FOUND if it does not exist.
+  absl::Status Remove(int64_t version);
+
   absl::StatusOr<Manifest> ReadManifest() const;  // Defaults if absent.
   absl::Status WriteManifest(const Manifest& manifest);
 

@@ -70,7 +70,9 @@ TEST(VersionStoreTest, TornWritesAreInvisibleAndCorruptionIsDataLoss) {
   auto store = VersionStore::Open(root);
   ASSERT_TRUE(store.ok());
   EXPECT_TRUE((*store)->List()->empty());
-  ASSERT_TRUE((*store)->Write(TinyModel(2), ReplayMemory(), VersionInfo{.version = 1}).ok());
+  VersionInfo one;
+  one.version = 1;
+  ASSERT_TRUE((*store)->Write(TinyModel(2), ReplayMemory(), one).ok());
   // Flip a byte in the checkpoint: the CRC catches it.
   const std::string ck = root + "/versions/000001/model.ckpt";
   std::string bytes = *ReadFileToString(ck);
