@@ -19,15 +19,11 @@ fi
 [ -x build/client/clnerf ] && [ -x build/server/clnerf-server ] || bash scripts/build.sh
 mkdir -p "$OUT"
 STORE=$(mktemp -d /tmp/clnerf-bench-store.XXXXXX)
-./build/server/clnerf-server --listen 127.0.0.1:0 --store "$STORE" ${SERVER_ARGS:-} > "$OUT/server.out" 2> "$OUT/server.log" &
-PID=$!
-trap 'kill -TERM $PID 2>/dev/null || true; wait $PID 2>/dev/null || true; rm -rf "$STORE"' EXIT
-PORT=""
-for _ in $(seq 1 100); do
-  PORT=$(sed -n 's/^clnerf-server listening on port \([0-9]*\)$/\1/p' "$OUT/server.out")
-  [ -n "$PORT" ] && break
-  sleep 0.1
-done
-[ -n "$PORT" ] || { echo "server did not start"; cat "$OUT/server.log"; exit 1; }
-./build/client/clnerf bench serve --server "127.0.0.1:$PORT" --data "$DATA" --json-out "$OUT/serve.json" ${EXTRA_ARGS:-} \
+trap 'rm -rf "$STORE"' EXIT
+# shellcheck source=scripts/start-server.sh
+source scripts/start-server.sh
+# shellcheck disable=SC2086  # SERVER_ARGS is a list of flags.
+start_server "$STORE" "$OUT/server" ${SERVER_ARGS:-}
+trap 'kill -TERM $SERVER_PID 2>/dev/null || true; wait $SERVER_PID 2>/dev/null || true; rm -rf "$STORE"' EXIT
+./build/client/clnerf bench serve --server "127.0.0.1:$SERVER_PORT" --data "$DATA" --json-out "$OUT/serve.json" ${EXTRA_ARGS:-} \
   2> "$OUT/bench.log" | tee "$OUT/serve.txt"

@@ -6,6 +6,7 @@
 
 #include <atomic>
 #include <cerrno>
+#include <filesystem>
 
 #include "absl/strings/str_cat.h"
 
@@ -123,6 +124,42 @@ absl::StatusOr<std::string> ReadFileToString(const std::string& path, absl::stri
   out.resize(filled);
   ::close(fd);
   return out;
+}
+
+absl::Status WriteDirectoryAtomically(const std::string& dir,
+                                      const std::vector<std::pair<std::string, std::string_view>>& files) {
+  namespace fs = std::filesystem;
+  const fs::path final_dir(dir);
+  const fs::path parent = final_dir.parent_path().empty() ? fs::path(".") : final_dir.parent_path();
+  const fs::path tmp = parent / (".tmp-" + final_dir.filename().string());
+  std::error_code ec;
+  if (fs::exists(final_dir, ec)) return absl::AlreadyExistsError(absl::StrCat("'", dir, "' exists"));
+  fs::remove_all(tmp, ec);
+  fs::create_directories(tmp, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot create '", tmp.string(), "': ", ec.message()));
+  absl::Status s;
+  for (const auto& [name, bytes] : files) {
+    s = WriteFileSynced((tmp / name).string(), bytes);
+    if (!s.ok()) break;
+  }
+  if (s.ok()) s = SyncDirectory(tmp.string());
+  if (s.ok()) {
+    fs::rename(tmp, final_dir, ec);
+    if (ec) s = absl::InternalError(absl::StrCat("cannot rename '", tmp.string(), "' to '", dir, "': ", ec.message()));
+  }
+  if (!s.ok()) {
+    fs::remove_all(tmp, ec);
+    return s;
+  }
+  return SyncDirectory(parent.string());
+}
+
+void RemoveTempEntries(const std::string& dir) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir, ec)) {
+    if (e.path().filename().string().rfind(".tmp-", 0) == 0) fs::remove_all(e.path(), ec);
+  }
 }
 
 }  // namespace clnerf

@@ -11,6 +11,8 @@
 
 #include <string>
 #include <string_view>
+#include <utility>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -27,6 +29,16 @@ absl::Status AtomicWriteFile(const std::string& path, std::string_view data);
 absl::Status SyncDirectory(const std::string& dir);
 // The parent directory of `path` ("." if none).
 std::string DirectoryOf(const std::string& path);
+// Creates directory `dir` holding `files` (name -> bytes) atomically: they are
+// written into the sibling `.tmp-<name of dir>`, each fsync'd, that directory
+// is fsync'd and renamed to `dir`, and the parent is fsync'd. A crash leaves
+// `dir` complete or absent (plus a temporary that RemoveTempEntries cleans).
+// ALREADY_EXISTS if `dir` exists; on failure nothing is left behind.
+absl::Status WriteDirectoryAtomically(const std::string& dir,
+                                      const std::vector<std::pair<std::string, std::string_view>>& files);
+// Removes the entries of `dir` whose names start with ".tmp-": what writes
+// interrupted by a crash left behind.
+void RemoveTempEntries(const std::string& dir);
 // Reads a whole file. NOT_FOUND names `what` (e.g. "checkpoint").
 absl::StatusOr<std::string> ReadFileToString(const std::string& path, absl::string_view what = "file");
 

@@ -27,18 +27,11 @@ echo "== 1. three scans of the procedural changing scene -> $OUT/scans"
 $BIN --log-level warn scans --out "$OUT/scans" --scans 3 --size "$SIZE"
 
 echo "== 2. clnerf-server (store $OUT/store, $ITERS iterations per update)"
-$SERVER --listen 127.0.0.1:0 --store "$OUT/store" --iters "$ITERS" > "$OUT/server.out" 2> "$OUT/server.log" &
-SERVER_PID=$!
+# shellcheck source=scripts/start-server.sh
+source scripts/start-server.sh
+start_server "$OUT/store" "$OUT/server" --iters "$ITERS"
 trap 'kill -TERM $SERVER_PID 2>/dev/null || true' EXIT
-PORT=""
-for _ in $(seq 1 100); do
-  PORT=$(sed -n 's/^clnerf-server listening on port \([0-9]*\)$/\1/p' "$OUT/server.out")
-  [ -n "$PORT" ] && break
-  kill -0 $SERVER_PID 2>/dev/null || { cat "$OUT/server.log"; exit 1; }
-  sleep 0.1
-done
-[ -n "$PORT" ] || { echo "server did not start"; cat "$OUT/server.log"; exit 1; }
-export CLNERF_SERVER=127.0.0.1:$PORT
+export CLNERF_SERVER=127.0.0.1:$SERVER_PORT
 $BIN info
 
 echo "== 3. upload and train, scan by scan"

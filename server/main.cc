@@ -67,25 +67,15 @@ int main(int argc, char** argv) {
   app.add_option("--log-format", log_format, "text|json (one JSON object per line)")->capture_default_str();
   CLI11_PARSE(app, argc, argv);
 
-  // Config file first, then explicit flags win.
+  // Config file first, then explicit flags win: the flags are parsed again on
+  // top of the file's values (CLI11 writes only the options that are given).
   if (!config.empty()) {
-    ServerOptions from_file;
-    if (absl::Status s = ApplyConfigFile(config, &from_file); !s.ok()) {
+    o = ServerOptions();
+    if (absl::Status s = ApplyConfigFile(config, &o); !s.ok()) {
       std::fprintf(stderr, "clnerf-server: %s\n", s.ToString().c_str());
       return 2;
     }
-    ServerOptions flags = o;
-    o = from_file;
-    if (app.count("--listen")) o.listen = flags.listen;
-    if (app.count("--store")) o.store_dir = flags.store_dir;
-    if (app.count("--token")) o.token = flags.token;
-    if (app.count("--tls-cert")) o.tls_cert = flags.tls_cert;
-    if (app.count("--tls-key")) o.tls_key = flags.tls_key;
-    if (app.count("--max-queue")) o.max_queue = flags.max_queue;
-    if (app.count("--keep-versions")) o.keep_versions = flags.keep_versions;
-    if (app.count("--render-concurrency")) o.render_concurrency = flags.render_concurrency;
-    if (app.count("--render-threads")) o.render_threads = flags.render_threads;
-    if (app.count("--train-threads")) o.train_threads = flags.train_threads;
+    CLI11_PARSE(app, argc, argv);
   }
   if (iters > 0) o.update.train.iterations = iters;
   if (o.token.empty()) {

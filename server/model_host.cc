@@ -67,6 +67,11 @@ absl::StatusOr<std::shared_ptr<const Servable>> ModelHost::LoadServable(int64_t 
   return std::shared_ptr<const Servable>(std::move(s));
 }
 
+int ModelHost::PredictedTimeStep() const {
+  const std::shared_ptr<const Servable> deployed = registry_.Deployed();
+  return (deployed ? deployed->model->num_time_steps() : 0) + jobs_.running_or_queued();
+}
+
 absl::Status ModelHost::Recover() {
   absl::StatusOr<Manifest> m = versions_->ReadManifest();
   if (!m.ok()) return m.status();
@@ -103,7 +108,7 @@ absl::Status ModelHost::Recover() {
     j.scan_id = r.scan_id;
     j.scan_name = r.name;
     j.created_unix_ms = r.created_unix_ms;
-    j.time_step = (registry_.Deployed() ? registry_.Deployed()->model->num_time_steps() : 0) + requeued;
+    j.time_step = PredictedTimeStep();
     if (absl::Status s = jobs_.Enqueue(std::move(j), /*force=*/true); !s.ok()) return s;
     ++requeued;
   }
@@ -148,8 +153,7 @@ absl::StatusOr<UploadAck> ModelHost::AcceptScan(const ScanUpload& upload) {
   j.scan_id = rec.scan_id;
   j.scan_name = rec.name;
   j.created_unix_ms = rec.created_unix_ms;
-  auto deployed = registry_.Deployed();
-  j.time_step = (deployed ? deployed->model->num_time_steps() : 0) + jobs_.running_or_queued();
+  j.time_step = PredictedTimeStep();
   const int time_step = j.time_step;
   if (absl::Status s = jobs_.Enqueue(std::move(j)); !s.ok()) {
     (void)scans_->Remove(rec.scan_id);
@@ -294,15 +298,9 @@ void ModelHost::RunJob(const std::string& job_id) {
   const std::shared_ptr<const Servable> prev = registry_.Deployed();
   const int t = prev ? prev->model->num_time_steps() : 0;
 
-  absl::StatusOr<std::vector<ScanRecord>> recs = scans_->List();
-  std::string kind = "bounded";
-  if (recs.ok()) {
-    for (const ScanRecord& r : *recs)
-      if (r.scan_id == scan_id && !r.scene_kind.empty()) kind = r.scene_kind;
-  }
-  const Eigen::Vector3f background =
-      prev ? prev->model->background() : (kind == "unbounded" ? Eigen::Vector3f::Zero() : Eigen::Vector3f::Ones());
-  absl::StatusOr<Scene> scene = scans_->Load(scan_id, t, background);
+  // Later scans take the deployed model's background; the first, its kind's.
+  absl::StatusOr<Scene> scene =
+      scans_->Load(scan_id, t, prev ? std::optional<Eigen::Vector3f>(prev->model->background()) : std::nullopt);
   if (!scene.ok()) {
     return FinishJob(job_id, scan_id, JobPhase::kFailed, absl::StrCat("cannot read the stored scan: ", scene.status().message()), false);
   }

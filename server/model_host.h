@@ -103,6 +103,8 @@ class ModelHost {
  private:
   explicit ModelHost(const ServerOptions& options);
   absl::Status Recover();
+  // The time step a scan queued now becomes if every job ahead succeeds.
+  int PredictedTimeStep() const;
   void WorkerLoop();
   void RunJob(const std::string& job_id);
   void FinishJob(const std::string& job_id, const std::string& scan_id, JobPhase phase, const std::string& error,

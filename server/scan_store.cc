@@ -113,53 +113,39 @@ absl::StatusOr<std::unique_ptr<ScanStore>> ScanStore::Open(const std::string& ro
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec) return absl::InternalError(absl::StrCat("cannot create '", dir, "': ", ec.message()));
-  for (const auto& e : fs::directory_iterator(dir, ec)) {
-    if (e.path().filename().string().rfind(kTmpPrefix, 0) == 0) fs::remove_all(e.path(), ec);
-  }
+  RemoveTempEntries(dir);
   return std::unique_ptr<ScanStore>(new ScanStore(dir));
 }
 
 absl::Status ScanStore::Save(const ScanRecord& record, const ScanUpload& scan) {
-  const fs::path final_dir = fs::path(dir_) / record.scan_id;
-  const fs::path tmp = fs::path(dir_) / (kTmpPrefix + record.scan_id);
-  std::error_code ec;
-  if (fs::exists(final_dir, ec)) return absl::AlreadyExistsError(absl::StrCat("scan ", record.scan_id, " exists"));
-  fs::remove_all(tmp, ec);
-  fs::create_directories(tmp, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot create '", tmp.string(), "': ", ec.message()));
-  auto fail = [&](absl::Status s) {
-    fs::remove_all(tmp, ec);
-    return s;
-  };
+  std::vector<std::pair<std::string, std::string_view>> files;
   nlohmann::json frames = nlohmann::json::array();
   for (size_t i = 0; i < scan.frames.size(); ++i) {
     const ScanFrame& f = scan.frames[i];
     nlohmann::json fj = {{"name", f.name}, {"test", f.test}, {"camera", CameraToJson(f.camera)}};
-    const std::string img = FrameFile(int(i), false, SniffImageExtension(f.image));
-    if (absl::Status s = WriteFileSynced((tmp / img).string(), f.image); !s.ok()) return fail(s);
-    fj["image"] = img;
+    fj["image"] = FrameFile(int(i), false, SniffImageExtension(f.image));
+    files.emplace_back(fj["image"], f.image);
     if (!f.mask.empty()) {
-      const std::string m = FrameFile(int(i), true, SniffImageExtension(f.mask));
-      if (absl::Status s = WriteFileSynced((tmp / m).string(), f.mask); !s.ok()) return fail(s);
-      fj["mask"] = m;
+      fj["mask"] = FrameFile(int(i), true, SniffImageExtension(f.mask));
+      files.emplace_back(fj["mask"], f.mask);
     }
     frames.push_back(std::move(fj));
   }
-  nlohmann::json j = {{"scan_id", record.scan_id},
-                      {"job_id", record.job_id},
-                      {"name", record.name},
-                      {"scene_kind", record.scene_kind},
-                      {"mask_nonzero_is_exclude", record.mask_nonzero_is_exclude},
-                      {"created_unix_ms", record.created_unix_ms},
-                      {"num_frames", record.num_frames},
-                      {"num_test_frames", record.num_test_frames},
-                      {"num_bytes", record.num_bytes},
-                      {"frames", frames}};
-  if (absl::Status s = WriteFileSynced((tmp / "scan.json").string(), j.dump(1)); !s.ok()) return fail(s);
-  if (absl::Status s = SyncDirectory(tmp.string()); !s.ok()) return fail(s);
-  fs::rename(tmp, final_dir, ec);
-  if (ec) return fail(absl::InternalError(absl::StrCat("cannot publish scan ", record.scan_id, ": ", ec.message())));
-  return SyncDirectory(dir_);
+  const nlohmann::json j = {{"scan_id", record.scan_id},
+                            {"job_id", record.job_id},
+                            {"name", record.name},
+                            {"scene_kind", record.scene_kind},
+                            {"mask_nonzero_is_exclude", record.mask_nonzero_is_exclude},
+                            {"created_unix_ms", record.created_unix_ms},
+                            {"num_frames", record.num_frames},
+                            {"num_test_frames", record.num_test_frames},
+                            {"num_bytes", record.num_bytes},
+                            {"frames", frames}};
+  const std::string manifest = j.dump(1);
+  files.emplace_back("scan.json", manifest);
+  absl::Status s = WriteDirectoryAtomically((fs::path(dir_) / record.scan_id).string(), files);
+  if (!s.ok()) return absl::Status(s.code(), absl::StrCat("cannot store scan ", record.scan_id, ": ", s.message()));
+  return absl::OkStatus();
 }
 
 namespace {
@@ -206,7 +192,7 @@ absl::StatusOr<std::vector<ScanRecord>> ScanStore::List() const {
 }
 
 absl::StatusOr<Scene> ScanStore::Load(const std::string& scan_id, int time_step,
-                                      const Eigen::Vector3f& background) const {
+                                      const std::optional<Eigen::Vector3f>& background) const {
   const fs::path dir = fs::path(dir_) / scan_id;
   absl::StatusOr<nlohmann::json> j = ReadScanJson(dir);
   if (!j.ok()) return j.status();
@@ -214,7 +200,8 @@ absl::StatusOr<Scene> ScanStore::Load(const std::string& scan_id, int time_step,
   try {
     scene.name = j->at("name");
     scene.kind = j->at("scene_kind") == "unbounded" ? SceneKind::kUnbounded : SceneKind::kBounded;
-    scene.background = background;
+    scene.background = background.value_or(scene.kind == SceneKind::kUnbounded ? Eigen::Vector3f::Zero()
+                                                                                : Eigen::Vector3f::Ones());
     const bool nonzero_excl = j->at("mask_nonzero_is_exclude");
     for (const auto& fj : j->at("frames")) {
       View v;
@@ -224,7 +211,7 @@ absl::StatusOr<Scene> ScanStore::Load(const std::string& scan_id, int time_step,
       const std::string img_file = fj.at("image");
       absl::StatusOr<std::string> bytes = ReadFileToString((dir / img_file).string(), "scan image");
       if (!bytes.ok()) return bytes.status();
-      absl::StatusOr<Image> img = DecodeImage(*bytes, img_file, background);
+      absl::StatusOr<Image> img = DecodeImage(*bytes, img_file, scene.background);
       if (!img.ok()) return img.status();
       v.image = *std::move(img);
       if (fj.contains("mask")) {

@@ -16,6 +16,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -66,9 +67,11 @@ class ScanStore {
   // Every stored scan, in scan-id (upload) order.
   absl::StatusOr<std::vector<ScanRecord>> List() const;
   // Decodes the scan into views with time step `time_step`, compositing onto
-  // `background`: train frames into scene.train, test frames into scene.test.
+  // `background` (unset: the scan's scene kind's, white for bounded, black
+  // for unbounded): train frames into scene.train, test frames into
+  // scene.test.
   absl::StatusOr<Scene> Load(const std::string& scan_id, int time_step,
-                             const Eigen::Vector3f& background) const;
+                             const std::optional<Eigen::Vector3f>& background) const;
   absl::Status Remove(const std::string& scan_id);
   const std::string& dir() const { return dir_; }
 

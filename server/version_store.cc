@@ -49,9 +49,7 @@ absl::StatusOr<std::unique_ptr<VersionStore>> VersionStore::Open(const std::stri
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec) return absl::InternalError(absl::StrCat("cannot create '", dir, "': ", ec.message()));
-  for (const auto& e : fs::directory_iterator(dir, ec)) {
-    if (e.path().filename().string().rfind(".tmp-", 0) == 0) fs::remove_all(e.path(), ec);
-  }
+  RemoveTempEntries(dir);
   return std::unique_ptr<VersionStore>(new VersionStore(root, dir));
 }
 
@@ -61,34 +59,16 @@ std::string VersionStore::VersionDir(int64_t v) const {
 
 absl::StatusOr<VersionInfo> VersionStore::Write(const NgpModel& model, const ReplayMemory& memory,
                                                 VersionInfo info) {
-  const std::string final_dir = VersionDir(info.version);
-  const std::string tmp = (fs::path(dir_) / absl::StrFormat(".tmp-%06d", info.version)).string();
-  std::error_code ec;
-  if (fs::exists(final_dir, ec)) return absl::AlreadyExistsError(absl::StrCat("version ", info.version, " exists"));
-  fs::remove_all(tmp, ec);
-  fs::create_directories(tmp, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot create '", tmp, "': ", ec.message()));
   CheckpointExtras extras;
   extras.metadata["version"] = absl::StrCat(info.version);
   extras.metadata["parent"] = absl::StrCat(info.parent);
   extras.sections.emplace_back(kMemorySection, memory.Serialize());
   absl::StatusOr<std::string> bytes = SerializeCheckpoint(model, extras);
-  absl::Status s = bytes.status();
-  if (s.ok()) {
-    info.size_bytes = int64_t(bytes->size());
-    s = WriteFileSynced(tmp + "/model.ckpt", *bytes);
-  }
-  if (s.ok()) s = WriteFileSynced(tmp + "/version.json", InfoToJson(info).dump(1));
-  if (s.ok()) s = SyncDirectory(tmp);
-  if (s.ok()) {
-    fs::rename(tmp, final_dir, ec);
-    if (ec) s = absl::InternalError(absl::StrCat("cannot publish version ", info.version, ": ", ec.message()));
-  }
-  if (!s.ok()) {
-    fs::remove_all(tmp, ec);
-    return s;
-  }
-  if (absl::Status d = SyncDirectory(dir_); !d.ok()) return d;
+  if (!bytes.ok()) return bytes.status();
+  info.size_bytes = int64_t(bytes->size());
+  const std::string json = InfoToJson(info).dump(1);
+  absl::Status s = WriteDirectoryAtomically(VersionDir(info.version), {{"model.ckpt", *bytes}, {"version.json", json}});
+  if (!s.ok()) return absl::Status(s.code(), absl::StrCat("cannot publish version ", info.version, ": ", s.message()));
   return info;
 }
 
