@@ -123,7 +123,10 @@ TEST(ContinualUpdateTest, ReplayLabelsAreThePreviousModelsRenders) {
   for (int i = 0; i < b.size(); ++i) {
     float rgb[3];
     RenderRays(prev, &b.origin[3 * i], &b.dir[3 * i], 1, b.time_step[i], RenderOptions{}, rgb, nullptr, nullptr);
-    for (int c = 0; c < 3; ++c) EXPECT_EQ(b.target[3 * i + c], rgb[c]) << "ray " << i;
+    // A batch of rays and a single ray may go through different GEMM
+    // kernels (e.g. AVX-512 FP16 paths on Intel), so the property is
+    // equality to float precision, not bit equality.
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(b.target[3 * i + c], rgb[c], 1e-6f) << "ray " << i;
   }
   // Offline: the cached label of a view is RenderView's image of it, so a
   // sampled pixel equals the same pixel of RenderView.
@@ -137,7 +140,10 @@ TEST(ContinualUpdateTest, ReplayLabelsAreThePreviousModelsRenders) {
   for (int i = 0; i < b.size(); ++i) {
     float rgb[3];
     RenderRays(prev, &b.origin[3 * i], &b.dir[3 * i], 1, b.time_step[i], RenderOptions{}, rgb, nullptr, nullptr);
-    for (int c = 0; c < 3; ++c) EXPECT_EQ(b.target[3 * i + c], rgb[c]) << "ray " << i;
+    // A batch of rays and a single ray may go through different GEMM
+    // kernels (e.g. AVX-512 FP16 paths on Intel), so the property is
+    // equality to float precision, not bit equality.
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(b.target[3 * i + c], rgb[c], 1e-6f) << "ray " << i;
   }
 }
 
@@ -157,7 +163,13 @@ TEST(ContinualUpdateTest, TimeStepsRouteToTheirEmbeddingRows) {
   // Copy row 0 into row 1: the renders become identical.
   const int row = m.network().embedding_row_size();
   std::copy(m.params().emb.begin(), m.params().emb.begin() + row, m.mutable_params().emb.begin() + row);
-  EXPECT_EQ(RenderView(m, cam, r1)->rgb.rgb, a.rgb);
+  {
+    // Rows 0 and 1 go through different columns of one GEMM: equal to float
+    // precision, not necessarily bit for bit.
+    const Image c = RenderView(m, cam, r1)->rgb;
+    ASSERT_EQ(c.rgb.size(), a.rgb.size());
+    for (size_t i = 0; i < a.rgb.size(); ++i) ASSERT_NEAR(c.rgb[i], a.rgb[i], 1e-6f) << "value " << i;
+  }
   // Training rays of step 1 only produce gradients in row 1.
   std::vector<const View*> vs;
   std::vector<View> views = seq.scans[0].train;

@@ -54,6 +54,11 @@ struct Scene {
   float aabb_scale = 0.0f;        // instant-ngp `aabb_scale`.
   float world_scale_hint = 0.0f;  // e.g. Blender: 1/3, instant-ngp: 0.33.
   Eigen::Vector3f world_offset_hint = Eigen::Vector3f::Zero();
+  // World-space points on the scene's content (COLMAP's sparse points, or
+  // points at the near/far bounds along each camera's axis from LLFF's
+  // poses_bounds.npy); empty when the loader has none. Used only to place and
+  // size the model's box (ComputeNormalization).
+  std::vector<Eigen::Vector3f> content_points;
 
   int num_time_steps() const;  // 1 + max time step over all views (0 if none).
 };
