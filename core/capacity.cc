@@ -57,7 +57,10 @@ ModelOptions DeriveModelOptions(const Scene& scene, const Normalization& norm, c
         std::clamp(cap.steps_per_cell * float(finest) / (2.0f * norm.bound) * 1.0f, 128.0f, 1024.0f);
     base.march.cone_angle = 0.0f;
   } else {
-    base.march.steps_per_diagonal = 1024.0f;
+    // Contracted space: min_step about one finest cell of the inner cube,
+    // exponential (cone) steps beyond.
+    base.march.steps_per_diagonal =
+        std::clamp(cap.steps_per_cell * float(finest) / (2.0f * norm.bound), 128.0f, 1024.0f);
     base.march.cone_angle = 1.0f / 256.0f;
   }
   if (report) {

@@ -6,6 +6,8 @@
 #include <cmath>
 
 #include "absl/strings/str_cat.h"
+#include "core/contraction.h"
+#include "core/field.h"
 
 namespace clnerf {
 
@@ -25,7 +27,9 @@ NgpModel::NgpModel(const ModelOptions& options, const Normalization& norm, Scene
       grid_(options.grid),
       network_(options.network, grid_.output_dim()),
       occupancy_(options.occupancy, norm.bound, options.march.min_step()),
-      num_time_steps_(num_time_steps) {}
+      num_time_steps_(num_time_steps) {
+  occupancy_.set_contracted(contracted());
+}
 
 absl::StatusOr<NgpModel> NgpModel::Create(const ModelOptions& options, const Normalization& norm,
                                           SceneKind kind, const Eigen::Vector3f& background,
@@ -33,6 +37,9 @@ absl::StatusOr<NgpModel> NgpModel::Create(const ModelOptions& options, const Nor
   if (absl::Status s = options.Validate(); !s.ok()) return s;
   if (num_time_steps < 1) return absl::InvalidArgumentError("model needs at least one time step");
   if (!(norm.bound > 0) || !(norm.scale > 0)) return absl::InvalidArgumentError("invalid normalisation");
+  if (kind == SceneKind::kUnbounded && norm.bound != kContractedBound) {
+    return absl::InvalidArgumentError("unbounded scenes need the contracted box (normalisation bound 2)");
+  }
   NgpModel m(options, norm, kind, background, num_time_steps);
   m.Reinitialize(seed);
   return m;
@@ -59,6 +66,7 @@ void NgpModel::Reinitialize(uint64_t seed) {
   network_.InitializeMlp(params_.mlp.data(), seed * 3 + 2);
   network_.InitializeEmbeddings(params_.emb.data(), num_time_steps_, seed * 3 + 3);
   occupancy_ = OccupancyGrid(options_.occupancy, norm_.bound, options_.march.min_step());
+  occupancy_.set_contracted(contracted());
 }
 
 void NgpModel::AddTimeStep(uint64_t seed) {
@@ -91,32 +99,27 @@ Camera NgpModel::ToModelCamera(const Camera& world) const {
 }
 
 void NgpModel::Density(const float* points, int n, int time_step, float* sigma) const {
-  const int t = std::clamp(time_step, 0, num_time_steps_ - 1);
-  Eigen::MatrixXf geo, app;
-  network_.StepBiases(params_.mlp.data(), params_.emb.data(), num_time_steps_, &geo, &app);
-  const Eigen::VectorXf geo_t = geo.col(t);
-  constexpr int kChunk = 2048;
-  const int nchunks = (n + kChunk - 1) / kChunk;
-#pragma omp parallel
-  {
-    NetworkWorkspace ws;
-    ws.Reserve(kChunk, network_.options(), grid_.output_dim());
-    std::vector<float> pos(3 * kChunk), feat(size_t(kChunk) * grid_.output_dim()), h0(kChunk);
-#pragma omp for schedule(dynamic)
-    for (int ci = 0; ci < nchunks; ++ci) {
-      const int begin = ci * kChunk, m = std::min(kChunk, n - begin);
-      for (int i = 0; i < m; ++i) {
-        const Eigen::Vector3f g = ToGridInput(Eigen::Map<const Eigen::Vector3f>(points + 3 * (begin + i)));
-        pos[3 * i] = g.x();
-        pos[3 * i + 1] = g.y();
-        pos[3 * i + 2] = g.z();
-      }
-      grid_.Encode(params_.grid.data(), pos.data(), m, feat.data());
-      const int seg[2] = {0, m};
-      network_.DensityOnly(params_.mlp.data(), feat.data(), m, seg, 1, geo_t.data(), &ws, h0.data());
-      for (int i = 0; i < m; ++i) sigma[begin + i] = TruncExp(h0[i]);
-    }
-  }
+  FieldEvaluator(*this).DensityAt(points, n, time_step, sigma);
+}
+
+bool NgpModel::RayInterval(const Eigen::Vector3f& o, const Eigen::Vector3f& d, float* t0, float* t1) const {
+  const MarchOptions& mo = options_.march;
+  const float box = contracted() ? ContractedFarBound(mo) : bound();
+  if (!IntersectBox(o, d, box, t0, t1)) return false;
+  *t0 = std::max(*t0, mo.near);
+  return *t1 > *t0;
+}
+
+float NgpModel::StepAt(const Eigen::Vector3f& o, const Eigen::Vector3f& d, float t) const {
+  const MarchOptions& mo = options_.march;
+  if (!contracted()) return clnerf::StepAt(t, mo, mo.min_step(), mo.max_step(bound()));
+  return ContractedStepAt(o + t * d, d, t, mo);
+}
+
+float NgpModel::March(const Eigen::Vector3f& o, const Eigen::Vector3f& d, float t_start, float t_end, int max_count,
+                      std::vector<RaySample>* out) const {
+  if (contracted()) return MarchRayContracted(occupancy_, o, d, t_start, t_end, options_.march, max_count, out);
+  return MarchRay(occupancy_, o, d, t_start, t_end, options_.march, bound(), max_count, out);
 }
 
 void NgpModel::UpdateOccupancy(int iteration, std::mt19937_64* rng) {

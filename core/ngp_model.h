@@ -70,18 +70,30 @@ class NgpModel {
   // False if any parameter is NaN/Inf.
   bool AllFinite() const;
 
-  // Density sigma at model-space points (n x 3, inside the box) for time
-  // step t (geometry embedding). Parallel over points.
-  void Density(const float* points_model, int n, int time_step, float* sigma) const;
+  // True for unbounded scenes, whose field and occupancy grid live in
+  // contracted space (contraction.h): the model box is then the contracted
+  // cube (-2, 2)^3 and the inner cube [-1, 1]^3 is model space unchanged.
+  bool contracted() const { return kind_ == SceneKind::kUnbounded; }
+
+  // Density sigma at n points (n x 3) of the occupancy grid's space (model
+  // space, or contracted space when contracted()) for time step t (geometry
+  // embedding). Parallel over points.
+  void Density(const float* field_points, int n, int time_step, float* sigma) const;
+
+  // Ray marching, dispatched on contracted(). RayInterval gives the model-space
+  // interval [t0, t1] of the unit-direction ray o + t d to march (starting at
+  // the near plane); false when the ray misses the box. StepAt is the step
+  // length at t (used to jitter the first sample). March appends up to
+  // max_count samples from t_start and returns where it stopped.
+  bool RayInterval(const Eigen::Vector3f& o, const Eigen::Vector3f& d, float* t0, float* t1) const;
+  float StepAt(const Eigen::Vector3f& o, const Eigen::Vector3f& d, float t) const;
+  float March(const Eigen::Vector3f& o, const Eigen::Vector3f& d, float t_start, float t_end, int max_count,
+              std::vector<RaySample>* out) const;
 
   // Occupancy refresh as in upstream: evaluates densities at jittered cell
   // positions chosen by the grid, using a random time step's geometry code.
   void UpdateOccupancy(int iteration, std::mt19937_64* rng);
 
-  // Maps a model-space point to the hash-grid input [0, 1]^3.
-  Eigen::Vector3f ToGridInput(const Eigen::Vector3f& p) const {
-    return (p.array() + bound()) / (2.0f * bound());
-  }
   // Transforms a world-space camera into model space.
   Camera ToModelCamera(const Camera& world) const;
 

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "core/contraction.h"
 #include "Eigen/Dense"
 
 namespace clnerf {
@@ -136,8 +137,11 @@ void OccupancyGrid::MarkInvisible(const std::vector<Camera>& cameras, float near
   std::vector<uint8_t> fresh_seen(n, 0);
 #pragma omp parallel for schedule(static)
   for (long long i = 0; i < (long long)n; ++i) {
-    const Eigen::Vector3f p = CellPosition(uint32_t(i), Eigen::Vector3f::Zero());
-    const float half = 0.5f * CellSize(int(i / cells_per_cascade()));
+    const Eigen::Vector3f cell = CellPosition(uint32_t(i), Eigen::Vector3f::Zero());
+    const Eigen::Vector3f p = contracted_ ? Uncontract(cell) : cell;
+    // Half a cell, in model units (a contracted cell at |x| = r spans ~r^2 times more).
+    const float stretch = contracted_ ? std::max(1.0f, InfNorm(p)) : 1.0f;
+    const float half = 0.5f * CellSize(int(i / cells_per_cascade())) * stretch * stretch;
     bool seen = false;
     for (size_t k = 0; k < cameras.size() && !seen; ++k) {
       const Eigen::Vector3f q = rt[k] * (p - pos[k]);

@@ -42,6 +42,10 @@ class OccupancyGrid {
   OccupancyGrid(const OccupancyGridOptions& options, float bound, float min_step);
 
   const OccupancyGridOptions& options() const { return options_; }
+  // Contracted grids (unbounded scenes) index contracted space; cell
+  // positions are mapped back to model space (Uncontract) for visibility.
+  void set_contracted(bool contracted) { contracted_ = contracted; }
+  bool contracted() const { return contracted_; }
   int resolution() const { return res_; }
   int num_cascades() const { return cascades_; }
   size_t cells_per_cascade() const { return size_t(res_) * res_ * res_; }
@@ -99,6 +103,7 @@ class OccupancyGrid {
   void RefreshBits();
 
   OccupancyGridOptions options_;
+  bool contracted_ = false;
   float bound_ = 0.5f;
   float max_threshold_ = 0;
   float threshold_ = 0;

@@ -58,7 +58,7 @@ float MarchRay(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen:
   const Eigen::Vector3f inv_d = d.cwiseInverse();
   float t = t_start;
   int count = 0;
-  while (t < t_end && count < max_count) {
+  for (int iter = 0; t < t_end && count < max_count && iter < kMaxMarchIterations; ++iter) {
     const Eigen::Vector3f p = o + t * d;
     const int c = grid.CascadeOf(p);
     const float dt = StepAt(t, opt, min_step, max_step);
@@ -78,10 +78,50 @@ float MarchRay(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen:
       if (opt.cone_angle == 0.0f) {
         t += std::max(1.0f, std::ceil((target - t) / dt)) * dt;
       } else {
-        do {
-          t += StepAt(t, opt, min_step, max_step);
-        } while (t < target);
+        for (int k = 0; t < target && k < kMaxMarchIterations; ++k) t += StepAt(t, opt, min_step, max_step);
       }
+    }
+  }
+  return t;
+}
+
+float ContractedFarBound(const MarchOptions& opt) {
+  // |q|_inf = 2 - 1/r reaches 2 - min_step at r = 1 / min_step.
+  return 1.0f / std::max(opt.min_step(), 1e-4f);
+}
+
+float ContractedStepAt(const Eigen::Vector3f& x, const Eigen::Vector3f& d, float t, const MarchOptions& opt,
+                       float* speed_out) {
+  const float speed = std::max(ContractDirectional(x, d).norm(), 1e-12f);
+  if (speed_out) *speed_out = speed;
+  // Near the cameras: the pixel cone, clamped like MarchRay's steps but in
+  // contracted units. Beyond the inner cube the far field gets at most about
+  // kContractedShellSteps samples across the shell.
+  const float min_step = opt.min_step(), max_step = opt.max_step(kContractedBound);
+  const float lo = InfNorm(x) > 1.0f ? std::max(min_step, 1.0f / kContractedShellSteps) : min_step;
+  return std::clamp(t * opt.cone_angle * speed, lo, std::max(lo, max_step)) / speed;
+}
+
+float MarchRayContracted(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
+                         float t_start, float t_end, const MarchOptions& opt, int max_count,
+                         std::vector<RaySample>* out) {
+  float t = t_start;
+  int count = 0;
+  for (int iter = 0; t < t_end && count < max_count && iter < kMaxMarchIterations; ++iter) {
+    const Eigen::Vector3f p = o + t * d;
+    const Eigen::Vector3f q = Contract(p);
+    const Eigen::Vector3f dq = ContractDirectional(p, d);
+    float speed;
+    const float dt = ContractedStepAt(p, d, t, opt, &speed);
+    const int c = grid.CascadeOf(q);
+    if (c < 0) break;  // Past the outer face.
+    if (grid.OccupiedCell(grid.CellIndex(q, c))) {
+      out->push_back({t, dt});
+      ++count;
+      t += dt;
+    } else {
+      const float exit = DistanceToCellExit(q, dq.cwiseInverse(), grid.CellSize(c), grid.cascade_half_size(c));
+      t += std::max(dt, exit + 1e-5f / speed);
     }
   }
   return t;

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
+#include "core/contraction.h"
 #include "core/occupancy_grid.h"
 #include "Eigen/Core"
 
@@ -42,10 +43,37 @@ inline float StepAt(float t, const MarchOptions& opt, float min_step, float max_
 
 // Marches from t_start (e.g. t0 + jitter * dt) to t_end, appending up to
 // `max_count` samples in occupied cells. Returns the t where marching stopped
-// (so inference can resume a ray later).
+// (so inference can resume a ray later). The loop is bounded (at most
+// kMaxMarchIterations cell visits), so non-finite or absurd rays end.
 float MarchRay(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
                float t_start, float t_end, const MarchOptions& opt, float bound, int max_count,
                std::vector<RaySample>* out);
+
+// Contracted (unbounded) scenes: the occupancy grid lives in contracted space
+// (-2, 2)^3 (see contraction.h) and so do the step rules: the step in
+// contracted units is clamp(t * cone * |J d|, min_step, max_step(2)), i.e. a
+// pixel footprint near the cameras and about constant contracted steps far
+// away (1/r^2 spacing in model space), and empty cells are skipped by their
+// exit distance along the ray's contracted direction J d. Same contract as
+// MarchRay otherwise; t is in model units along the unit direction d.
+float MarchRayContracted(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
+                         float t_start, float t_end, const MarchOptions& opt, int max_count,
+                         std::vector<RaySample>* out);
+
+// The model-space step at x = o + t d of a contracted ray; *speed (optional)
+// receives |J d|, contracted units per model unit.
+float ContractedStepAt(const Eigen::Vector3f& x, const Eigen::Vector3f& d, float t, const MarchOptions& opt,
+                       float* speed = nullptr);
+
+// Where a contracted ray stops: the model-space cube beyond which the
+// contracted point is within one minimum step of the outer face.
+float ContractedFarBound(const MarchOptions& opt);
+
+// Minimum contracted step in the shell 1 < |q|_inf < 2 is 1 / this.
+inline constexpr float kContractedShellSteps = 64.0f;
+
+// Upper bound on loop iterations per MarchRay* call.
+inline constexpr int kMaxMarchIterations = 1 << 16;
 
 }  // namespace clnerf
 

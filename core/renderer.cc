@@ -6,7 +6,7 @@
 #include <cmath>
 
 #include "absl/strings/str_format.h"
-#include "core/sh_encoding.h"
+#include "core/field.h"
 #include "core/volume_rendering.h"
 
 namespace clnerf {
@@ -27,40 +27,25 @@ struct RayState {
 };
 
 // Renders one block of rays with a private workspace.
-long long RenderBlock(const NgpModel& model, const float* origins, const float* dirs, int n,
-                      const float* geo_bias, const float* app_bias, float min_weight, float* rgb_out,
-                      float* opacity_out, float* depth_out) {
-  const Network& net = model.network();
-  const HashGrid& grid = model.grid();
-  const MarchOptions& mo = model.options().march;
-  const float bound = model.bound();
-  const float* mlp = model.params().mlp.data();
-  const int Hc = net.options().colour_hidden, Hd = net.options().density_hidden;
-  const int Dg = grid.output_dim();
-
+long long RenderBlock(const FieldEvaluator& field, const float* origins, const float* dirs, int n, int time_step,
+                      float min_weight, float* rgb_out, float* opacity_out, float* depth_out) {
+  const NgpModel& model = field.model();
   std::vector<RayState> st(n);
-  std::vector<float> colour_bias(size_t(Hc) * n);
-  float sh[kShDim];
+  // Scratch reused across blocks and calls on the same thread.
+  thread_local FieldContext fc;
+  thread_local std::vector<RaySample> samples;
+  thread_local std::vector<int> seg, seg_ray, keep, keep_seg, keep_ray;
+  thread_local std::vector<float> w;
+  field.SetRays(n, dirs, nullptr, time_step, &fc);
   for (int r = 0; r < n; ++r) {
     const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
-    float t0, t1;
     RayState& s = st[r];
     s.T = 1.0f;
     s.rgb[0] = s.rgb[1] = s.rgb[2] = 0.0f;
     s.depth = 0.0f;
-    s.alive = IntersectBox(o, d, bound, &t0, &t1);
-    s.t = std::max(t0, mo.near);
-    s.t_end = t1;
-    ShEncode(d.x(), d.y(), d.z(), sh);
-    net.RayColourBias(mlp, sh, app_bias, colour_bias.data() + size_t(Hc) * r);
+    s.alive = model.RayInterval(o, d, &s.t, &s.t_end);
   }
 
-  // Scratch reused across blocks and calls on the same thread.
-  thread_local NetworkWorkspace ws;
-  thread_local std::vector<RaySample> samples;
-  thread_local std::vector<int> seg, seg_ray, keep, keep_seg, keep_ray;
-  thread_local std::vector<float> pos, feat, sigma, dt, w, geo_cols, cb;
-  thread_local Eigen::MatrixXf hk;
   long long evaluated = 0;
   int alive = n;
   for (;;) {
@@ -76,7 +61,7 @@ long long RenderBlock(const NgpModel& model, const float* origins, const float* 
       if (!s.alive) continue;
       const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
       const size_t before = samples.size();
-      s.t = MarchRay(model.occupancy(), o, d, s.t, s.t_end, mo, bound, wave, &samples);
+      s.t = model.March(o, d, s.t, s.t_end, wave, &samples);
       if (samples.size() == before) {
         s.alive = false;
         continue;
@@ -89,28 +74,14 @@ long long RenderBlock(const NgpModel& model, const float* origins, const float* 
     alive = int(seg_ray.size());
     evaluated += m;
     const int nseg = int(seg_ray.size());
-    ws.Reserve(m, net.options(), Dg);
-    pos.resize(3 * size_t(m));
-    feat.resize(size_t(m) * Dg);
-    sigma.resize(m);
-    dt.resize(m);
+    field.ResizeSamples(m, &fc);
     w.resize(m);
     for (int k = 0; k < nseg; ++k) {
       const int r = seg_ray[k];
       const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
-      for (int j = seg[k]; j < seg[k + 1]; ++j) {
-        const Eigen::Vector3f p = model.ToGridInput(o + samples[j].t * d);
-        pos[3 * j] = std::clamp(p.x(), 0.0f, 1.0f);
-        pos[3 * j + 1] = std::clamp(p.y(), 0.0f, 1.0f);
-        pos[3 * j + 2] = std::clamp(p.z(), 0.0f, 1.0f);
-        dt[j] = samples[j].dt;
-      }
+      for (int j = seg[k]; j < seg[k + 1]; ++j) field.SetSample(j, o + samples[j].t * d, &fc);
     }
-    grid.Encode(model.params().grid.data(), pos.data(), m, feat.data());
-    geo_cols.resize(size_t(Hd) * nseg);
-    for (int k = 0; k < nseg; ++k) std::copy(geo_bias, geo_bias + Hd, geo_cols.data() + size_t(Hd) * k);
-    net.DensityForward(mlp, feat.data(), m, seg.data(), nseg, geo_cols.data(), &ws);
-    for (int j = 0; j < m; ++j) sigma[j] = TruncExp(ws.h(0, j));
+    field.Density(m, seg.data(), seg_ray.data(), nseg, &fc);
     // Front-to-back weights per ray; select samples that matter.
     keep.clear();
     keep_seg.assign(1, 0);
@@ -119,7 +90,7 @@ long long RenderBlock(const NgpModel& model, const float* origins, const float* 
       RayState& s = st[seg_ray[k]];
       float T = s.T;
       for (int j = seg[k]; j < seg[k + 1]; ++j) {
-        const float alpha = 1.0f - std::exp(-sigma[j] * dt[j]);
+        const float alpha = 1.0f - std::exp(-fc.sigma[j] * samples[j].dt);
         w[j] = T * alpha;
         T *= 1.0f - alpha;
         if (w[j] >= min_weight) keep.push_back(j);
@@ -131,32 +102,22 @@ long long RenderBlock(const NgpModel& model, const float* origins, const float* 
       s.T = T;
       if (int(keep.size()) > keep_seg.back()) {
         keep_seg.push_back(int(keep.size()));
-        keep_ray.push_back(k);
+        keep_ray.push_back(seg_ray[k]);
       }
     }
     const int mk = int(keep.size());
-    if (mk > 0) {
-      // Compact h columns, colour the kept samples, accumulate.
-      hk.resize(ws.h.rows(), mk);
-      for (int i = 0; i < mk; ++i) hk.col(i) = ws.h.col(keep[i]);
-      ws.h.leftCols(mk) = hk;
-      cb.resize(size_t(Hc) * keep_ray.size());
-      for (size_t q = 0; q < keep_ray.size(); ++q) {
-        const int r = seg_ray[keep_ray[q]];
-        std::copy(colour_bias.data() + size_t(Hc) * r, colour_bias.data() + size_t(Hc) * (r + 1),
-                  cb.data() + size_t(Hc) * q);
-      }
-      net.ColourForward(mlp, mk, keep_seg.data(), int(keep_ray.size()), cb.data(), &ws);
-      for (size_t q = 0; q < keep_ray.size(); ++q) {
-        const int k = keep_ray[q];
-        RayState& s = st[seg_ray[k]];
-        for (int i = keep_seg[q]; i < keep_seg[q + 1]; ++i) {
-          const int j = keep[i];
-          s.rgb[0] += w[j] * ws.rgb(0, i);
-          s.rgb[1] += w[j] * ws.rgb(1, i);
-          s.rgb[2] += w[j] * ws.rgb(2, i);
-          s.depth += w[j] * samples[j].t;
-        }
+    if (mk == 0) continue;
+    // Colour the kept samples and accumulate.
+    field.Select(keep.data(), mk, /*for_backward=*/false, &fc);
+    field.Colour(mk, keep_seg.data(), keep_ray.data(), int(keep_ray.size()), &fc);
+    for (size_t q = 0; q < keep_ray.size(); ++q) {
+      RayState& s = st[keep_ray[q]];
+      for (int i = keep_seg[q]; i < keep_seg[q + 1]; ++i) {
+        const int j = keep[i];
+        s.rgb[0] += w[j] * fc.ws.rgb(0, i);
+        s.rgb[1] += w[j] * fc.ws.rgb(1, i);
+        s.rgb[2] += w[j] * fc.ws.rgb(2, i);
+        s.depth += w[j] * samples[j].t;
       }
     }
   }
@@ -175,10 +136,7 @@ long long RenderBlock(const NgpModel& model, const float* origins, const float* 
 long long RenderRays(const NgpModel& model, const float* origins, const float* dirs, int n, int time_step,
                      const RenderOptions& options, float* rgb, float* opacity, float* depth) {
   const int t = time_step < 0 ? model.num_time_steps() - 1 : std::min(time_step, model.num_time_steps() - 1);
-  Eigen::MatrixXf geo, app;
-  model.network().StepBiases(model.params().mlp.data(), model.params().emb.data(), model.num_time_steps(), &geo,
-                             &app);
-  const Eigen::VectorXf geo_t = geo.col(t), app_t = app.col(t);
+  const FieldEvaluator field(model);
   const int block = options.block_rays;
   const int nblocks = (n + block - 1) / block;
   long long total = 0;
@@ -186,9 +144,9 @@ long long RenderRays(const NgpModel& model, const float* origins, const float* d
 #pragma omp parallel for schedule(dynamic) reduction(+ : total) num_threads(threads)
   for (int b = 0; b < nblocks; ++b) {
     const int begin = b * block, m = std::min(block, n - begin);
-    total += RenderBlock(model, origins + 3 * size_t(begin), dirs + 3 * size_t(begin), m, geo_t.data(),
-                         app_t.data(), options.min_weight, rgb + 3 * size_t(begin),
-                         opacity ? opacity + begin : nullptr, depth ? depth + begin : nullptr);
+    total += RenderBlock(field, origins + 3 * size_t(begin), dirs + 3 * size_t(begin), m, t, options.min_weight,
+                         rgb + 3 * size_t(begin), opacity ? opacity + begin : nullptr,
+                         depth ? depth + begin : nullptr);
   }
   return total;
 }

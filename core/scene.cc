@@ -4,6 +4,8 @@
 #include <cmath>
 
 #include "absl/strings/str_cat.h"
+#include "core/contraction.h"
+#include "Eigen/Eigenvalues"
 #include "Eigen/Dense"
 
 namespace clnerf {
@@ -37,6 +39,44 @@ Eigen::Vector3f LookAtCenter(const std::vector<View>& views) {
   return a.ldlt().solve(b);
 }
 
+// Where the cameras look: the look-at point when their optical axes
+// converge (inward-facing captures) in front of most of them; else the median
+// content point (forward-facing captures with sparse points or depth
+// bounds); else the mean camera position.
+Eigen::Vector3f FocusPoint(const std::vector<View>& views, const std::vector<Eigen::Vector3f>& points) {
+  Eigen::Matrix3f a = Eigen::Matrix3f::Zero();
+  for (const View& v : views) {
+    const Eigen::Vector3f d = v.camera.c2w.col(2).normalized();
+    a += Eigen::Matrix3f::Identity() - d * d.transpose();
+  }
+  // The smallest eigenvalue of mean(I - d d^T) is ~ the spread of viewing
+  // directions (sin^2 of the angle); 0.01 is about 6 degrees.
+  const float spread = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f>(a / float(views.size())).eigenvalues()(0);
+  if (spread > 0.01f) {
+    const Eigen::Vector3f c = LookAtCenter(views);
+    int in_front = 0;
+    for (const View& v : views) in_front += (c - v.camera.position()).dot(v.camera.c2w.col(2)) > 0;
+    if (c.allFinite() && 2 * in_front > int(views.size())) return c;
+  }
+  std::vector<Eigen::Vector3f> pts;
+  for (const Eigen::Vector3f& p : points) {
+    if (p.allFinite()) pts.push_back(p);
+  }
+  if (!pts.empty()) {
+    Eigen::Vector3f median;
+    for (int k = 0; k < 3; ++k) {
+      std::vector<float> c(pts.size());
+      for (size_t i = 0; i < pts.size(); ++i) c[i] = pts[i][k];
+      std::nth_element(c.begin(), c.begin() + c.size() / 2, c.end());
+      median[k] = c[c.size() / 2];
+    }
+    return median;
+  }
+  Eigen::Vector3f mean = Eigen::Vector3f::Zero();
+  for (const View& v : views) mean += v.camera.position();
+  return mean / float(views.size());
+}
+
 }  // namespace
 
 Normalization ComputeNormalization(const Scene& scene) {
@@ -56,19 +96,29 @@ Normalization ComputeNormalization(const Scene& scene) {
     }
     return n;
   }
-  // Unbounded / real captures.
-  if (scene.world_scale_hint > 0) {
-    n.center = scene.world_offset_hint;
-    n.scale = scene.world_scale_hint;
-  } else {
-    Eigen::Vector3f mean = Eigen::Vector3f::Zero();
-    for (const View& v : views) mean += v.camera.position();
-    n.center = views.empty() ? mean : Eigen::Vector3f(mean / float(views.size()));
-    float min_dist = 1e30f;
-    for (const View& v : views) min_dist = std::min(min_dist, (v.camera.position() - n.center).norm());
-    n.scale = (min_dist > 1e-6f && min_dist < 1e29f) ? 1.0f / min_dist : 1.0f;
+  // Unbounded / real captures: the model box is the contracted cube
+  // (-2, 2)^3 and the inner cube [-1, 1]^3 (metric, full resolution) must
+  // hold the cameras and the subject.
+  n.bound = kContractedBound;
+  if (views.empty()) return n;
+  n.center = FocusPoint(views, scene.content_points);
+  float radius = 0;
+  for (const View& v : views) radius = std::max(radius, InfNorm(v.camera.position() - n.center));
+  if (!scene.content_points.empty()) {
+    // The median content point, so a far backdrop in the sparse points does
+    // not shrink the subject; farther content lives in the contracted shell.
+    std::vector<float> r;
+    r.reserve(scene.content_points.size());
+    for (const Eigen::Vector3f& p : scene.content_points) {
+      if (p.allFinite()) r.push_back(InfNorm(p - n.center));
+    }
+    if (!r.empty()) {
+      std::nth_element(r.begin(), r.begin() + r.size() / 2, r.end());
+      radius = std::max(radius, r[r.size() / 2]);
+    }
   }
-  n.bound = scene.aabb_scale > 0 ? std::max(0.5f, 0.5f * scene.aabb_scale) : 8.0f;
+  // A 10 % margin keeps the cameras off the contraction's kink.
+  n.scale = radius > 1e-6f && std::isfinite(radius) ? 1.0f / (1.1f * radius) : 1.0f;
   return n;
 }
 

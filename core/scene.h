@@ -32,7 +32,7 @@ struct View {
 // and the background colour.
 enum class SceneKind {
   kBounded,    // Synthetic object scenes: box [-0.5, 0.5]^3, constant steps, white bg.
-  kUnbounded,  // Real captures: larger box, exponential steps, black bg.
+  kUnbounded,  // Real captures: contracted space, exponential steps, black bg.
 };
 
 struct Normalization {
@@ -67,8 +67,13 @@ struct Scene {
 //  * kBounded:   bound 0.5; center/scale from the hints when given, else the
 //                cameras' look-at centre and a scale putting the mean camera
 //                distance at 4/3 (Blender's 4.0 units after scaling by 1/3).
-//  * kUnbounded: center = hint or mean camera position; scale = hint or 1/min
-//                camera distance to center; bound from aabb_scale (or 8).
+//  * kUnbounded: contracted space (contraction.h), bound 2. center = the
+//                cameras' look-at point when their axes converge, else the
+//                median content point, else the mean camera position; scale
+//                puts every camera and the median content point inside the
+//                inner cube [-1, 1]^3 (10 % margin). Loader hints (instant-ngp
+//                scale/offset/aabb_scale) are not used, so an upload through
+//                the service, which carries no hints, normalises the same way.
 Normalization ComputeNormalization(const Scene& scene);
 
 // Checks every view: valid camera, image size matches intrinsics, mask size

@@ -7,7 +7,7 @@
 #include <cmath>
 
 #include "absl/strings/str_format.h"
-#include "core/sh_encoding.h"
+#include "core/field.h"
 #include "core/volume_rendering.h"
 
 namespace clnerf {
@@ -27,12 +27,11 @@ absl::Status TrainOptions::Validate() const {
 }
 
 struct Trainer::ThreadScratch {
-  NetworkWorkspace ws;
+  FieldContext field;
   std::vector<RaySample> samples;
-  std::vector<int> seg, seg2, ray_steps;
-  std::vector<float> pos, feat, sigma, dt, weights, t_final;
-  std::vector<float> d_rgb, d_h0, d_feat, d_geo, d_col;
-  std::vector<float> ray_sh, colour_bias, geo_bias;
+  std::vector<int> seg, seg2, keep;
+  std::vector<float> dt, weights, t_final;
+  std::vector<float> d_rgb, d_sigma;
   std::vector<float> grad_mlp, grad_emb;
   std::vector<float> store_pos, store_dfeat;  // For the grid backward phase.
   double sq_err = 0, loss = 0;
@@ -75,22 +74,14 @@ float Trainer::CurrentLearningRate() const {
 
 float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool track_touched) {
   const NgpModel& model = *model_;
-  const Network& net = model.network();
+  const FieldEvaluator field(model);
   const HashGrid& grid = model.grid();
   const MarchOptions& mo = model.options().march;
-  const float bound = model.bound();
-  const float* mlp = model.params().mlp.data();
-  const float* emb = model.params().emb.data();
   const int Dg = grid.output_dim();
-  const int Hd = net.options().density_hidden, Hc = net.options().colour_hidden;
   const int nrays = batch.size();
   const float inv_n = 1.0f / float(std::max(nrays, 1));
   const float lambda = options_.opacity_reg;
-  const float min_step = mo.min_step(), max_step = mo.max_step(bound);
   const Eigen::Vector3f bg = model.background();
-
-  Eigen::MatrixXf geo_bias, app_bias;
-  net.StepBiases(mlp, emb, model.num_time_steps(), &geo_bias, &app_bias);
 
   const int nblocks = (nrays + kBlockRays - 1) / kBlockRays;
   // Reset every scratch, not only those of the threads that run: the OpenMP
@@ -108,96 +99,69 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool 
 #pragma omp parallel num_threads(threads_)
   {
     ThreadScratch& s = *scratch_[omp_get_thread_num()];
+    FieldContext& fc = s.field;
 #pragma omp for schedule(static, 1)
     for (int b = 0; b < nblocks; ++b) {
       const int r0 = b * kBlockRays, nr = std::min(kBlockRays, nrays - r0);
-      // 1. March.
+      // 1. March (first sample jittered).
       s.samples.clear();
       s.seg.assign(1, 0);
       for (int i = 0; i < nr; ++i) {
         const int r = r0 + i;
         const Eigen::Map<const Eigen::Vector3f> o(&batch.origin[3 * size_t(r)]), d(&batch.dir[3 * size_t(r)]);
         float t0, t1;
-        if (IntersectBox(o, d, bound, &t0, &t1)) {
-          float t = std::max(t0, mo.near);
-          t += jitter[r] * StepAt(t, mo, min_step, max_step);
-          MarchRay(model.occupancy(), o, d, t, t1, mo, bound, mo.max_samples, &s.samples);
+        if (model.RayInterval(o, d, &t0, &t1)) {
+          const float t = t0 + jitter[r] * model.StepAt(o, d, t0);
+          model.March(o, d, t, t1, mo.max_samples, &s.samples);
         }
         s.seg.push_back(int(s.samples.size()));
       }
       const int m = int(s.samples.size());
       s.samples_marched += m;
-      s.pos.resize(3 * size_t(m));
+      field.SetRays(nr, &batch.dir[3 * size_t(r0)], &batch.time_step[r0], 0, &fc);
+      field.ResizeSamples(m, &fc);
       s.dt.resize(m);
       for (int i = 0; i < nr; ++i) {
         const int r = r0 + i;
         const Eigen::Map<const Eigen::Vector3f> o(&batch.origin[3 * size_t(r)]), d(&batch.dir[3 * size_t(r)]);
         for (int j = s.seg[i]; j < s.seg[i + 1]; ++j) {
-          const Eigen::Vector3f p = model.ToGridInput(o + s.samples[j].t * d);
-          s.pos[3 * j] = std::clamp(p.x(), 0.0f, 1.0f);
-          s.pos[3 * j + 1] = std::clamp(p.y(), 0.0f, 1.0f);
-          s.pos[3 * j + 2] = std::clamp(p.z(), 0.0f, 1.0f);
+          field.SetSample(j, o + s.samples[j].t * d, &fc);
           s.dt[j] = s.samples[j].dt;
         }
       }
-      // 2. Encode + density MLP on every marched sample.
-      s.ws.Reserve(std::max(m, 1), net.options(), Dg);
-      s.feat.resize(size_t(m) * Dg);
-      grid.Encode(model.params().grid.data(), s.pos.data(), m, s.feat.data());
-      s.ray_steps.resize(nr);
-      s.geo_bias.resize(size_t(Hd) * nr);
-      for (int i = 0; i < nr; ++i) {
-        const int t = std::clamp(batch.time_step[r0 + i], 0, model.num_time_steps() - 1);
-        s.ray_steps[i] = t;
-        std::copy(geo_bias.col(t).data(), geo_bias.col(t).data() + Hd, s.geo_bias.data() + size_t(Hd) * i);
-      }
-      if (m > 0) net.DensityForward(mlp, s.feat.data(), m, s.seg.data(), nr, s.geo_bias.data(), &s.ws);
-      // 3. Composite sigma; keep samples up to early termination (compact in place).
-      s.sigma.resize(m);
+      // 2. Density on every marched sample.
+      field.Density(m, s.seg.data(), nullptr, nr, &fc);
+      // 3. Composite sigma; keep samples up to early termination.
       s.weights.resize(m);
       s.t_final.resize(nr);
-      for (int j = 0; j < m; ++j) s.sigma[j] = TruncExp(s.ws.h(0, j));
       s.seg2.assign(1, 0);
-      int w = 0;
+      s.keep.clear();
       for (int i = 0; i < nr; ++i) {
         const int a = s.seg[i], n_i = s.seg[i + 1] - a;
         s.t_final[i] = 1.0f;
         const int used =
-            n_i > 0 ? CompositeWeights(&s.sigma[a], &s.dt[a], n_i, kMinTransmittance, &s.weights[a], &s.t_final[i])
+            n_i > 0 ? CompositeWeights(&fc.sigma[a], &s.dt[a], n_i, kMinTransmittance, &s.weights[a], &s.t_final[i])
                     : 0;
-        for (int j = a; j < a + used; ++j, ++w) {
-          if (w == j) continue;
-          s.sigma[w] = s.sigma[j];
+        for (int j = a; j < a + used; ++j) {
+          const int w = int(s.keep.size());
+          s.keep.push_back(j);
           s.dt[w] = s.dt[j];
           s.weights[w] = s.weights[j];
-          s.pos[3 * w] = s.pos[3 * j];
-          s.pos[3 * w + 1] = s.pos[3 * j + 1];
-          s.pos[3 * w + 2] = s.pos[3 * j + 2];
-          std::copy(&s.feat[size_t(j) * Dg], &s.feat[size_t(j) * Dg] + Dg, &s.feat[size_t(w) * Dg]);
-          for (auto& act : s.ws.density_act) act.col(w) = act.col(j);
-          s.ws.h.col(w) = s.ws.h.col(j);
         }
-        s.seg2.push_back(w);
+        s.seg2.push_back(int(s.keep.size()));
       }
-      const int m2 = w;
+      const int m2 = int(s.keep.size());
+      field.Select(s.keep.data(), m2, /*for_backward=*/true, &fc);
       s.samples_used += m2;
-      // 4. Colour MLP on kept samples.
-      s.ray_sh.resize(size_t(kShDim) * nr);
-      s.colour_bias.resize(size_t(Hc) * nr);
-      for (int i = 0; i < nr; ++i) {
-        const float* d = &batch.dir[3 * size_t(r0 + i)];
-        ShEncode(d[0], d[1], d[2], &s.ray_sh[size_t(kShDim) * i]);
-        net.RayColourBias(mlp, &s.ray_sh[size_t(kShDim) * i], app_bias.col(s.ray_steps[i]).data(),
-                          &s.colour_bias[size_t(Hc) * i]);
-      }
-      if (m2 > 0) net.ColourForward(mlp, m2, s.seg2.data(), nr, s.colour_bias.data(), &s.ws);
+      // 4. Colour on kept samples.
+      field.Colour(m2, s.seg2.data(), nullptr, nr, &fc);
       // 5. Loss and compositing backward.
       s.d_rgb.assign(3 * size_t(m2), 0.0f);
-      s.d_h0.assign(m2, 0.0f);
+      s.d_sigma.assign(m2, 0.0f);
       for (int i = 0; i < nr; ++i) {
         const int r = r0 + i;
         const int a = s.seg2[i], used = s.seg2[i + 1] - a;
-        const float* rgb = s.ws.rgb.data() + 3 * size_t(a);
+        const float* rgb = fc.ws.rgb.data() + 3 * size_t(a);
         float c[3];
         CompositeColour(&s.weights[a], rgb, used, s.t_final[i], bg.data(), c);
         const float* gt = &batch.target[3 * size_t(r)];
@@ -221,23 +185,15 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool 
         s.loss += (wr * data_loss / 3.0f + lambda * (-o * std::log(o))) * inv_n;
         const float d_opacity = lambda * -(std::log(o) + 1.0f) * inv_n;
         if (used > 0) {
-          CompositeBackward(&s.sigma[a], &s.dt[a], rgb, &s.weights[a], used, s.t_final[i], bg.data(), dc,
-                            d_opacity, &s.d_rgb[3 * size_t(a)], &s.d_h0[a]);
+          CompositeBackward(&fc.sigma[a], &s.dt[a], rgb, &s.weights[a], used, s.t_final[i], bg.data(), dc,
+                            d_opacity, &s.d_rgb[3 * size_t(a)], &s.d_sigma[a]);
         }
-        for (int j = a; j < a + used; ++j) s.d_h0[j] *= TruncExpGrad(s.ws.h(0, j));
       }
-      // 6. Network backward; stash grid-input gradients for phase 2.
-      s.d_feat.resize(size_t(m2) * Dg);
-      s.d_geo.assign(size_t(Hd) * nr, 0.0f);
-      s.d_col.assign(size_t(Hc) * nr, 0.0f);
-      if (m2 > 0) {
-        net.Backward(mlp, s.feat.data(), m2, s.seg2.data(), nr, s.d_rgb.data(), s.d_h0.data(), &s.ws,
-                     s.grad_mlp.data(), s.d_feat.data(), s.d_geo.data(), s.d_col.data());
-      }
-      net.BackwardBiases(mlp, emb, nr, s.ray_steps.data(), s.ray_sh.data(), s.d_geo.data(), s.d_col.data(),
-                         s.grad_mlp.data(), s.grad_emb.data());
-      s.store_pos.insert(s.store_pos.end(), s.pos.begin(), s.pos.begin() + 3 * size_t(m2));
-      s.store_dfeat.insert(s.store_dfeat.end(), s.d_feat.begin(), s.d_feat.begin() + size_t(m2) * Dg);
+      // 6. Field backward; stash grid-input gradients for phase 2.
+      field.Backward(m2, s.seg2.data(), nullptr, nr, s.d_rgb.data(), s.d_sigma.data(), &fc, s.grad_mlp.data(),
+                     s.grad_emb.data());
+      s.store_pos.insert(s.store_pos.end(), fc.pos.begin(), fc.pos.begin() + 3 * size_t(m2));
+      s.store_dfeat.insert(s.store_dfeat.end(), fc.d_feat.begin(), fc.d_feat.begin() + size_t(m2) * Dg);
     }
   }
   // Phase 2: hash-grid backward, levels partitioned over threads.
