@@ -35,7 +35,7 @@ int main(int argc, char** argv) {
   };
 
   TrainArgs train;
-  CLI::App* t = app.add_subcommand("train", "Train a model on a dataset (Blender, transforms.json or COLMAP)");
+  CLI::App* t = app.add_subcommand("train", "Train a model on a dataset (Blender, transforms.json, COLMAP or LLFF)");
   t->add_option("--data", train.data, "Dataset directory")->required();
   t->add_option("--out", train.out, "Output model file")->required();
   t->add_option("--iters", train.iterations, "Training steps")->capture_default_str();
@@ -81,7 +81,7 @@ int main(int argc, char** argv) {
   add_remote_flags(r, &render.remote);
 
   UploadArgs upload;
-  CLI::App* up = app.add_subcommand("upload", "Upload a scan folder (Blender, transforms.json or COLMAP) to the server");
+  CLI::App* up = app.add_subcommand("upload", "Upload a scan folder (Blender, transforms.json, COLMAP or LLFF) to the server");
   up->add_option("dir", upload.dir, "Dataset directory")->required();
   up->add_option("--name", upload.name, "Scan name (default: the folder's name)");
   up->add_option("--test-split", upload.test_split, "Held-out frames: test (falls back to val), val or none")

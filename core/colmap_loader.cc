@@ -15,6 +15,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/dataset.h"
 #include "core/image.h"
+#include "core/image_folder.h"
 #include "Eigen/Geometry"
 
 namespace clnerf {
@@ -164,6 +165,32 @@ absl::StatusOr<std::vector<ColmapImage>> ReadImagesBinary(const fs::path& path) 
   return images;
 }
 
+using Points = std::vector<Eigen::Vector3f>;
+
+absl::StatusOr<Points> ReadPointsBinary(const fs::path& path) {
+  absl::StatusOr<std::string> data = ReadFile(path);
+  if (!data.ok()) return data.status();
+  BinaryReader r(*std::move(data));
+  uint64_t n = 0;
+  if (!r.Read(&n)) return Invalid(path, "truncated file (no point count)");
+  // Each point: uint64 id, 3 double xyz, 3 uint8 rgb, double error, uint64
+  // track length, then (uint32 image id, uint32 point2D index) per track entry.
+  if (n > r.remaining() / 51)
+    return Invalid(path, absl::StrCat("truncated file (claims ", n, " points)"));
+  Points points(n);
+  for (uint64_t i = 0; i < n; ++i) {
+    uint64_t id, track = 0;
+    double xyz[3], error;
+    bool ok = r.Read(&id);
+    for (double& v : xyz) ok = ok && r.Read(&v);
+    ok = ok && r.Skip(3) && r.Read(&error) && r.Read(&track);
+    ok = ok && track <= r.remaining() / 8 && r.Skip(track * 8);
+    if (!ok) return Invalid(path, absl::StrCat("truncated file (point ", i, ")"));
+    points[i] = Eigen::Vector3d(xyz[0], xyz[1], xyz[2]).cast<float>();
+  }
+  return points;
+}
+
 // ---- Text format -----------------------------------------------------------
 
 std::vector<std::string> Tokens(const std::string& line) {
@@ -249,6 +276,30 @@ absl::StatusOr<std::vector<ColmapImage>> ReadImagesText(const fs::path& path) {
   return images;
 }
 
+absl::StatusOr<Points> ReadPointsText(const fs::path& path) {
+  absl::StatusOr<std::string> data = ReadFile(path);
+  if (!data.ok()) return data.status();
+  std::istringstream in(*data);
+  Points points;
+  int line_no = 0;
+  for (std::string line; std::getline(in, line);) {
+    ++line_no;
+    if (!IsDataLine(line)) continue;
+    // POINT3D_ID X Y Z R G B ERROR TRACK[] as (IMAGE_ID, POINT2D_IDX) pairs.
+    const std::vector<std::string> t = Tokens(line);
+    uint64_t id;
+    double xyz[3];
+    bool ok = t.size() >= 8 && ParseNumber(t[0], &id);
+    for (int k = 0; ok && k < 3; ++k) ok = ParseNumber(t[1 + k], &xyz[k]);
+    if (!ok) {
+      return Invalid(path, absl::StrCat("line ", line_no,
+                                        ": expected POINT3D_ID X Y Z R G B ERROR TRACK[]"));
+    }
+    points.push_back(Eigen::Vector3d(xyz[0], xyz[1], xyz[2]).cast<float>());
+  }
+  return points;
+}
+
 // ---- Conversion ------------------------------------------------------------
 
 absl::StatusOr<Intrinsics> ToIntrinsics(const ColmapCamera& cam) {
@@ -320,30 +371,36 @@ bool NaturalLess(const std::string& a, const std::string& b) {
   return a < b;
 }
 
-// Finds the model directory and reads it (binary preferred).
-absl::Status ReadModel(const fs::path& root, Cameras* cams, std::vector<ColmapImage>* images) {
+// Finds the model directory and reads it (binary preferred), including
+// points3D when that folder has it.
+absl::Status ReadModel(const fs::path& root, Cameras* cams, std::vector<ColmapImage>* images,
+                       Points* points) {
   std::error_code ec;
   for (const fs::path& dir : {root / "sparse" / "0", root / "sparse"}) {
-    if (fs::is_regular_file(dir / "cameras.bin", ec) &&
-        fs::is_regular_file(dir / "images.bin", ec)) {
-      absl::StatusOr<Cameras> c = ReadCamerasBinary(dir / "cameras.bin");
-      if (!c.ok()) return c.status();
-      absl::StatusOr<std::vector<ColmapImage>> i = ReadImagesBinary(dir / "images.bin");
-      if (!i.ok()) return i.status();
-      *cams = *std::move(c);
-      *images = *std::move(i);
-      return absl::OkStatus();
+    const bool binary = fs::is_regular_file(dir / "cameras.bin", ec) &&
+                        fs::is_regular_file(dir / "images.bin", ec);
+    const bool text = fs::is_regular_file(dir / "cameras.txt", ec) &&
+                      fs::is_regular_file(dir / "images.txt", ec);
+    if (!binary && !text) continue;
+    absl::StatusOr<Cameras> c =
+        binary ? ReadCamerasBinary(dir / "cameras.bin") : ReadCamerasText(dir / "cameras.txt");
+    if (!c.ok()) return c.status();
+    absl::StatusOr<std::vector<ColmapImage>> i =
+        binary ? ReadImagesBinary(dir / "images.bin") : ReadImagesText(dir / "images.txt");
+    if (!i.ok()) return i.status();
+    *cams = *std::move(c);
+    *images = *std::move(i);
+    points->clear();
+    if (fs::is_regular_file(dir / "points3D.bin", ec)) {
+      absl::StatusOr<Points> p = ReadPointsBinary(dir / "points3D.bin");
+      if (!p.ok()) return p.status();
+      *points = *std::move(p);
+    } else if (fs::is_regular_file(dir / "points3D.txt", ec)) {
+      absl::StatusOr<Points> p = ReadPointsText(dir / "points3D.txt");
+      if (!p.ok()) return p.status();
+      *points = *std::move(p);
     }
-    if (fs::is_regular_file(dir / "cameras.txt", ec) &&
-        fs::is_regular_file(dir / "images.txt", ec)) {
-      absl::StatusOr<Cameras> c = ReadCamerasText(dir / "cameras.txt");
-      if (!c.ok()) return c.status();
-      absl::StatusOr<std::vector<ColmapImage>> i = ReadImagesText(dir / "images.txt");
-      if (!i.ok()) return i.status();
-      *cams = *std::move(c);
-      *images = *std::move(i);
-      return absl::OkStatus();
-    }
+    return absl::OkStatus();
   }
   return absl::NotFoundError(
       absl::StrCat("no COLMAP model in ", root.string(),
@@ -374,7 +431,15 @@ absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const ColmapLoadOp
   }
   Cameras cams;
   std::vector<ColmapImage> images;
-  if (absl::Status s = ReadModel(root, &cams, &images); !s.ok()) return s;
+  Points points;
+  if (absl::Status s = ReadModel(root, &cams, &images, &points); !s.ok()) return s;
+  absl::StatusOr<ImageFolder> image_folder =
+      FindImageFolder(root, opts.images_dir, opts.downscale);
+  if (!image_folder.ok()) return image_folder.status();
+  // View names are relative to the dataset directory ("images/a.png",
+  // "../images/a.png").
+  fs::path folder_name = image_folder->path.lexically_relative(root.lexically_normal());
+  if (folder_name.empty()) folder_name = image_folder->path;
 
   Scene scene;
   const fs::path norm = root.lexically_normal();
@@ -382,6 +447,7 @@ absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const ColmapLoadOp
       norm.has_filename() ? norm.filename().string() : norm.parent_path().filename().string();
   scene.kind = SceneKind::kUnbounded;
   scene.background = Eigen::Vector3f::Zero();
+  scene.content_points = std::move(points);
 
   // Time steps: rank of the image's subfolder among all subfolders.
   const auto folder = [](const ColmapImage& im) {
@@ -417,24 +483,32 @@ absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const ColmapLoadOp
     absl::StatusOr<Intrinsics> in = ToIntrinsics(cam->second);
     if (!in.ok()) return absl::InvalidArgumentError(absl::StrCat(ctx, ": ", in.status().message()));
     View view;
-    view.name = (fs::path("images") / im.name).generic_string();
+    view.name = (folder_name / im.name).generic_string();
     view.camera.intrinsics = *in;
     view.camera.c2w = ToPose(im);
     view.camera.time_step = step;
+    const fs::path image_path = image_folder->path / im.name;
+    float residual = image_folder->residual_downscale;
+    const auto annotate = [&](const absl::Status& s) {
+      return absl::Status(s.code(), absl::StrCat(ctx, ": ", s.message()));
+    };
     if (opts.load_images) {
-      absl::StatusOr<Image> image =
-          ReadImage((root / "images" / im.name).string(), scene.background);
-      if (!image.ok())
-        return absl::Status(image.status().code(),
-                            absl::StrCat(ctx, ": ", image.status().message()));
-      if (image->width != in->width || image->height != in->height) {
-        return absl::InvalidArgumentError(absl::StrCat(ctx, ": image is ", image->width, "x",
-                                                       image->height, " but its COLMAP camera is ",
-                                                       in->width, "x", in->height));
-      }
+      absl::StatusOr<Image> image = ReadImage(image_path.string(), scene.background);
+      if (!image.ok()) return annotate(image.status());
       view.image = *std::move(image);
+      absl::Status s = ScaleIntrinsicsToImage(view.image.width, view.image.height,
+                                              image_path.string(), &view.camera.intrinsics);
+      if (!s.ok()) return annotate(s);
+    } else if (fs::is_regular_file(image_path, ec)) {
+      absl::StatusOr<ImageSize> size = ReadImageSize(image_path.string());
+      if (!size.ok()) return annotate(size.status());
+      absl::Status s = ScaleIntrinsicsToImage(size->width, size->height, image_path.string(),
+                                              &view.camera.intrinsics);
+      if (!s.ok()) return annotate(s);
+    } else {
+      residual = opts.downscale;  // Camera-only: the calibration's size, shrunk as asked.
     }
-    DownscaleView(opts.downscale, &view);
+    DownscaleView(residual, &view);
     out.push_back(std::move(view));
   }
   return scene;

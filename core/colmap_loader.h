@@ -1,20 +1,34 @@
 // ColmapLoader: reads a COLMAP sparse reconstruction plus its images into a
 // clnerf::Scene, including the CLNeRF "WAT" multi-time-step layout.
 //
+// Convention: COLMAP poses are world-to-camera in the OpenCV convention
+// (x right, y down, looking along +z): qvec = (w, x, y, z) and tvec give
+// x_cam = R x_world + t. They are inverted once, here, to camera-to-world
+// (R_c2w = R^T, centre = -R^T t) and need no axis change.
+//
 // The model is looked up in <dir>/sparse/0/ and then <dir>/sparse/; binary
 // (cameras.bin, images.bin) is preferred over text (cameras.txt, images.txt)
-// when both exist, as COLMAP does. points3D is not needed. Supported camera
-// models: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV (mapped to
-// fx fy cx cy k1 k2 p1 p2); others are INVALID_ARGUMENT. COLMAP's pixel
-// convention (pixel centres at +0.5) matches Camera's, so cx, cy are used as
-// is. Image poses are world-to-camera (qvec = w,x,y,z; tvec) in the OpenCV
-// convention and are inverted to camera-to-world: R_c2w = R^T, centre = -R^T t.
+// when both exist, as COLMAP does. points3D.{bin,txt} in the same folder is
+// optional: when present its points (world xyz) become Scene::content_points.
+// Supported camera models: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL,
+// OPENCV (mapped to fx fy cx cy k1 k2 p1 p2); others are INVALID_ARGUMENT.
+// COLMAP's pixel convention (pixel centres at +0.5) matches Camera's, so cx,
+// cy are used as is.
 //
-// Images come from <dir>/images/<name>. Each distinct subfolder of images/ is
-// one time step: subfolder names are sorted (natural order, so "2" < "10";
-// the top level, if used, sorts first) and time_step = rank. Within each time
-// step views are sorted by name (natural order) and the first and every
-// `test_every`-th one go to the test split.
+// Images: <folder>/<name>, the folder chosen by FindImageFolder()
+// (image_folder.h): `images_dir` when given; else images_N for an integer
+// downscale N when that folder exists (LLFF / mip-NeRF 360 ship images_2, _4,
+// _8); else images/. Each is looked up in <dir> and then in <dir>/.., so a
+// model kept in <scene>/source/sparse/0 finds <scene>/images. COLMAP's
+// intrinsics are for the images it was run on; they are always rescaled to
+// the size of the image actually read (its header only when load_images is
+// false; the camera's own size when that file is missing then).
+//
+// Each distinct subfolder in the image names is one time step: subfolder
+// names are sorted (natural order, so "2" < "10"; the top level, if used,
+// sorts first) and time_step = rank. Within each time step views are sorted by
+// name (natural order) and the first and every `test_every`-th one go to the
+// test split.
 //
 // The scene is kUnbounded with a black background and no normalisation hints
 // (ComputeNormalization() centres on the cameras). The result is not
@@ -35,8 +49,13 @@ namespace clnerf {
 struct ColmapLoadOptions {
   // Decode images. When false, only cameras are built (sizes from cameras.*).
   bool load_images = true;
-  // Shrink factor >= 1 applied to images and intrinsics.
+  // Shrink factor >= 1 applied to images and intrinsics, relative to the
+  // images in images/. An integer N reads images_N/ instead when it exists.
   float downscale = 1.0f;
+  // Image folder, absolute or relative to the dataset directory (e.g.
+  // "images_4", "../images"). "" = automatic (see above). An explicit folder
+  // is taken as is: `downscale` then applies on top of its images.
+  std::string images_dir = "";
   // Per time step, views 0, N, 2N, ... (sorted by name) are test views.
   // 0 = no test split.
   int test_every = 8;
@@ -46,9 +65,10 @@ struct ColmapLoadOptions {
   absl::Status Validate() const;
 };
 
-// Loads `dir`. NOT_FOUND when no sparse model or an image file is missing;
-// INVALID_ARGUMENT for malformed or truncated model files (naming the file)
-// and unsupported camera models.
+// Loads `dir`. NOT_FOUND when no sparse model, the explicit image folder or
+// (with load_images) an image file is missing; INVALID_ARGUMENT for malformed
+// or truncated model files (naming the file), unsupported camera models, and
+// images whose aspect ratio does not match their camera.
 absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const ColmapLoadOptions& opts = {});
 
 }  // namespace clnerf

@@ -57,9 +57,10 @@ class ColmapLoaderTest : public ::testing::Test {
   }
   void TearDown() override { fs::remove_all(dir_); }
 
-  void WriteImages(const std::vector<Img>& imgs, int w = 8, int h = 6) {
+  void WriteImages(const std::vector<Img>& imgs, int w = 8, int h = 6,
+                   const std::string& folder = "images") {
     for (const Img& im : imgs) {
-      ASSERT_TRUE(WriteImage((dir_ / "images" / im.name).string(), Image(w, h, 0.5f)).ok());
+      ASSERT_TRUE(WriteImage((dir_ / folder / im.name).string(), Image(w, h, 0.5f)).ok());
     }
   }
 
@@ -175,6 +176,7 @@ TEST_F(ColmapLoaderTest, TextAndBinaryGiveTheSameCamerasAndPoses) {
     // Identity world-to-camera rotation: OpenCV camera at z=-4 looks along +z, at the origin.
     const Camera& cb = s->train[1].camera;
     EXPECT_NEAR(cb.c2w.col(2).dot(-cb.position().normalized()), 1.0f, 1e-6);
+    EXPECT_TRUE(s->content_points.empty());  // No points3D file.
     EXPECT_TRUE(ValidateScene(*s).ok());
   }
 }
@@ -229,6 +231,151 @@ TEST_F(ColmapLoaderTest, SubfoldersAreTimeStepsAndTestSplitPerStep) {
   ASSERT_EQ(scene->train.size(), 10u);
   EXPECT_EQ(scene->train[0].name, "images/2/1.png");
   EXPECT_EQ(scene->train.back().name, "images/10/2.png");
+}
+
+// Calibration for 16x12 originals; images/, images_2/, images_4/ hold them at
+// full, half and quarter size, as LLFF and mip-NeRF 360 ship them.
+TEST_F(ColmapLoaderTest, DownscaledFoldersScaleIntrinsicsFromTheImageSize) {
+  const std::vector<Cam> cams = {{1, "PINHOLE", 1, 16, 12, {20, 22, 8, 6}}};
+  const std::vector<Img> imgs = {MakeImg(1, "a.png", {0, 0, -4}), MakeImg(2, "b.png", {1, 0, -4})};
+  WriteBinary(cams, imgs);
+  WriteImages(imgs, 16, 12, "images");
+  WriteImages(imgs, 8, 6, "images_2");
+  WriteImages(imgs, 4, 3, "images_4");
+  struct Case {
+    float downscale;
+    std::string images_dir;
+    bool load_images;
+    std::string name;
+    int width, height;
+    float fx, fy, cx, cy;
+  };
+  const Case cases[] = {
+      {1, "", true, "images/a.png", 16, 12, 20, 22, 8, 6},
+      {2, "", true, "images_2/a.png", 8, 6, 10, 11, 4, 3},
+      {4, "", true, "images_4/a.png", 4, 3, 5, 5.5f, 2, 1.5f},
+      {2, "", false, "images_2/a.png", 8, 6, 10, 11, 4, 3},  // Size from the header.
+      {1, "images_4", true, "images_4/a.png", 4, 3, 5, 5.5f, 2, 1.5f},
+      // No images_8: images/ shrunk by 8 (16x12 -> 2x2 after rounding 1.5).
+      {8, "", true, "images/a.png", 2, 2, 2.5f, 22.0f / 6, 1, 1},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name + " downscale " + std::to_string(c.downscale));
+    ColmapLoadOptions opts = NoTest();
+    opts.downscale = c.downscale;
+    opts.images_dir = c.images_dir;
+    opts.load_images = c.load_images;
+    absl::StatusOr<Scene> scene = LoadColmapScene(dir_.string(), opts);
+    ASSERT_TRUE(scene.ok()) << scene.status();
+    ASSERT_EQ(scene->train.size(), 2u);
+    const View& v = scene->train[0];
+    EXPECT_EQ(v.name, c.name);
+    const Intrinsics& in = v.camera.intrinsics;
+    EXPECT_EQ(in.width, c.width);
+    EXPECT_EQ(in.height, c.height);
+    EXPECT_FLOAT_EQ(in.fx, c.fx);
+    EXPECT_FLOAT_EQ(in.fy, c.fy);
+    EXPECT_FLOAT_EQ(in.cx, c.cx);
+    EXPECT_FLOAT_EQ(in.cy, c.cy);
+    EXPECT_EQ(v.image.width, c.load_images ? c.width : 0);
+    EXPECT_TRUE(ValidateScene(*scene).ok()) << ValidateScene(*scene);
+  }
+}
+
+// beer_2's layout: the model in <scene>/source/sparse/0, calibrated for the
+// originals, and halved images in <scene>/images.
+TEST_F(ColmapLoaderTest, ModelInASubfolderFindsTheImagesAboveIt) {
+  const std::vector<Cam> cams = {{1, "SIMPLE_RADIAL", 2, 16, 12, {20, 8, 6, 0.05}}};
+  const std::vector<Img> imgs = {MakeImg(1, "a.png", {0, 0, -4}), MakeImg(2, "b.png", {1, 0, -4})};
+  WriteBinary(cams, imgs, "source/sparse/0");
+  const std::string source = (dir_ / "source").string();
+
+  // Without images and without load_images: the calibration's own size.
+  ColmapLoadOptions opts = NoTest();
+  opts.load_images = false;
+  absl::StatusOr<Scene> scene = LoadColmapScene(source, opts);
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  EXPECT_EQ(scene->train[0].camera.intrinsics.width, 16);
+  EXPECT_FLOAT_EQ(scene->train[0].camera.intrinsics.fx, 20);
+
+  WriteImages(imgs, 8, 6, "images");
+  for (bool load : {true, false}) {
+    opts.load_images = load;
+    scene = LoadColmapScene(source, opts);
+    ASSERT_TRUE(scene.ok()) << scene.status();
+    const View& v = scene->train[1];
+    EXPECT_EQ(v.name, "../images/b.png");
+    EXPECT_EQ(v.camera.intrinsics.width, 8);
+    EXPECT_EQ(v.camera.intrinsics.height, 6);
+    EXPECT_FLOAT_EQ(v.camera.intrinsics.fx, 10);
+    EXPECT_FLOAT_EQ(v.camera.intrinsics.fy, 10);
+    EXPECT_FLOAT_EQ(v.camera.intrinsics.cx, 4);
+    EXPECT_FLOAT_EQ(v.camera.intrinsics.k1, 0.05f);
+    EXPECT_TRUE(v.camera.position().isApprox(Eigen::Vector3f(1, 0, -4), 1e-6f));
+  }
+  // The same through an explicit folder.
+  opts.images_dir = "../images";
+  scene = LoadColmapScene(source, opts);
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  EXPECT_FLOAT_EQ(scene->train[0].camera.intrinsics.fx, 10);
+
+  // An image of the wrong shape (rotated) is named.
+  ASSERT_TRUE(WriteImage((dir_ / "images" / "b.png").string(), Image(6, 8, 0.5f)).ok());
+  opts.load_images = true;
+  absl::Status s = LoadColmapScene(source, opts).status();
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("b.png"), std::string::npos) << s;
+  EXPECT_NE(s.message().find("aspect"), std::string::npos) << s;
+}
+
+TEST_F(ColmapLoaderTest, Points3DBecomeContentPoints) {
+  const std::vector<Img> imgs = {MakeImg(1, "a.png", {0, 0, -4})};
+  const std::vector<Eigen::Vector3d> pts = {{1.5, -2, 3}, {0.25, 0, -1e3}};
+  ColmapLoadOptions opts = NoTest();
+  opts.load_images = false;
+
+  WriteBinary(kCams, imgs);
+  std::string bin;
+  Put<uint64_t>(&bin, pts.size());
+  for (size_t i = 0; i < pts.size(); ++i) {
+    Put<uint64_t>(&bin, 10 + i);
+    for (int k = 0; k < 3; ++k) Put<double>(&bin, pts[i][k]);
+    bin.append("\x10\x20\x30", 3);  // RGB.
+    Put<double>(&bin, 0.5);        // Reprojection error.
+    Put<uint64_t>(&bin, i + 1);    // Track: (image id, point2D index) pairs.
+    for (size_t t = 0; t <= i; ++t) {
+      Put<uint32_t>(&bin, 1);
+      Put<uint32_t>(&bin, uint32_t(t));
+    }
+  }
+  std::ofstream(dir_ / "sparse/0/points3D.bin", std::ios::binary) << bin;
+  absl::StatusOr<Scene> scene = LoadColmapScene(dir_.string(), opts);
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  ASSERT_EQ(scene->content_points.size(), 2u);
+  for (size_t i = 0; i < pts.size(); ++i) {
+    EXPECT_TRUE(scene->content_points[i].isApprox(pts[i].cast<float>())) << i;
+  }
+  // Truncated: INVALID_ARGUMENT naming the file.
+  std::ofstream(dir_ / "sparse/0/points3D.bin", std::ios::binary) << bin.substr(0, bin.size() - 3);
+  absl::Status s = LoadColmapScene(dir_.string(), opts).status();
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("points3D.bin"), std::string::npos) << s;
+
+  // Text model with points3D.txt.
+  fs::remove_all(dir_ / "sparse");
+  WriteText(kCams, imgs);
+  std::ofstream(dir_ / "sparse/0/points3D.txt")
+      << "# 3D point list with one line of data per point:\n"
+      << "10 1.5 -2 3 16 32 48 0.5 1 0\n"
+      << "11 0.25 0 -1000 0 0 0 0.1 1 0 1 1\n";
+  scene = LoadColmapScene(dir_.string(), opts);
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  ASSERT_EQ(scene->content_points.size(), 2u);
+  EXPECT_TRUE(scene->content_points[1].isApprox(Eigen::Vector3f(0.25f, 0, -1000)));
+  std::ofstream(dir_ / "sparse/0/points3D.txt") << "10 1.5 -2\n";
+  s = LoadColmapScene(dir_.string(), opts).status();
+  EXPECT_EQ(s.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_NE(s.message().find("points3D.txt"), std::string::npos) << s;
 }
 
 TEST_F(ColmapLoaderTest, Errors) {

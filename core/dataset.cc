@@ -11,6 +11,7 @@
 #include "core/blender_loader.h"
 #include "core/colmap_loader.h"
 #include "core/image.h"
+#include "core/llff_loader.h"
 #include "core/ngp_loader.h"
 
 namespace clnerf {
@@ -48,6 +49,8 @@ const char* DatasetFormatName(DatasetFormat format) {
       return "instant-ngp";
     case DatasetFormat::kColmap:
       return "colmap";
+    case DatasetFormat::kLlff:
+      return "llff";
   }
   return "unknown";
 }
@@ -64,10 +67,11 @@ absl::StatusOr<DatasetFormat> DetectDatasetFormat(const std::string& dir) {
   }
   if (IsFile(root / "transforms.json")) return DatasetFormat::kInstantNgp;
   if (HasColmapModel(root)) return DatasetFormat::kColmap;
+  if (IsFile(root / "poses_bounds.npy")) return DatasetFormat::kLlff;
   return absl::NotFoundError(
       absl::StrCat("no dataset found in ", dir,
-                   ": expected transforms_train.json (Blender), transforms.json (instant-ngp) or "
-                   "sparse/[0/]cameras.{bin,txt} (COLMAP)"));
+                   ": expected transforms_train.json (Blender), transforms.json (instant-ngp), "
+                   "sparse/[0/]cameras.{bin,txt} (COLMAP) or poses_bounds.npy (LLFF)"));
 }
 
 absl::Status DatasetOptions::Validate() const {
@@ -112,7 +116,18 @@ absl::StatusOr<Scene> LoadScene(const std::string& dir, const DatasetOptions& op
       o.downscale = opts.downscale;
       o.test_every = opts.test_every;
       o.max_images_per_split = opts.max_images_per_split;
+      o.images_dir = opts.images_dir;
       scene = LoadColmapScene(dir, o);
+      break;
+    }
+    case DatasetFormat::kLlff: {
+      LlffLoadOptions o;
+      o.load_images = opts.load_images;
+      o.downscale = opts.downscale;
+      o.test_every = opts.test_every;
+      o.max_images_per_split = opts.max_images_per_split;
+      o.images_dir = opts.images_dir;
+      scene = LoadLlffScene(dir, o);
       break;
     }
   }

@@ -91,6 +91,24 @@ absl::StatusOr<Image> ReadImage(const std::string& path, const Eigen::Vector3f& 
   return ReadOpened(in.get(), path, background);
 }
 
+absl::StatusOr<ImageSize> ReadImageSize(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) {
+    return absl::NotFoundError(absl::StrCat("image file not found: ", path));
+  }
+  auto in = OIIO::ImageInput::open(path);
+  if (!in) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("cannot open image '", path, "': ", OIIO::geterror()));
+  }
+  const ImageSize size{in->spec().width, in->spec().height};
+  in->close();
+  if (size.width <= 0 || size.height <= 0) {
+    return absl::InvalidArgumentError(absl::StrCat("image '", path, "' has an invalid size"));
+  }
+  return size;
+}
+
 std::string SniffImageExtension(const std::string& b) {
   auto starts = [&](const char* magic, size_t n) { return b.size() >= n && b.compare(0, n, magic, n) == 0; };
   if (starts("\x89PNG\r\n\x1a\n", 8)) return ".png";

@@ -46,6 +46,14 @@ struct Mask {
 absl::StatusOr<Image> ReadImage(const std::string& path,
                                 const Eigen::Vector3f& background = Eigen::Vector3f::Ones());
 
+// The width and height of an image file, from its header only (no pixels are
+// decoded). Errors as ReadImage().
+struct ImageSize {
+  int width = 0;
+  int height = 0;
+};
+absl::StatusOr<ImageSize> ReadImageSize(const std::string& path);
+
 // Decodes an image held in memory (e.g. uploaded bytes).
 absl::StatusOr<Image> DecodeImage(const std::string& bytes, const std::string& name_hint,
                                   const Eigen::Vector3f& background = Eigen::Vector3f::Ones());

@@ -1,6 +1,10 @@
 #include "core/image.h"
 
 #include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <unistd.h>
 
 #include "gtest/gtest.h"
 
@@ -50,6 +54,23 @@ TEST(ImageCodecTest, CorruptBytesAreInvalidArgument) {
   EXPECT_EQ(bad.status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_EQ(DecodeImage("", "empty.png").status().code(), absl::StatusCode::kInvalidArgument);
   EXPECT_EQ(EncodePng(Image()).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+TEST(ImageFileTest, SizeComesFromTheHeader) {
+  namespace fs = std::filesystem;
+  const fs::path dir = fs::temp_directory_path() / ("clnerf_image_size_" + std::to_string(getpid()));
+  fs::create_directories(dir);
+  ASSERT_TRUE(WriteImage((dir / "a.png").string(), Image(7, 5, 0.25f)).ok());
+  std::ofstream(dir / "bad.png") << "not a png";
+  absl::StatusOr<ImageSize> size = ReadImageSize((dir / "a.png").string());
+  const absl::Status missing = ReadImageSize((dir / "b.png").string()).status();
+  const absl::Status bad = ReadImageSize((dir / "bad.png").string()).status();
+  fs::remove_all(dir);
+  ASSERT_TRUE(size.ok()) << size.status();
+  EXPECT_EQ(size->width, 7);
+  EXPECT_EQ(size->height, 5);
+  EXPECT_EQ(missing.code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ(bad.code(), absl::StatusCode::kInvalidArgument);
 }
 
 }  // namespace

@@ -55,8 +55,8 @@ struct Scene {
   float world_scale_hint = 0.0f;  // e.g. Blender: 1/3, instant-ngp: 0.33.
   Eigen::Vector3f world_offset_hint = Eigen::Vector3f::Zero();
   // World-space points on the scene's content (COLMAP's sparse points, or
-  // points at the near/far bounds along each camera's axis from LLFF's
-  // poses_bounds.npy); empty when the loader has none. Used only to place and
+  // points on each camera's axis at LLFF's near bound and at the geometric
+  // mean of its bounds); empty when the loader has none. Used only to place and
   // size the model's box (ComputeNormalization).
   std::vector<Eigen::Vector3f> content_points;
 
