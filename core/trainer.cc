@@ -72,7 +72,8 @@ float Trainer::CurrentLearningRate() const {
   return lo + 0.5f * (lr - lo) * (1.0f + std::cos(float(M_PI) * p));
 }
 
-float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool track_touched) {
+float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const float* ray_bg,
+                               bool track_touched) {
   const NgpModel& model = *model_;
   const FieldEvaluator field(model);
   const HashGrid& grid = model.grid();
@@ -163,7 +164,8 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool 
         const int a = s.seg2[i], used = s.seg2[i + 1] - a;
         const float* rgb = fc.ws.rgb.data() + 3 * size_t(a);
         float c[3];
-        CompositeColour(&s.weights[a], rgb, used, s.t_final[i], bg.data(), c);
+        const float* bgr = ray_bg ? &ray_bg[3 * size_t(r)] : bg.data();
+        CompositeColour(&s.weights[a], rgb, used, s.t_final[i], bgr, c);
         const float* gt = &batch.target[3 * size_t(r)];
         const float wr = batch.weight[r];
         const bool robust = !batch.robust.empty() && batch.robust[r] != 0;
@@ -185,7 +187,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool 
         s.loss += (wr * data_loss / 3.0f + lambda * (-o * std::log(o))) * inv_n;
         const float d_opacity = lambda * -(std::log(o) + 1.0f) * inv_n;
         if (used > 0) {
-          CompositeBackward(&fc.sigma[a], &s.dt[a], rgb, &s.weights[a], used, s.t_final[i], bg.data(), dc,
+          CompositeBackward(&fc.sigma[a], &s.dt[a], rgb, &s.weights[a], used, s.t_final[i], bgr, dc,
                             d_opacity, &s.d_rgb[3 * size_t(a)], &s.d_sigma[a]);
         }
       }
@@ -228,7 +230,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, bool 
 
 float Trainer::ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* g) {
   std::fill(grad_grid_.begin(), grad_grid_.end(), 0.0f);
-  float loss = ForwardBackward(batch, jitter.data(), /*track_touched=*/false);
+  float loss = ForwardBackward(batch, jitter.data(), /*ray_bg=*/nullptr, /*track_touched=*/false);
   if (options_.ewc != nullptr) loss += ApplyEwc(/*track_touched=*/false);
   g->grid = grad_grid_;
   g->mlp = grad_mlp_;
@@ -299,8 +301,13 @@ absl::Status Trainer::Step() {
   std::vector<float> jitter(batch.size());
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   for (float& j : jitter) j = u(rng_);
+  std::vector<float> ray_bg;
+  if (options_.random_background && model.kind() == SceneKind::kUnbounded) {
+    ray_bg.resize(3 * size_t(batch.size()));
+    for (float& c : ray_bg) c = u(rng_);
+  }
 
-  float loss = ForwardBackward(batch, jitter.data(), /*track_touched=*/true);
+  float loss = ForwardBackward(batch, jitter.data(), ray_bg.empty() ? nullptr : ray_bg.data(), /*track_touched=*/true);
   if (options_.ewc != nullptr) loss += ApplyEwc(/*track_touched=*/true);
   const int next = step_ + 1;
 

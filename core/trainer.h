@@ -48,6 +48,11 @@ struct TrainOptions {
   float learning_rate = 1e-2f;    // Initial learning rate (all blocks).
   float lr_final_ratio = 1.0f / 30.0f;  // Cosine decay to lr * ratio.
   float opacity_reg = 1e-3f;      // Weight of mean(-o log o).
+  // Unbounded (real) scenes: composite each training ray onto a random
+  // background colour (instant-ngp's trick), so the field cannot explain
+  // dark pixels with transparency and must become opaque; this is what lets
+  // rays terminate early. Rendering still uses the model's background.
+  bool random_background = true;
   AdamOptions adam;
   uint64_t seed = 0;
   int threads = 0;                // OpenMP threads; 0 = all cores.
@@ -98,7 +103,8 @@ class Trainer {
 
  private:
   struct ThreadScratch;
-  float ForwardBackward(const RayBatch& batch, const float* jitter, bool compute_grid_touch);
+  // ray_bg: 3 per ray, or nullptr for the model's background.
+  float ForwardBackward(const RayBatch& batch, const float* jitter, const float* ray_bg, bool compute_grid_touch);
   // Adds the EWC penalty's gradient (marking grid entries touched) and
   // returns its loss.
   float ApplyEwc(bool track_touched);
