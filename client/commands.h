@@ -36,6 +36,7 @@ struct TrainArgs {
   int curve_views = 8;
   std::string json;
   bool eval_after = true;  // Evaluate on the test split when done.
+  bool fp16 = false;       // Save the parameters as binary16.
   ModelArgs model;
 };
 

@@ -118,12 +118,18 @@ int RunTrain(const TrainArgs& a) {
                scene->val.size(), scene->test.size(), scene->num_time_steps());
   absl::StatusOr<FitResult> fit = TrainWithProgress(*scene, MakeFitOptions(a), a.model);
   if (!fit.ok()) return Fail(fit.status());
-  absl::StatusOr<size_t> bytes = SaveCheckpoint(*fit->model, a.out);
+  CheckpointOptions save_options;
+  save_options.fp16_params = a.fp16;
+  absl::StatusOr<size_t> bytes = SaveCheckpoint(*fit->model, a.out, {}, save_options);
   if (!bytes.ok()) return Fail(bytes.status());
-  spdlog::info("saved model to {} ({} bytes on disk, {} bytes of parameters)", a.out, *bytes, fit->model->num_bytes());
+  spdlog::info("saved model to {} ({} bytes of parameters, {} bytes on disk{})", a.out, fit->model->num_bytes(),
+               *bytes, a.fp16 ? ", fp16 parameters" : "");
+  // model_bytes: parameters (+ occupancy bits) in memory; file_bytes: the
+  // checkpoint on disk.
   nlohmann::json j = {{"model", a.out},
                       {"model_bytes", fit->model->num_bytes()},
                       {"file_bytes", *bytes},
+                      {"fp16", a.fp16},
                       {"iterations", fit->iterations},
                       {"train_seconds", fit->train_seconds},
                       {"samples_per_second", fit->samples_per_second},
@@ -145,12 +151,13 @@ int RunTrain(const TrainArgs& a) {
     j["ssim"] = ev->ssim;
     j["num_images"] = ev->views.size();
     j["mean_render_ms"] = ev->mean_render_seconds * 1e3;
-    std::printf("test PSNR %.2f dB, SSIM %.4f over %zu images | train %.1fs, %.0f samples/s | model %zu bytes\n",
+    std::printf("test PSNR %.2f dB, SSIM %.4f over %zu images | train %.1fs, %.0f samples/s | model %zu bytes, "
+                "file %zu bytes\n",
                 ev->psnr, ev->ssim, ev->views.size(), fit->train_seconds, fit->samples_per_second,
-                fit->model->num_bytes());
+                fit->model->num_bytes(), *bytes);
   } else {
-    std::printf("trained %d steps in %.1fs, %.0f samples/s | model %zu bytes\n", fit->iterations, fit->train_seconds,
-                fit->samples_per_second, fit->model->num_bytes());
+    std::printf("trained %d steps in %.1fs, %.0f samples/s | model %zu bytes, file %zu bytes\n", fit->iterations,
+                fit->train_seconds, fit->samples_per_second, fit->model->num_bytes(), *bytes);
   }
   if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
   return 0;
@@ -175,6 +182,7 @@ int RunEval(const EvalArgs& a) {
   nlohmann::json j = EvalJson(*ev);
   j["model"] = a.model;
   j["model_bytes"] = ck->model.num_bytes();
+  j["file_bytes"] = ck->num_bytes;
   j["split"] = a.split;
   std::printf("%s: PSNR %.2f dB, SSIM %.4f over %zu images, %.1f ms/image\n", a.split.c_str(), ev->psnr, ev->ssim,
               ev->views.size(), ev->mean_render_seconds * 1e3);
@@ -263,8 +271,8 @@ int RunDemo(const DemoArgs& a) {
   const double base_psnr = ConstantColourPsnr(data->scene.train, data->scene.test);
   std::printf("demo: test PSNR %.2f dB (constant-colour baseline %.2f dB), SSIM %.4f over %zu views\n", ev->psnr,
               base_psnr, ev->ssim, ev->views.size());
-  std::printf("demo: trained %d steps in %.1fs (%.0f samples/s); model %zu bytes -> %s; renders in %s\n",
-              fit->iterations, fit->train_seconds, fit->samples_per_second, fit->model->num_bytes(),
+  std::printf("demo: trained %d steps in %.1fs (%.0f samples/s); model %zu bytes (file %zu bytes) -> %s; renders in %s\n",
+              fit->iterations, fit->train_seconds, fit->samples_per_second, fit->model->num_bytes(), *bytes,
               model_path.c_str(), eo.save_dir.c_str());
   return 0;
 }

@@ -48,6 +48,7 @@ int main(int argc, char** argv) {
   t->add_option("--curve-views", train.curve_views, "Held-out views per curve point")->capture_default_str();
   t->add_option("--json", train.json, "Write results as JSON to this file ('-' = stdout)");
   t->add_flag("!--no-eval", train.eval_after, "Skip the final test-split evaluation");
+  t->add_flag("--fp16", train.fp16, "Save the parameters as fp16 (about half the file; relative error <= 2^-11)");
   add_model_flags(t, &train.model);
 
   EvalArgs eval;

@@ -4,6 +4,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <array>
 #include <atomic>
 #include <bit>
@@ -11,12 +12,15 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <tuple>
 #include <type_traits>
+#include <utility>
 
 #include "absl/strings/escaping.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/durable_file.h"
+#include "core/half.h"
 
 namespace clnerf {
 namespace {
@@ -53,16 +57,19 @@ constexpr uint32_t Tag(const char (&s)[5]) {
          uint32_t(uint8_t(s[3])) << 24;
 }
 
-// Version 1 sections. All are critical (upper-case first letter).
+// Sections. All are critical (upper-case first letter). Versions 1 and 2 share
+// all but the occupancy section; PENC is new in version 2.
 constexpr uint32_t kTagModel = Tag("MODL");             // Kind, normalisation, background, steps.
 constexpr uint32_t kTagGridOptions = Tag("HGOP");       // HashGridOptions.
 constexpr uint32_t kTagNetworkOptions = Tag("NTOP");    // NetworkOptions.
 constexpr uint32_t kTagOccupancyOptions = Tag("OGOP");  // OccupancyGridOptions.
 constexpr uint32_t kTagMarchOptions = Tag("MROP");      // MarchOptions.
-constexpr uint32_t kTagGridParams = Tag("PGRD");        // float32[] hash tables.
-constexpr uint32_t kTagMlpParams = Tag("PMLP");         // float32[] MLP weights.
-constexpr uint32_t kTagEmbParams = Tag("PEMB");         // float32[] embedding rows.
-constexpr uint32_t kTagOccupancy = Tag("OCCG");         // Occupancy grid state.
+constexpr uint32_t kTagParamEncoding = Tag("PENC");    // v2: uint32 ParamEncoding of the blocks below.
+constexpr uint32_t kTagGridParams = Tag("PGRD");        // float32[] or binary16[] hash tables.
+constexpr uint32_t kTagMlpParams = Tag("PMLP");         // float32[] or binary16[] MLP weights.
+constexpr uint32_t kTagEmbParams = Tag("PEMB");         // float32[] or binary16[] embedding rows.
+constexpr uint32_t kTagOccupancyV1 = Tag("OCCG");       // v1: occupancy grid state, raw.
+constexpr uint32_t kTagOccupancy = Tag("OCCP");         // v2: occupancy grid state, packed.
 constexpr uint32_t kTagMetadata = Tag("META");          // CheckpointExtras::metadata.
 constexpr uint32_t kTagExtraSection = Tag("XSEC");      // One CheckpointExtras::sections entry.
 
@@ -70,6 +77,29 @@ std::string TagName(uint32_t tag) {
   const char c[4] = {char(tag & 0xff), char((tag >> 8) & 0xff), char((tag >> 16) & 0xff),
                      char((tag >> 24) & 0xff)};
   return absl::CHexEscape(absl::string_view(c, 4));
+}
+
+// Whether `tag` is a section of format `version`.
+bool KnownTag(uint32_t tag, uint32_t version) {
+  switch (tag) {
+    case kTagModel:
+    case kTagGridOptions:
+    case kTagNetworkOptions:
+    case kTagOccupancyOptions:
+    case kTagMarchOptions:
+    case kTagGridParams:
+    case kTagMlpParams:
+    case kTagEmbParams:
+    case kTagMetadata:
+    case kTagExtraSection:
+      return true;
+    case kTagOccupancyV1:
+      return version == 1;
+    case kTagParamEncoding:
+    case kTagOccupancy:
+      return version >= 2;
+  }
+  return false;
 }
 
 // Ancillary sections (first character a lower-case letter) may be skipped.
@@ -140,8 +170,9 @@ U ToLittle(U v) {
 
 // The unsigned integer type with the same size as T (T: float, integers).
 template <typename T>
-using Bits = std::conditional_t<sizeof(T) == 1, uint8_t,
-                                std::conditional_t<sizeof(T) == 4, uint32_t, uint64_t>>;
+using Bits = std::conditional_t<
+    sizeof(T) == 1, uint8_t,
+    std::conditional_t<sizeof(T) == 2, uint16_t, std::conditional_t<sizeof(T) == 4, uint32_t, uint64_t>>>;
 
 class Writer {
  public:
@@ -149,7 +180,8 @@ class Writer {
 
   template <typename T>
   void Put(T v) {
-    static_assert(std::is_arithmetic_v<T> && (sizeof(T) == 1 || sizeof(T) == 4 || sizeof(T) == 8));
+    static_assert(std::is_arithmetic_v<T> &&
+                  (sizeof(T) == 1 || sizeof(T) == 2 || sizeof(T) == 4 || sizeof(T) == 8));
     const Bits<T> le = ToLittle(std::bit_cast<Bits<T>>(v));
     out_->append(reinterpret_cast<const char*>(&le), sizeof(le));
   }
@@ -246,6 +278,129 @@ absl::Status Corrupt(absl::string_view source, absl::string_view detail) {
 }
 
 // ---------------------------------------------------------------------------
+// Parameter encodings (section PENC, version 2).
+
+enum class ParamEncoding : uint32_t { kFloat32 = 0, kFloat16 = 1 };
+
+// ---------------------------------------------------------------------------
+// PackBits (Apple's byte-oriented run-length code, as in TIFF): a header byte
+// h, read as int8, is followed by h + 1 literal bytes when h is in [0, 127],
+// or by one byte to repeat 1 - h times (2..128) when h is in [-127, -1]; -128
+// is a no-op. The encoder is deterministic, so equal input gives equal bytes,
+// and incompressible input grows by at most one byte in 128.
+
+void PackBits(std::string_view in, std::string* out) {
+  const size_t n = in.size();
+  size_t i = 0;
+  while (i < n) {
+    size_t run = 1;
+    while (i + run < n && run < 128 && in[i + run] == in[i]) ++run;
+    if (run >= 2) {
+      out->push_back(char(int8_t(1 - int(run))));
+      out->push_back(in[i]);
+      i += run;
+      continue;
+    }
+    // Literal: up to 128 bytes, stopping before a run of 3 or more (a run of
+    // two inside a literal costs no more than splitting it off).
+    size_t len = 1;
+    while (i + len < n && len < 128) {
+      if (i + len + 2 < n && in[i + len] == in[i + len + 1] && in[i + len] == in[i + len + 2]) break;
+      ++len;
+    }
+    out->push_back(char(int8_t(len - 1)));
+    out->append(in.substr(i, len));
+    i += len;
+  }
+}
+
+// Decodes `in`, which must expand to exactly `size` bytes.
+bool UnpackBits(std::string_view in, size_t size, std::string* out) {
+  out->clear();
+  out->reserve(size);
+  size_t i = 0;
+  while (i < in.size()) {
+    const int h = int8_t(in[i++]);
+    if (h >= 0) {
+      const size_t len = size_t(h) + 1;
+      if (len > in.size() - i || len > size - out->size()) return false;
+      out->append(in.substr(i, len));
+      i += len;
+    } else if (h != -128) {
+      const size_t len = size_t(1 - h);
+      if (i >= in.size() || len > size - out->size()) return false;
+      out->append(len, in[i++]);
+    }
+  }
+  return out->size() == size;
+}
+
+// ---------------------------------------------------------------------------
+// Occupancy density EMA quantisation (section OCCP, version 2).
+//
+// Each cell's density d becomes one byte, relative to a reference density r
+// (the threshold when it is positive and finite, else 1):
+//   0       d == 0 (also for negative or NaN d, which the grid never holds)
+//   1       0 < d < r / 4: restored to one shared value, the mean of these
+//           densities over the visible cells (so the mean density, which sets
+//           the next threshold, is preserved)
+//   2..255  r * 2^((code - 18) / 8), the nearest on a log2 scale in steps of
+//           1/8 (relative error <= 2^(1/16) - 1 = 4.4 %), from r / 4 up to
+//           r * 2^29.6; larger densities (and +inf) saturate at 255.
+// Quantising a dequantised value gives back the same code, so re-saving a
+// loaded model reproduces its file.
+
+constexpr int kCodeZero = 0;
+constexpr int kCodeLow = 1;
+constexpr int kCodeRef = 18;  // The code of r itself.
+constexpr double kCodesPerOctave = 8.0;
+
+float DensityReference(float threshold) {
+  return threshold > 0 && std::isfinite(threshold) ? threshold : 1.0f;
+}
+
+float LowLimit(float ref) { return ref * 0.25f; }
+
+uint8_t DensityCode(float d, float ref) {
+  if (!(d > 0)) return kCodeZero;
+  if (d < LowLimit(ref)) return kCodeLow;
+  if (!std::isfinite(d)) return 255;
+  const double c = std::round(kCodesPerOctave * std::log2(double(d) / double(ref))) + kCodeRef;
+  return uint8_t(std::clamp(c, double(kCodeLow + 1), 255.0));
+}
+
+std::array<float, 256> DensityTable(float ref, float low) {
+  std::array<float, 256> t{};
+  t[kCodeZero] = 0.0f;
+  t[kCodeLow] = low;
+  for (int c = kCodeLow + 1; c < 256; ++c) t[c] = float(double(ref) * std::exp2((c - kCodeRef) / kCodesPerOctave));
+  return t;
+}
+
+// The value restored for kCodeLow cells: the mean of their densities over
+// the visible cells (over all of them if none is visible), capped at their
+// maximum so that it quantises to kCodeLow again.
+float LowValue(const std::vector<float>& density, const std::vector<uint8_t>& codes,
+               const std::vector<uint8_t>& visible) {
+  double sum_visible = 0, sum_all = 0;
+  size_t n_visible = 0, n_all = 0;
+  float max_low = 0;
+  for (size_t i = 0; i < density.size(); ++i) {
+    if (codes[i] != kCodeLow) continue;
+    sum_all += density[i];
+    ++n_all;
+    max_low = std::max(max_low, density[i]);
+    if (visible[i]) {
+      sum_visible += density[i];
+      ++n_visible;
+    }
+  }
+  if (n_all == 0) return 0.0f;
+  const double mean = n_visible > 0 ? sum_visible / double(n_visible) : sum_all / double(n_all);
+  return std::min(float(mean), max_low);
+}
+
+// ---------------------------------------------------------------------------
 // Encoding.
 
 uint32_t EncodeKind(SceneKind kind) {
@@ -322,16 +477,81 @@ absl::Status WrongSize(const std::string& source, uint32_t tag, size_t got, size
   return Corrupt(source, absl::StrFormat("section '%s' has %d bytes, expected %d", TagName(tag), got, want));
 }
 
-// Reads a float32 block whose length must be exactly `count` floats.
-absl::Status ReadFloats(std::string_view payload, uint32_t tag, size_t count, const std::string& source,
+// Reads a parameter block whose length must be exactly `count` float32 (or,
+// with `fp16`, binary16) values.
+absl::Status ReadParams(std::string_view payload, uint32_t tag, size_t count, bool fp16, const std::string& source,
                         std::vector<float>* out) {
-  if (payload.size() / sizeof(float) != count || payload.size() % sizeof(float) != 0) {
-    return Corrupt(source, absl::StrFormat("section '%s' has %d bytes, but the model options imply %d floats "
+  const size_t width = fp16 ? sizeof(uint16_t) : sizeof(float);
+  if (payload.size() / width != count || payload.size() % width != 0) {
+    return Corrupt(source, absl::StrFormat("section '%s' has %d bytes, but the model options imply %d %s values "
                                            "(%d bytes)",
-                                           TagName(tag), payload.size(), count, count * sizeof(float)));
+                                           TagName(tag), payload.size(), count, fp16 ? "binary16" : "float32",
+                                           count * width));
   }
   Reader r(payload);
-  r.Array(count, out);
+  if (!fp16) {
+    r.Array(count, out);
+    return absl::OkStatus();
+  }
+  out->resize(count);
+  for (float& x : *out) {
+    uint16_t h = 0;
+    r.Get(&h);
+    x = HalfToFloat(h);
+  }
+  return absl::OkStatus();
+}
+
+// Version 2 occupancy payload after threshold and cell count (layout in
+// SerializeCheckpoint).
+absl::Status ReadOccupancy(Reader* r, uint64_t cells, const std::string& source, std::vector<float>* density,
+                           std::vector<uint8_t>* visible, std::vector<uint64_t>* bits) {
+  float ref = 0, low = 0;
+  std::string packed_visible;
+  const uint64_t words = (cells + 63) / 64;
+  if (!r->Get(&ref) || !r->Get(&low) || !r->String(&packed_visible) || !r->Array(words, bits)) {
+    return Corrupt(source, "occupancy section is truncated");
+  }
+  if (!(ref > 0) || !std::isfinite(ref) || !(low >= 0) || !(low < LowLimit(ref))) {
+    return Corrupt(source, absl::StrFormat("invalid occupancy density scale (reference %g, low value %g)", ref, low));
+  }
+  std::string flags;
+  if (!UnpackBits(packed_visible, size_t((cells + 7) / 8), &flags)) {
+    return Corrupt(source, "occupancy visibility flags do not decode to one bit per cell");
+  }
+  if (cells % 8 != 0 && (uint8_t(flags.back()) >> (cells % 8)) != 0) {
+    return Corrupt(source, "occupancy visibility flags have bits set beyond the last cell");
+  }
+  std::string codes;
+  std::string_view rest;
+  r->Bytes(r->remaining(), &rest);
+  if (!UnpackBits(rest, size_t(cells), &codes)) {
+    return Corrupt(source, "occupancy densities do not decode to one code per cell");
+  }
+  const std::array<float, 256> table = DensityTable(ref, low);
+  density->resize(size_t(cells));
+  visible->resize(size_t(cells));
+  for (size_t i = 0; i < size_t(cells); ++i) {
+    (*density)[i] = table[uint8_t(codes[i])];
+    (*visible)[i] = (uint8_t(flags[i / 8]) >> (i % 8)) & 1;
+  }
+  return absl::OkStatus();
+}
+
+// Version 1 occupancy payload after threshold and cell count: float32
+// density[cells] | uint8 visible[cells] (0 or 1) | uint64 bits[(cells + 63) / 64].
+absl::Status ReadOccupancyV1(Reader* r, std::string_view payload, uint64_t cells, const std::string& source,
+                             std::vector<float>* density, std::vector<uint8_t>* visible,
+                             std::vector<uint64_t>* bits) {
+  const uint64_t words = (cells + 63) / 64;
+  const uint64_t want_bytes = 12 + cells * (sizeof(float) + 1) + words * sizeof(uint64_t);
+  if (payload.size() != want_bytes) return WrongSize(source, kTagOccupancyV1, payload.size(), want_bytes);
+  r->Array(cells, density);
+  r->Array(cells, visible);
+  r->Array(words, bits);
+  for (uint8_t v : *visible) {
+    if (v > 1) return Corrupt(source, absl::StrCat("invalid occupancy visibility flag ", int(v)));
+  }
   return absl::OkStatus();
 }
 
@@ -344,8 +564,24 @@ const std::string* CheckpointExtras::FindSection(std::string_view name) const {
   return nullptr;
 }
 
-absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const CheckpointExtras& extras) {
+absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const CheckpointExtras& extras,
+                                                const CheckpointOptions& options) {
   if (absl::Status s = CheckModelConsistent(model); !s.ok()) return s;
+  if (options.fp16_params) {
+    for (const auto& [name, block] : {std::pair<const char*, const std::vector<float>*>{"grid", &model.params().grid},
+                                      {"mlp", &model.params().mlp},
+                                      {"embedding", &model.params().emb}}) {
+      for (size_t i = 0; i < block->size(); ++i) {
+        const float x = (*block)[i];
+        if (std::isfinite(x) && std::isinf(HalfToFloat(FloatToHalf(x)))) {
+          return absl::FailedPreconditionError(absl::StrFormat(
+              "cannot checkpoint model with fp16 parameters: %s parameter %d is %g, beyond the binary16 range "
+              "(+-%g); save it as float32",
+              name, i, x, kMaxHalf));
+        }
+      }
+    }
+  }
   const ModelOptions& o = model.options();
   const ModelParams& p = model.params();
   const OccupancyGrid& occ = model.occupancy();
@@ -406,23 +642,49 @@ absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const Che
   w.Put(o.march.near);
   w.EndSection(at);
 
-  at = w.BeginSection(kTagGridParams);
-  w.Array(p.grid);
+  at = w.BeginSection(kTagParamEncoding);
+  w.Put(uint32_t(options.fp16_params ? ParamEncoding::kFloat16 : ParamEncoding::kFloat32));
   w.EndSection(at);
-  at = w.BeginSection(kTagMlpParams);
-  w.Array(p.mlp);
-  w.EndSection(at);
-  at = w.BeginSection(kTagEmbParams);
-  w.Array(p.emb);
-  w.EndSection(at);
+  for (const auto& [tag, block] : {std::pair<uint32_t, const std::vector<float>*>{kTagGridParams, &p.grid},
+                                   {kTagMlpParams, &p.mlp},
+                                   {kTagEmbParams, &p.emb}}) {
+    at = w.BeginSection(tag);
+    if (options.fp16_params) {
+      for (float x : *block) w.Put(FloatToHalf(x));
+    } else {
+      w.Array(*block);
+    }
+    w.EndSection(at);
+  }
 
-  at = w.BeginSection(kTagOccupancy);
-  w.Put(occ.threshold());
-  w.Put(uint64_t(occ.num_cells()));
-  w.Array(occ.density());
-  w.Array(occ.visible());
-  w.Array(occ.bits());
-  w.EndSection(at);
+  // Occupancy (OCCP): float32 threshold | uint64 cells | float32 reference
+  // density | float32 low value | uint64 n | n bytes: PackBits of the
+  // visibility bitfield ((cells + 7) / 8 bytes, cell i in bit i % 8 of byte
+  // i / 8) | uint64[(cells + 63) / 64] occupancy bits | PackBits of the
+  // `cells` density codes (to the end of the section).
+  {
+    const size_t cells = occ.num_cells();
+    const float ref = DensityReference(occ.threshold());
+    std::vector<uint8_t> codes(cells);
+    for (size_t i = 0; i < cells; ++i) codes[i] = DensityCode(occ.density()[i], ref);
+    std::string visible((cells + 7) / 8, '\0');
+    for (size_t i = 0; i < cells; ++i) {
+      if (occ.visible()[i]) visible[i / 8] = char(uint8_t(visible[i / 8]) | (1u << (i % 8)));
+    }
+    std::string packed;
+    PackBits(visible, &packed);
+    at = w.BeginSection(kTagOccupancy);
+    w.Put(occ.threshold());
+    w.Put(uint64_t(cells));
+    w.Put(ref);
+    w.Put(LowValue(occ.density(), codes, occ.visible()));
+    w.String(packed);
+    w.Array(occ.bits());
+    packed.clear();
+    PackBits(std::string_view(reinterpret_cast<const char*>(codes.data()), codes.size()), &packed);
+    w.Bytes(packed);
+    w.EndSection(at);
+  }
 
   at = w.BeginSection(kTagMetadata);
   w.Put(uint64_t(extras.metadata.size()));
@@ -465,10 +727,10 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
   uint32_t version = 0;
   header.Bytes(kMagicSize, &magic);
   header.Get(&version);
-  if (version != kCheckpointFormatVersion) {
+  if (version < kOldestReadableCheckpointFormatVersion || version > kCheckpointFormatVersion) {
     return absl::FailedPreconditionError(absl::StrCat(
-        "checkpoint '", source, "' has format version ", version, ", but this build only reads format version ",
-        kCheckpointFormatVersion,
+        "checkpoint '", source, "' has format version ", version, ", but this build reads format versions ",
+        kOldestReadableCheckpointFormatVersion, " to ", kCheckpointFormatVersion,
         version > kCheckpointFormatVersion ? " (it was written by a newer clnerf; upgrade to load it)" : ""));
   }
   // 3. Size.
@@ -513,25 +775,10 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
     }
   }
   for (const RawSection& s : sections) {
-    switch (s.tag) {
-      case kTagModel:
-      case kTagGridOptions:
-      case kTagNetworkOptions:
-      case kTagOccupancyOptions:
-      case kTagMarchOptions:
-      case kTagGridParams:
-      case kTagMlpParams:
-      case kTagEmbParams:
-      case kTagOccupancy:
-      case kTagMetadata:
-      case kTagExtraSection:
-        break;
-      default:
-        if (!IsAncillary(s.tag)) {
-          return absl::FailedPreconditionError(
-              absl::StrCat("checkpoint '", source, "' contains critical section '", TagName(s.tag),
-                           "', which this build does not understand (written by a newer clnerf?)"));
-        }
+    if (!KnownTag(s.tag, version) && !IsAncillary(s.tag)) {
+      return absl::FailedPreconditionError(
+          absl::StrCat("checkpoint '", source, "' contains critical section '", TagName(s.tag),
+                       "', which this build does not understand (written by a newer clnerf?)"));
     }
   }
 
@@ -555,6 +802,11 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
     for (int i = 0; i < 3; ++i) r.Get(&background[i]);
     r.Get(&steps);
     if (!DecodeKind(kind_code, &kind)) return Corrupt(source, absl::StrCat("unknown scene kind ", kind_code));
+    if (version < 2 && kind == SceneKind::kUnbounded) {
+      return absl::FailedPreconditionError(absl::StrCat(
+          "checkpoint '", source, "' predates format version 2 and holds an unbounded scene; format 2 represents "
+          "unbounded scenes in contracted space, so this model cannot be loaded: re-train it with this clnerf"));
+    }
   }
   {
     auto payload = Single(sections, kTagGridOptions, source);
@@ -625,28 +877,28 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
   const HashGrid grid(options.grid);
   const Network network(options.network, grid.output_dim());
 
-  // 8. Parameter blocks.
+  // 8. Parameter blocks (float32 in version 1).
+  bool fp16 = false;
+  if (version >= 2) {
+    auto payload = Single(sections, kTagParamEncoding, source);
+    if (!payload.ok()) return payload.status();
+    if (payload->size() != 4) return WrongSize(source, kTagParamEncoding, payload->size(), 4);
+    Reader r(*payload);
+    uint32_t code = 0;
+    r.Get(&code);
+    if (code != uint32_t(ParamEncoding::kFloat32) && code != uint32_t(ParamEncoding::kFloat16)) {
+      return Corrupt(source, absl::StrCat("unknown parameter encoding ", code));
+    }
+    fp16 = code == uint32_t(ParamEncoding::kFloat16);
+  }
   ModelParams params;
-  {
-    auto payload = Single(sections, kTagGridParams, source);
+  for (const auto& [tag, count, out] :
+       {std::tuple<uint32_t, size_t, std::vector<float>*>{kTagGridParams, grid.num_params(), &params.grid},
+        {kTagMlpParams, network.num_mlp_params(), &params.mlp},
+        {kTagEmbParams, size_t(steps) * network.embedding_row_size(), &params.emb}}) {
+    auto payload = Single(sections, tag, source);
     if (!payload.ok()) return payload.status();
-    if (absl::Status s = ReadFloats(*payload, kTagGridParams, grid.num_params(), source, &params.grid); !s.ok()) {
-      return s;
-    }
-  }
-  {
-    auto payload = Single(sections, kTagMlpParams, source);
-    if (!payload.ok()) return payload.status();
-    if (absl::Status s = ReadFloats(*payload, kTagMlpParams, network.num_mlp_params(), source, &params.mlp);
-        !s.ok()) {
-      return s;
-    }
-  }
-  {
-    auto payload = Single(sections, kTagEmbParams, source);
-    if (!payload.ok()) return payload.status();
-    const size_t want = size_t(steps) * network.embedding_row_size();
-    if (absl::Status s = ReadFloats(*payload, kTagEmbParams, want, source, &params.emb); !s.ok()) return s;
+    if (absl::Status s = ReadParams(*payload, tag, count, fp16, source, out); !s.ok()) return s;
   }
 
   // 9. Occupancy state. The cascade count depends only on the bound: ask a
@@ -656,7 +908,8 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
   std::vector<uint64_t> bits;
   float threshold = 0;
   {
-    auto payload = Single(sections, kTagOccupancy, source);
+    const uint32_t tag = version >= 2 ? kTagOccupancy : kTagOccupancyV1;
+    auto payload = Single(sections, tag, source);
     if (!payload.ok()) return payload.status();
     OccupancyGridOptions probe_options = options.occupancy;
     probe_options.resolution = 8;
@@ -665,20 +918,18 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
     const uint64_t want_cells = res * res * res * uint64_t(probe.num_cascades());
     Reader r(*payload);
     uint64_t cells = 0;
-    if (!r.Get(&threshold) || !r.Get(&cells)) return WrongSize(source, kTagOccupancy, payload->size(), 12);
+    if (!r.Get(&threshold) || !r.Get(&cells)) return WrongSize(source, tag, payload->size(), 12);
     if (cells != want_cells) {
       return Corrupt(source, absl::StrFormat("occupancy grid has %d cells, but the model options imply %d", cells,
                                              want_cells));
     }
     const uint64_t words = (cells + 63) / 64;
-    const uint64_t want_bytes = 12 + cells * (sizeof(float) + 1) + words * sizeof(uint64_t);
-    if (payload->size() != want_bytes) return WrongSize(source, kTagOccupancy, payload->size(), want_bytes);
-    r.Array(cells, &density);
-    r.Array(cells, &visible);
-    r.Array(words, &bits);
-    for (uint8_t v : visible) {
-      if (v > 1) return Corrupt(source, absl::StrCat("invalid occupancy visibility flag ", int(v)));
+    if (absl::Status s = version >= 2 ? ReadOccupancy(&r, cells, source, &density, &visible, &bits)
+                                      : ReadOccupancyV1(&r, *payload, cells, source, &density, &visible, &bits);
+        !s.ok()) {
+      return s;
     }
+    if (bits.size() != words) return Corrupt(source, "occupancy bits do not match the cell count");
   }
 
   // 10. Extras.
@@ -718,12 +969,12 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
     return Corrupt(source, "occupancy grid size does not match the model");
   }
   model->mutable_occupancy().Restore(std::move(density), std::move(visible), std::move(bits), threshold);
-  return LoadedCheckpoint{*std::move(model), std::move(extras), n, version};
+  return LoadedCheckpoint{*std::move(model), std::move(extras), n, version, fp16};
 }
 
 absl::StatusOr<size_t> SaveCheckpoint(const NgpModel& model, const std::string& path,
-                                      const CheckpointExtras& extras) {
-  absl::StatusOr<std::string> bytes = SerializeCheckpoint(model, extras);
+                                      const CheckpointExtras& extras, const CheckpointOptions& options) {
+  absl::StatusOr<std::string> bytes = SerializeCheckpoint(model, extras, options);
   if (!bytes.ok()) return bytes.status();
   if (absl::Status s = AtomicWriteFile(path, *bytes); !s.ok()) return s;
   return bytes->size();

@@ -1,11 +1,12 @@
 // Checkpoint: a versioned, self-checking binary file format for NgpModel.
 //
-// A checkpoint holds everything needed to rebuild a model bit for bit: every
-// field of the model options, the normalisation, scene kind, background, the
-// number of time steps, the three parameter blocks, the occupancy grid state,
-// plus caller-defined extras (a string metadata map and named opaque binary
+// A checkpoint holds everything needed to rebuild a model: every field of the
+// model options, the normalisation, scene kind, background, the number of time
+// steps, the three parameter blocks, the occupancy grid state, plus
+// caller-defined extras (a string metadata map and named opaque binary
 // sections, e.g. for the continual-learning replay memory). A model loaded
-// from a checkpoint renders exactly the same pixels as the one that was saved.
+// from a float32 checkpoint renders exactly the same pixels as the one that
+// was saved (the occupancy bits and all parameters are stored exactly).
 //
 // File layout (all integers and floats little-endian):
 //
@@ -31,14 +32,41 @@
 // FAILED_PRECONDITION; a tag whose first character is lower case is ancillary
 // and is skipped. Skipping is safe only because the checksum has already
 // vouched for the integrity of the whole file and ancillary data, by
-// definition, does not affect the model. Version 1 writes only critical
+// definition, does not affect the model. Versions 1 and 2 write only critical
 // sections; adding a field to an options struct means adding a new section
 // (or bumping the version), never changing the payload of an existing one.
 //
+// Format version 2 (this build writes it; it also reads version 1) has the
+// sections MODL HGOP NTOP OGOP MROP PENC PGRD PMLP PEMB OCCP META XSEC*
+// (version 1: no PENC, and OCCG with the raw occupancy state instead of OCCP):
+//  * parameters may be stored as IEEE binary16 (CheckpointOptions::
+//    fp16_params, recorded in section PENC); they load as float32.
+//  * the occupancy grid is stored compactly (section OCCP, see checkpoint.cc):
+//    the occupancy bits and the threshold exactly, the visibility flags as a
+//    run-length-coded bitfield, and the density EMA (which only warm-started
+//    training needs) quantised to 8 bits on a log2 scale with a step of 1/8
+//    (relative error <= 2^(1/16) - 1 = 4.4 %) relative to the threshold.
+//    Densities below a quarter of the threshold are stored as one shared
+//    value, the mean of those densities over the visible cells, so the mean
+//    that sets the next threshold is preserved. Most cells of a trained model
+//    are empty, so the run-length-coded codes take about one byte per cell
+//    at or above a quarter of the threshold: trained lego and fox files are
+//    1.04x-1.09x their parameter bytes (NgpModel::num_bytes()) instead of
+//    1.6x-2.5x. A grid with many cells near or above the threshold costs up
+//    to one byte per such cell.
+//  * version 2 also marks the contracted parameterisation of unbounded scenes
+//    (SceneKind::kUnbounded); version-1 checkpoints of unbounded scenes used
+//    the old, uncontracted one and are refused (FAILED_PRECONDITION: re-train
+//    them). Version-1 checkpoints of bounded scenes load unchanged.
+// A fp32 save/load round trip is bit-exact except for the density EMA, which
+// is within the quantisation described above; re-saving a loaded model
+// reproduces the file exactly.
+//
 // Errors: NOT_FOUND (missing file), INVALID_ARGUMENT (not a clnerf checkpoint:
-// bad magic), FAILED_PRECONDITION (unsupported format version or unknown
-// critical section), DATA_LOSS (truncation, checksum mismatch, or content that
-// is internally inconsistent), other codes from the OS for I/O failures.
+// bad magic), FAILED_PRECONDITION (unsupported format version, unknown
+// critical section, or a version-1 unbounded scene), DATA_LOSS (truncation,
+// checksum mismatch, or content that is internally inconsistent), other codes
+// from the OS for I/O failures.
 //
 // Thread safety: all functions are free functions without shared state and
 // may be called concurrently. Saving reads the model through a const
@@ -62,8 +90,12 @@
 
 namespace clnerf {
 
-// The format version this build writes, and the newest it reads.
-inline constexpr uint32_t kCheckpointFormatVersion = 1;
+// The format version this build writes, and the newest it reads. Version 2
+// also marks checkpoints whose unbounded scenes (SceneKind::kUnbounded) use
+// contracted unbounded space.
+inline constexpr uint32_t kCheckpointFormatVersion = 2;
+// The oldest format version this build reads (bounded scenes only).
+inline constexpr uint32_t kOldestReadableCheckpointFormatVersion = 1;
 // The eight magic bytes at the start of every checkpoint.
 inline constexpr char kCheckpointMagic[] = "CLNERFCK";  // 8 chars + NUL.
 
@@ -83,18 +115,30 @@ struct CheckpointExtras {
   bool operator==(const CheckpointExtras&) const = default;
 };
 
+// How a checkpoint is stored.
+struct CheckpointOptions {
+  // Store the parameter blocks (grid, MLPs, embeddings) as IEEE binary16,
+  // rounded to nearest even: half the parameter bytes, relative error <=
+  // 2^-11 (absolute 2^-25 near zero). Loading converts them back to float32.
+  // A finite parameter beyond the binary16 range (|x| >= 65520) makes the
+  // save fail with FAILED_PRECONDITION rather than store an infinity.
+  bool fp16_params = false;
+};
+
 struct LoadedCheckpoint {
   NgpModel model;
   CheckpointExtras extras;
-  size_t num_bytes = 0;  // Size of the serialized checkpoint.
+  size_t num_bytes = 0;  // Size of the serialized checkpoint (file bytes).
   uint32_t format_version = 0;
+  bool fp16_params = false;  // The parameters were stored as binary16.
 };
 
 // Encodes `model` and `extras` as a checkpoint in memory. FAILED_PRECONDITION
 // if the model is internally inconsistent (e.g. a parameter block whose size
 // does not match the options).
 absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model,
-                                                const CheckpointExtras& extras = {});
+                                                const CheckpointExtras& extras = {},
+                                                const CheckpointOptions& options = {});
 
 // Decodes a checkpoint held in memory. `source_name` is only used in error
 // messages (e.g. the file path).
@@ -105,9 +149,11 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes,
 // in the same directory (`path + ".tmp.<pid>.<n>"`), which is fsync'ed and
 // renamed over `path`, after which the directory is fsync'ed. On failure the
 // temporary file is removed and an existing file at `path` is left untouched.
-// Returns the number of bytes written (the checkpoint's size on disk).
+// Returns the number of bytes written (the checkpoint's size on disk; compare
+// with the parameter bytes, NgpModel::num_bytes()).
 absl::StatusOr<size_t> SaveCheckpoint(const NgpModel& model, const std::string& path,
-                                      const CheckpointExtras& extras = {});
+                                      const CheckpointExtras& extras = {},
+                                      const CheckpointOptions& options = {});
 
 // Reads and decodes the checkpoint at `path` (errors as described above).
 absl::StatusOr<LoadedCheckpoint> LoadCheckpoint(const std::string& path);

@@ -9,6 +9,8 @@
 #include <cstdint>
 #include <cstring>
 #include <algorithm>
+#include <bit>
+#include <cstdio>
 #include <filesystem>
 #include <functional>
 #include <fstream>
@@ -18,6 +20,7 @@
 #include <string>
 #include <vector>
 
+#include "core/half.h"
 #include "core/renderer.h"
 #include "gtest/gtest.h"
 
@@ -86,7 +89,7 @@ std::vector<Section> SplitSections(const std::string& bytes) {
 }
 
 // Builds a file with a correct size field and checksum around `sections`.
-std::string BuildFile(const std::vector<Section>& sections, uint32_t version = 1) {
+std::string BuildFile(const std::vector<Section>& sections, uint32_t version = kCheckpointFormatVersion) {
   std::string out = "CLNERFCK" + LE<uint32_t>(version) + LE<uint64_t>(0);
   for (const Section& s : sections) out += LE<uint32_t>(s.tag) + LE<uint64_t>(s.payload.size()) + s.payload;
   StoreLE<uint64_t>(&out, 12, out.size() + 4);
@@ -169,7 +172,41 @@ bool SameBits(const std::vector<T>& a, const std::vector<T>& b) {
   return a.size() == b.size() && (a.empty() || std::memcmp(a.data(), b.data(), a.size() * sizeof(T)) == 0);
 }
 
-void ExpectBitEqual(const NgpModel& a, const NgpModel& b) {
+// The documented density quantisation (checkpoint.h/.cc): `loaded` holds the
+// densities of `saved` after a save/load round trip.
+void ExpectQuantisedDensities(const OccupancyGrid& saved, const OccupancyGrid& loaded) {
+  const std::vector<float>& a = saved.density();
+  const std::vector<float>& b = loaded.density();
+  ASSERT_EQ(a.size(), b.size());
+  const float t = saved.threshold();
+  const float ref = t > 0 && std::isfinite(t) ? t : 1.0f;
+  float low = -1;
+  double sum_a = 0, sum_b = 0;
+  size_t bad = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    bool ok;
+    if (!(a[i] > 0)) {
+      ok = b[i] == 0;
+    } else if (a[i] < ref / 4) {
+      if (low < 0) low = b[i];
+      ok = b[i] == low && b[i] > 0 && b[i] < ref / 4;  // One shared value.
+    } else {
+      ok = std::abs(std::log2(double(b[i]) / a[i])) <= 1.0 / 16 + 1e-6;
+    }
+    if (!ok && ++bad <= 5) ADD_FAILURE() << "cell " << i << ": saved " << a[i] << ", loaded " << b[i];
+    if (saved.visible()[i]) {
+      sum_a += a[i];
+      sum_b += b[i];
+    }
+  }
+  EXPECT_EQ(bad, 0u);
+  // The mean over visible cells (which sets the next threshold) is kept.
+  EXPECT_NEAR(sum_b, sum_a, 0.045 * sum_a);
+}
+
+// Every field bit for bit, except the occupancy densities, which are either
+// compared bit for bit (`exact_density`) or as documented for quantisation.
+void ExpectBitEqual(const NgpModel& a, const NgpModel& b, bool exact_density = false) {
   const ModelOptions &oa = a.options(), &ob = b.options();
   EXPECT_EQ(oa.grid.levels, ob.grid.levels);
   EXPECT_EQ(oa.grid.features_per_level, ob.grid.features_per_level);
@@ -205,15 +242,19 @@ void ExpectBitEqual(const NgpModel& a, const NgpModel& b) {
   EXPECT_TRUE(SameBits(a.params().mlp, b.params().mlp));
   EXPECT_TRUE(SameBits(a.params().emb, b.params().emb));
   EXPECT_EQ(a.occupancy().num_cascades(), b.occupancy().num_cascades());
-  EXPECT_TRUE(SameBits(a.occupancy().density(), b.occupancy().density()));
+  if (exact_density) {
+    EXPECT_TRUE(SameBits(a.occupancy().density(), b.occupancy().density()));
+  } else {
+    ExpectQuantisedDensities(a.occupancy(), b.occupancy());
+  }
   EXPECT_TRUE(SameBits(a.occupancy().visible(), b.occupancy().visible()));
   EXPECT_TRUE(SameBits(a.occupancy().bits(), b.occupancy().bits()));
   EXPECT_TRUE(SameBits(a.occupancy().threshold(), b.occupancy().threshold()));
   EXPECT_EQ(a.num_bytes(), b.num_bytes());
 }
 
-std::string Serialize(const NgpModel& m, const CheckpointExtras& extras = {}) {
-  absl::StatusOr<std::string> bytes = SerializeCheckpoint(m, extras);
+std::string Serialize(const NgpModel& m, const CheckpointExtras& extras = {}, const CheckpointOptions& options = {}) {
+  absl::StatusOr<std::string> bytes = SerializeCheckpoint(m, extras, options);
   EXPECT_TRUE(bytes.ok()) << bytes.status();
   return bytes.ok() ? *bytes : std::string();
 }
@@ -278,10 +319,11 @@ TEST(CheckpointTest, LayoutMatchesDocumentation) {
   const std::vector<Section> sections = SplitSections(bytes);
   std::vector<std::string> tags;
   for (const Section& s : sections) tags.push_back(std::string(reinterpret_cast<const char*>(&s.tag), 4));
-  EXPECT_EQ(tags, (std::vector<std::string>{"MODL", "HGOP", "NTOP", "OGOP", "MROP", "PGRD", "PMLP", "PEMB",
-                                            "OCCG", "META"}));
-  // The raw parameter blocks are stored verbatim.
+  EXPECT_EQ(tags, (std::vector<std::string>{"MODL", "HGOP", "NTOP", "OGOP", "MROP", "PENC", "PGRD", "PMLP",
+                                            "PEMB", "OCCP", "META"}));
+  // The raw parameter blocks are stored verbatim (encoding 0: float32).
   std::vector<Section> copy = sections;
+  EXPECT_EQ(Find(&copy, "PENC")->payload, LE<uint32_t>(0));
   const Section* grid = Find(&copy, "PGRD");
   ASSERT_NE(grid, nullptr);
   ASSERT_EQ(grid->payload.size(), SharedModel().params().grid.size() * 4);
@@ -300,6 +342,7 @@ void ExpectRoundTrip(const NgpModel& model) {
   ExpectBitEqual(model, loaded->model);
   EXPECT_EQ(loaded->num_bytes, bytes.size());
   EXPECT_EQ(loaded->format_version, kCheckpointFormatVersion);
+  EXPECT_FALSE(loaded->fp16_params);
   EXPECT_EQ(Serialize(loaded->model), bytes);  // Re-serialising is the identity.
 }
 
@@ -495,14 +538,14 @@ TEST(CheckpointTest, WrongMagicIsInvalidArgument) {
 
 TEST(CheckpointTest, UnsupportedVersionNamesBothVersions) {
   const std::vector<Section> sections = SplitSections(SharedBytes());
-  for (uint32_t version : {2u, 77u, 0u}) {
+  for (uint32_t version : {3u, 77u, 0u}) {
     SCOPED_TRACE(version);
     absl::StatusOr<LoadedCheckpoint> loaded = DeserializeCheckpoint(BuildFile(sections, version), "future.ckpt");
     ASSERT_FALSE(loaded.ok());
     EXPECT_EQ(loaded.status().code(), absl::StatusCode::kFailedPrecondition) << loaded.status();
     const std::string msg(loaded.status().message());
     EXPECT_NE(msg.find("format version " + std::to_string(version)), std::string::npos) << msg;
-    EXPECT_NE(msg.find("reads format version 1"), std::string::npos) << msg;
+    EXPECT_NE(msg.find("reads format versions 1 to 2"), std::string::npos) << msg;
     EXPECT_NE(msg.find("future.ckpt"), std::string::npos) << msg;
   }
   // A newer version is recognised even when the rest of the file differs.
@@ -572,14 +615,28 @@ TEST(CheckpointTest, InconsistentContentIsRejected) {
       {"bad embedding flag", [](std::vector<Section>* s) { Find(s, "NTOP")->payload[28] = 2; }},
       {"occupancy resolution", [](std::vector<Section>* s) { StoreLE<int32_t>(&Find(s, "OGOP")->payload, 0, 32); }},
       {"huge cell count",
-       [](std::vector<Section>* s) { StoreLE<uint64_t>(&Find(s, "OCCG")->payload, 4, uint64_t(1) << 62); }},
-      {"truncated occupancy", [](std::vector<Section>* s) { Find(s, "OCCG")->payload.resize(100); }},
-      {"bad visibility flag",
+       [](std::vector<Section>* s) { StoreLE<uint64_t>(&Find(s, "OCCP")->payload, 4, uint64_t(1) << 62); }},
+      {"truncated occupancy", [](std::vector<Section>* s) { Find(s, "OCCP")->payload.resize(100); }},
+      {"negative density reference",
+       [](std::vector<Section>* s) { StoreLE<float>(&Find(s, "OCCP")->payload, 12, -1.0f); }},
+      {"low density value above its limit",
        [](std::vector<Section>* s) {
-         Section* occ = Find(s, "OCCG");
-         const uint64_t cells = LoadLE<uint64_t>(occ->payload, 4);
-         occ->payload[12 + cells * 4] = 7;
+         Section* occ = Find(s, "OCCP");
+         StoreLE<float>(&occ->payload, 16, LoadLE<float>(occ->payload, 12));
        }},
+      {"empty visibility stream",
+       [](std::vector<Section>* s) {
+         Section* occ = Find(s, "OCCP");
+         const uint64_t n = LoadLE<uint64_t>(occ->payload, 20);
+         occ->payload.erase(28, n);
+         StoreLE<uint64_t>(&occ->payload, 20, 0);
+       }},
+      {"missing density code", [](std::vector<Section>* s) { Find(s, "OCCP")->payload.pop_back(); }},
+      {"extra density code", [](std::vector<Section>* s) { Find(s, "OCCP")->payload += std::string("\0x", 2); }},
+      {"unknown parameter encoding", [](std::vector<Section>* s) { Find(s, "PENC")->payload = LE<uint32_t>(7); }},
+      {"short parameter encoding", [](std::vector<Section>* s) { Find(s, "PENC")->payload = LE<uint16_t>(1); }},
+      {"float16 encoding of float32 blocks",
+       [](std::vector<Section>* s) { Find(s, "PENC")->payload = LE<uint32_t>(1); }},
       {"odd float block", [](std::vector<Section>* s) { Find(s, "PMLP")->payload.push_back('\0'); }},
       {"huge metadata count",
        [](std::vector<Section>* s) { Find(s, "META")->payload = LE<uint64_t>(uint64_t(1) << 60); }},
@@ -608,6 +665,360 @@ TEST(CheckpointTest, InconsistentContentIsRejected) {
     EXPECT_NE(loaded.status().message().find("checkpoint 'crafted' is corrupt"), std::string::npos)
         << loaded.status();
   }
+}
+
+// ---------------------------------------------------------------------------
+// Format version 1.
+
+// A version-1 file of `model`, built from the documented version-1 layout:
+// float32 parameters without a PENC section, and the raw occupancy state in
+// OCCG (threshold | cells | float32 density[] | uint8 visible[] | bits[]).
+std::string BuildV1File(const NgpModel& model) {
+  std::vector<Section> v1;
+  for (const Section& s : SplitSections(Serialize(model))) {
+    if (s.tag == Tag("PENC")) continue;
+    if (s.tag != Tag("OCCP")) {
+      v1.push_back(s);
+      continue;
+    }
+    const OccupancyGrid& occ = model.occupancy();
+    std::string p = LE<float>(occ.threshold()) + LE<uint64_t>(occ.num_cells());
+    p.append(reinterpret_cast<const char*>(occ.density().data()), occ.density().size() * sizeof(float));
+    p.append(reinterpret_cast<const char*>(occ.visible().data()), occ.visible().size());
+    p.append(reinterpret_cast<const char*>(occ.bits().data()), occ.bits().size() * sizeof(uint64_t));
+    v1.push_back(Section{Tag("OCCG"), p});
+  }
+  return BuildFile(v1, 1);
+}
+
+TEST(CheckpointTest, ReadsVersionOneBoundedScenes) {
+  const std::string v1 = BuildV1File(SharedModel());
+  absl::StatusOr<LoadedCheckpoint> loaded = DeserializeCheckpoint(v1);
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  EXPECT_EQ(loaded->format_version, 1u);
+  EXPECT_FALSE(loaded->fp16_params);
+  ExpectBitEqual(SharedModel(), loaded->model, /*exact_density=*/true);
+  // Saving it again writes the current format.
+  EXPECT_EQ(Serialize(loaded->model), SharedBytes());
+
+  // Each version's own sections are unknown critical sections to the other.
+  std::vector<Section> sections = SplitSections(v1);
+  sections.insert(sections.begin() + 5, Section{Tag("PENC"), LE<uint32_t>(0)});
+  loaded = DeserializeCheckpoint(BuildFile(sections, 1));
+  ASSERT_FALSE(loaded.ok());
+  EXPECT_EQ(loaded.status().code(), absl::StatusCode::kFailedPrecondition) << loaded.status();
+  EXPECT_NE(loaded.status().message().find("PENC"), std::string::npos) << loaded.status();
+  sections = SplitSections(SharedBytes());
+  sections.push_back(*Find(&sections, "OCCP"));
+  sections.back().tag = Tag("OCCG");
+  loaded = DeserializeCheckpoint(BuildFile(sections));
+  ASSERT_FALSE(loaded.ok());
+  EXPECT_EQ(loaded.status().code(), absl::StatusCode::kFailedPrecondition) << loaded.status();
+  EXPECT_NE(loaded.status().message().find("OCCG"), std::string::npos) << loaded.status();
+
+  // Version-1 content is still checked.
+  sections = SplitSections(v1);
+  Section* occ = Find(&sections, "OCCG");
+  occ->payload[12 + LoadLE<uint64_t>(occ->payload, 4) * 4] = 7;  // The first visibility flag.
+  loaded = DeserializeCheckpoint(BuildFile(sections, 1), "crafted");
+  ASSERT_FALSE(loaded.ok());
+  EXPECT_EQ(loaded.status().code(), absl::StatusCode::kDataLoss) << loaded.status();
+  EXPECT_NE(loaded.status().message().find("invalid occupancy visibility flag 7"), std::string::npos)
+      << loaded.status();
+}
+
+TEST(CheckpointTest, RefusesVersionOneUnboundedScenes) {
+  ModelOptions options = TinyOptions();
+  options.march.cone_angle = 1.0f / 256;
+  const NgpModel model = MakeModel(options, 1, 17, SceneKind::kUnbounded);
+  absl::StatusOr<LoadedCheckpoint> loaded = DeserializeCheckpoint(BuildV1File(model), "old.ckpt");
+  ASSERT_FALSE(loaded.ok());
+  EXPECT_EQ(loaded.status().code(), absl::StatusCode::kFailedPrecondition) << loaded.status();
+  const std::string msg(loaded.status().message());
+  EXPECT_NE(msg.find("checkpoint 'old.ckpt' predates format version 2"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("re-train"), std::string::npos) << msg;
+  // The same model in the current format loads.
+  EXPECT_TRUE(DeserializeCheckpoint(Serialize(model)).ok());
+}
+
+// ---------------------------------------------------------------------------
+// Half precision.
+
+// The value of binary16 `h` from its definition.
+double HalfValue(uint16_t h) {
+  const int sign = h >> 15, e = (h >> 10) & 0x1f, m = h & 0x3ff;
+  const double v = e == 0 ? std::ldexp(double(m), -24) : std::ldexp(1.0 + m / 1024.0, e - 15);
+  return sign ? -v : v;
+}
+
+// The binary16 value nearest to finite `x` (ties to even), or +-inf beyond
+// the range, computed in double.
+double RefHalfValue(float x) {
+  const double a = std::abs(double(x));
+  double r;
+  if (a >= 65520.0) {
+    r = std::numeric_limits<double>::infinity();
+  } else {
+    const int e = a == 0 ? -14 : std::max(std::ilogb(a), -14);
+    const double ulp = std::ldexp(1.0, e - 10);
+    r = std::nearbyint(a / ulp) * ulp;  // Exact quotient; default rounding is to nearest even.
+  }
+  return std::signbit(x) ? -r : r;
+}
+
+TEST(HalfTest, KnownValues) {
+  EXPECT_EQ(FloatToHalf(0.0f), 0x0000);
+  EXPECT_EQ(FloatToHalf(-0.0f), 0x8000);
+  EXPECT_EQ(FloatToHalf(1.0f), 0x3c00);
+  EXPECT_EQ(FloatToHalf(-2.0f), 0xc000);
+  EXPECT_EQ(FloatToHalf(0.1f), 0x2e66);
+  EXPECT_EQ(FloatToHalf(65504.0f), 0x7bff);       // Largest finite half.
+  EXPECT_EQ(FloatToHalf(65519.996f), 0x7bff);     // Just below the overflow midpoint.
+  EXPECT_EQ(FloatToHalf(65520.0f), 0x7c00);       // The midpoint rounds to even: infinity.
+  EXPECT_EQ(FloatToHalf(1e6f), 0x7c00);
+  EXPECT_EQ(FloatToHalf(-std::numeric_limits<float>::infinity()), 0xfc00);
+  EXPECT_EQ(FloatToHalf(std::ldexp(1.0f, -14)), 0x0400);  // Smallest normal.
+  EXPECT_EQ(FloatToHalf(std::ldexp(1.0f, -24)), 0x0001);  // Smallest subnormal.
+  EXPECT_EQ(FloatToHalf(std::ldexp(1.0f, -25)), 0x0000);  // Tie between 0 and 2^-24: even.
+  EXPECT_EQ(FloatToHalf(std::nextafter(std::ldexp(1.0f, -25), 1.0f)), 0x0001);
+  EXPECT_EQ(FloatToHalf(std::ldexp(3.0f, -25)), 0x0002);  // Tie between 1 and 2 units: even.
+  EXPECT_EQ(FloatToHalf(std::ldexp(1023.5f, -24)), 0x0400);  // Largest subnormal + 1/2: rounds up to normal.
+  EXPECT_EQ(FloatToHalf(1.0f + std::ldexp(1.0f, -11)), 0x3c00);       // Tie: even (down).
+  EXPECT_EQ(FloatToHalf(1.0f + 3 * std::ldexp(1.0f, -11)), 0x3c02);   // Tie: even (up).
+  EXPECT_EQ(FloatToHalf(std::numeric_limits<float>::denorm_min()), 0x0000);
+  const uint16_t nan = FloatToHalf(std::numeric_limits<float>::quiet_NaN());
+  EXPECT_EQ(nan & 0x7c00, 0x7c00);
+  EXPECT_NE(nan & 0x3ff, 0);
+  const uint16_t snan = FloatToHalf(std::bit_cast<float>(0xff800001u));  // Signalling, payload in low bits.
+  EXPECT_EQ(snan, 0xfe00);  // Stays a NaN (quiet), keeps its sign.
+  EXPECT_TRUE(std::isnan(HalfToFloat(0x7e00)));
+  EXPECT_TRUE(std::isnan(HalfToFloat(0x7c01)));
+  EXPECT_EQ(HalfToFloat(0x7c00), std::numeric_limits<float>::infinity());
+  static_assert(FloatToHalf(1.5f) == 0x3e00 && HalfToFloat(0x3e00) == 1.5f);  // Usable in constant expressions.
+}
+
+TEST(HalfTest, EveryHalfConvertsExactlyAndBack) {
+  for (uint32_t h = 0; h < 0x10000; ++h) {
+    SCOPED_TRACE(h);
+    const float f = HalfToFloat(uint16_t(h));
+    if (((h >> 10) & 0x1f) == 0x1f && (h & 0x3ff) != 0) {
+      ASSERT_TRUE(std::isnan(f));
+      ASSERT_EQ(std::signbit(f), bool(h & 0x8000));
+      ASSERT_EQ(FloatToHalf(f), h | 0x200);  // Quietened, payload kept.
+      continue;
+    }
+    if (((h >> 10) & 0x1f) == 0x1f) {
+      ASSERT_TRUE(std::isinf(f));
+    } else {
+      ASSERT_EQ(double(f), HalfValue(uint16_t(h)));
+    }
+    ASSERT_EQ(std::signbit(f), bool(h & 0x8000));
+    ASSERT_EQ(FloatToHalf(f), h);
+  }
+}
+
+TEST(HalfTest, RoundsToNearestEven) {
+  std::mt19937 rng(5);
+  std::vector<float> xs;
+  // Random floats around the whole binary16 range (subnormals to overflow).
+  std::uniform_int_distribution<int> exponent(-28, 17);
+  std::uniform_int_distribution<uint32_t> mantissa(0, (1u << 23) - 1);
+  for (int i = 0; i < 400000; ++i) {
+    const uint32_t bits = uint32_t(exponent(rng) + 127) << 23 | mantissa(rng) | (i % 2 ? 0x80000000u : 0);
+    xs.push_back(std::bit_cast<float>(bits));
+  }
+  // Exact midpoints between neighbouring halves, and their float neighbours.
+  for (uint32_t h = 0; h < 0x7bff; h += 7) {
+    const float mid = float((HalfValue(uint16_t(h)) + HalfValue(uint16_t(h + 1))) / 2);
+    xs.insert(xs.end(), {mid, std::nextafter(mid, 0.0f), std::nextafter(mid, 1e9f), -mid});
+  }
+  for (float x : xs) {
+    const double want = RefHalfValue(x);
+    const float got = HalfToFloat(FloatToHalf(x));
+    ASSERT_EQ(double(got), want) << "x = " << x << std::hexfloat << " (" << x << ")";
+    ASSERT_EQ(std::signbit(got), std::signbit(x)) << x;
+  }
+}
+
+// ---------------------------------------------------------------------------
+// fp16 storage.
+
+TEST(CheckpointTest, Fp16ParametersRoundTripWithinHalfPrecision) {
+  const NgpModel model = MakeModel(TinyOptions(), 3, 31);
+  CheckpointOptions half;
+  half.fp16_params = true;
+  const std::string bytes = Serialize(model, {}, half);
+  const std::string full = Serialize(model);
+  std::vector<Section> sections = SplitSections(bytes);
+  EXPECT_EQ(Find(&sections, "PENC")->payload, LE<uint32_t>(1));
+  EXPECT_EQ(Find(&sections, "PGRD")->payload.size(), model.params().grid.size() * 2);
+  EXPECT_EQ(Find(&sections, "PMLP")->payload.size(), model.params().mlp.size() * 2);
+  EXPECT_EQ(Find(&sections, "PEMB")->payload.size(), model.params().emb.size() * 2);
+  EXPECT_EQ(full.size() - bytes.size(), model.num_params() * 2);
+
+  absl::StatusOr<LoadedCheckpoint> loaded = DeserializeCheckpoint(bytes);
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  EXPECT_TRUE(loaded->fp16_params);
+  EXPECT_EQ(loaded->format_version, kCheckpointFormatVersion);
+  const NgpModel& m = loaded->model;
+  for (const auto& [a, b] : {std::pair{&model.params().grid, &m.params().grid},
+                             std::pair{&model.params().mlp, &m.params().mlp},
+                             std::pair{&model.params().emb, &m.params().emb}}) {
+    ASSERT_EQ(a->size(), b->size());
+    for (size_t i = 0; i < a->size(); ++i) {
+      ASSERT_EQ((*b)[i], HalfToFloat(FloatToHalf((*a)[i]))) << i;
+      ASSERT_LE(std::abs((*b)[i] - (*a)[i]), std::abs((*a)[i]) * std::ldexp(1.0f, -11) + std::ldexp(1.0f, -25)) << i;
+    }
+  }
+  // Everything else is as in a float32 checkpoint.
+  EXPECT_EQ(m.options().grid.finest_resolution, model.options().grid.finest_resolution);
+  EXPECT_EQ(m.num_time_steps(), 3);
+  EXPECT_TRUE(SameBits(m.occupancy().bits(), model.occupancy().bits()));
+  EXPECT_TRUE(SameBits(m.occupancy().threshold(), model.occupancy().threshold()));
+  EXPECT_TRUE(SameBits(m.occupancy().visible(), model.occupancy().visible()));
+  ExpectQuantisedDensities(model.occupancy(), m.occupancy());
+  // Re-saving is the identity, in either precision (halves are exact floats).
+  EXPECT_EQ(Serialize(m, {}, half), bytes);
+  absl::StatusOr<LoadedCheckpoint> again = DeserializeCheckpoint(Serialize(m));
+  ASSERT_TRUE(again.ok()) << again.status();
+  ExpectBitEqual(m, again->model, /*exact_density=*/true);
+
+  // Renders stay close to the float32 model's.
+  const Camera camera = TestCamera(model.normalization(), 20.0f);
+  for (int step : {0, 2}) {
+    RenderOptions options;
+    options.time_step = step;
+    absl::StatusOr<RenderedView> a = RenderView(model, camera, options);
+    absl::StatusOr<RenderedView> b = RenderView(m, camera, options);
+    ASSERT_TRUE(a.ok()) << a.status();
+    ASSERT_TRUE(b.ok()) << b.status();
+    ASSERT_EQ(a->rgb.rgb.size(), b->rgb.rgb.size());
+    double max_diff = 0, sum_diff = 0;
+    for (size_t i = 0; i < a->rgb.rgb.size(); ++i) {
+      const double d = std::abs(double(a->rgb.rgb[i]) - b->rgb.rgb[i]);
+      max_diff = std::max(max_diff, d);
+      sum_diff += d;
+    }
+    EXPECT_GT(a->samples, 0);
+    EXPECT_LT(max_diff, 0.02) << "step " << step;
+    EXPECT_LT(sum_diff / double(a->rgb.rgb.size()), 2e-3) << "step " << step;
+  }
+
+  // An odd-sized binary16 block is corrupt.
+  Find(&sections, "PMLP")->payload.push_back('\0');
+  loaded = DeserializeCheckpoint(BuildFile(sections), "crafted");
+  ASSERT_FALSE(loaded.ok());
+  EXPECT_EQ(loaded.status().code(), absl::StatusCode::kDataLoss) << loaded.status();
+}
+
+TEST(CheckpointTest, Fp16RefusesParametersBeyondItsRange) {
+  NgpModel model = MakeModel(TinyOptions(), 1, 37);
+  CheckpointOptions half;
+  half.fp16_params = true;
+  model.mutable_params().mlp[3] = 65519.0f;  // Rounds to 65504.
+  model.mutable_params().grid[2] = std::numeric_limits<float>::infinity();  // Stays infinite.
+  absl::StatusOr<std::string> ok = SerializeCheckpoint(model, {}, half);
+  ASSERT_TRUE(ok.ok()) << ok.status();
+  absl::StatusOr<LoadedCheckpoint> loaded = DeserializeCheckpoint(*ok);
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  EXPECT_EQ(loaded->model.params().mlp[3], 65504.0f);
+  EXPECT_EQ(loaded->model.params().grid[2], std::numeric_limits<float>::infinity());
+
+  model.mutable_params().emb[1] = -70000.0f;
+  absl::StatusOr<std::string> bad = SerializeCheckpoint(model, {}, half);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_EQ(bad.status().code(), absl::StatusCode::kFailedPrecondition) << bad.status();
+  EXPECT_NE(bad.status().message().find("embedding parameter 1"), std::string::npos) << bad.status();
+  EXPECT_NE(bad.status().message().find("binary16"), std::string::npos) << bad.status();
+  EXPECT_TRUE(SerializeCheckpoint(model).ok());  // float32 stores it.
+}
+
+// ---------------------------------------------------------------------------
+// Size: the file is at most 1.25x the model's parameter bytes.
+
+// The capacity the trainer picks for lego (16 levels of 2^16 entries, 128^3
+// occupancy): about 7.1 MB of parameters.
+ModelOptions LegoLikeOptions() {
+  ModelOptions o;
+  o.grid.levels = 16;
+  o.grid.log2_table_size = 16;
+  o.grid.base_resolution = 16;
+  o.grid.finest_resolution = 414;
+  o.occupancy.resolution = 128;
+  o.march.steps_per_diagonal = 414;
+  return o;
+}
+
+// Fills the occupancy grid with a trained-looking state, modelled on a lego
+// checkpoint after 300 steps: dense cells inside the surfaces `sdf` < 0 (up
+// to 2^10 x the threshold), a band just outside them near the threshold, and
+// low residue from the warm-up everywhere else (most cells).
+void FillTrainedLikeOccupancy(NgpModel* model, const std::function<float(const Eigen::Vector3f&)>& sdf,
+                              uint64_t seed) {
+  OccupancyGrid& occ = model->mutable_occupancy();
+  const float thr = occ.threshold();  // The maximum threshold: the grid is fresh.
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  std::vector<uint32_t> cells(occ.num_cells());
+  std::vector<float> sigma(occ.num_cells());
+  for (size_t i = 0; i < cells.size(); ++i) {
+    cells[i] = uint32_t(i);
+    const float d = sdf(occ.CellPosition(uint32_t(i), Eigen::Vector3f::Zero()));
+    const float octaves = d < 0 ? 10 * u(rng) : d < 0.03f ? -2 * u(rng) : -2 - 2 * u(rng);
+    sigma[i] = thr * std::exp2(octaves);
+  }
+  occ.ApplyUpdate(cells, sigma);
+}
+
+void ExpectCompactFile(const NgpModel& model, double max_ratio) {
+  const std::string bytes = Serialize(model);
+  const double ratio = double(bytes.size()) / double(model.num_bytes());
+  std::printf("[ size     ] %zu cells (%zu occupied, %zu visible): %zu file bytes, %zu parameter bytes: %.3fx\n",
+              model.occupancy().num_cells(), model.occupancy().num_occupied(), model.occupancy().num_visible(),
+              bytes.size(), model.num_bytes(), ratio);
+  EXPECT_LE(ratio, max_ratio);
+  absl::StatusOr<LoadedCheckpoint> loaded = DeserializeCheckpoint(bytes);
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  ExpectBitEqual(model, loaded->model);  // Bits and threshold exact, densities quantised.
+  CheckpointOptions half;
+  half.fp16_params = true;
+  const std::string small = Serialize(model, {}, half);
+  std::printf("[ size     ] fp16 parameters: %zu file bytes: %.3fx\n", small.size(),
+              double(small.size()) / double(model.num_bytes()));
+  EXPECT_EQ(bytes.size() - small.size(), 2 * model.num_params());
+}
+
+TEST(CheckpointTest, FileIsAtMostOneAndAQuarterParameterBytes) {
+  Normalization norm;
+  absl::StatusOr<NgpModel> model =
+      NgpModel::Create(LegoLikeOptions(), norm, SceneKind::kBounded, Eigen::Vector3f::Ones(), 1, 3);
+  ASSERT_TRUE(model.ok()) << model.status();
+  ASSERT_EQ(model->occupancy().num_cascades(), 1);
+  ExpectCompactFile(*model, 1.25);  // Fresh: every density is zero.
+  // An object of 6 % of the box.
+  FillTrainedLikeOccupancy(&*model, [](const Eigen::Vector3f& p) { return p.norm() - 0.24f; }, 3);
+  ASSERT_GT(model->occupancy().num_occupied(), model->occupancy().num_cells() / 20);
+  ExpectCompactFile(*model, 1.25);
+}
+
+TEST(CheckpointTest, FileIsAtMostOneAndAQuarterParameterBytesWithCascades) {
+  Normalization norm;
+  norm.bound = 2.0f;
+  ModelOptions options = LegoLikeOptions();
+  options.march.cone_angle = 1.0f / 256;
+  absl::StatusOr<NgpModel> model =
+      NgpModel::Create(options, norm, SceneKind::kBounded, Eigen::Vector3f::Ones(), 2, 5);
+  ASSERT_TRUE(model.ok()) << model.status();
+  ASSERT_EQ(model->occupancy().num_cascades(), 3);
+  // An object in the middle and a surrounding "room" (a shell 0.2 thick,
+  // 10 % of the outer cascade), seen from one side only.
+  model->mutable_occupancy().MarkInvisible({model->ToModelCamera(TestCamera(norm, 8.0f))}, options.march.near);
+  FillTrainedLikeOccupancy(
+      &*model, [](const Eigen::Vector3f& p) { return std::min(p.norm() - 0.24f, std::abs(p.norm() - 1.6f) - 0.1f); },
+      5);
+  ASSERT_LT(model->occupancy().num_visible(), model->occupancy().num_cells());
+  ASSERT_GT(model->occupancy().num_occupied(), model->occupancy().num_cells() / 30);
+  ExpectCompactFile(*model, 1.25);
 }
 
 // ---------------------------------------------------------------------------

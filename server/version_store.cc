@@ -18,9 +18,13 @@ namespace {
 
 constexpr char kMemorySection[] = "replay_memory";
 
+// version.json: "file_bytes" (the checkpoint on disk) and "model_bytes" (the
+// parameters) are reported as by `clnerf train --json`; "size_bytes" repeats
+// file_bytes for readers of the original layout.
 nlohmann::json InfoToJson(const VersionInfo& v) {
   return {{"version", v.version},       {"parent", v.parent},
           {"time_steps", v.time_steps}, {"size_bytes", v.size_bytes},
+          {"file_bytes", v.size_bytes}, {"model_bytes", v.model_bytes},
           {"created_unix_ms", v.created_unix_ms}, {"scan_id", v.scan_id},
           {"metrics", v.metrics}};
 }
@@ -33,6 +37,7 @@ absl::StatusOr<VersionInfo> InfoFromJson(const std::string& text, const std::str
     v.parent = j.at("parent");
     v.time_steps = j.at("time_steps");
     v.size_bytes = j.at("size_bytes");
+    v.model_bytes = j.value("model_bytes", int64_t(0));  // Absent in older stores.
     v.created_unix_ms = j.at("created_unix_ms");
     v.scan_id = j.at("scan_id");
     v.metrics = j.at("metrics").get<std::map<std::string, double>>();
@@ -66,6 +71,7 @@ absl::StatusOr<VersionInfo> VersionStore::Write(const NgpModel& model, const Rep
   absl::StatusOr<std::string> bytes = SerializeCheckpoint(model, extras);
   if (!bytes.ok()) return bytes.status();
   info.size_bytes = int64_t(bytes->size());
+  info.model_bytes = int64_t(model.num_bytes());
   const std::string json = InfoToJson(info).dump(1);
   absl::Status s = WriteDirectoryAtomically(VersionDir(info.version), {{"model.ckpt", *bytes}, {"version.json", json}});
   if (!s.ok()) return absl::Status(s.code(), absl::StrCat("cannot publish version ", info.version, ": ", s.message()));

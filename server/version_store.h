@@ -31,7 +31,8 @@ struct VersionInfo {
   int64_t version = 0;
   int64_t parent = 0;  // 0 = none.
   int time_steps = 0;
-  int64_t size_bytes = 0;  // Checkpoint size on disk.
+  int64_t size_bytes = 0;   // Checkpoint size on disk (file bytes).
+  int64_t model_bytes = 0;  // The model's parameter bytes (NgpModel::num_bytes()).
   int64_t created_unix_ms = 0;
   std::string scan_id;  // The scan this version was trained on.
   std::map<std::string, double> metrics;
@@ -54,7 +55,8 @@ class VersionStore {
  public:
   static absl::StatusOr<std::unique_ptr<VersionStore>> Open(const std::string& root);
 
-  // Writes version `info.version` durably; fills info.size_bytes.
+  // Writes version `info.version` durably; fills info.size_bytes and
+  // info.model_bytes.
   absl::StatusOr<VersionInfo> Write(const NgpModel& model, const ReplayMemory& memory, VersionInfo info);
   // NOT_FOUND for a version that does not exist.
   absl::StatusOr<LoadedVersion> Load(int64_t version) const;

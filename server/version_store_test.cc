@@ -4,6 +4,7 @@
 
 #include "core/durable_file.h"
 #include "gtest/gtest.h"
+#include "nlohmann/json.hpp"
 #include "server/server_test_util.h"
 
 namespace clnerf {
@@ -37,12 +38,19 @@ TEST(VersionStoreTest, WriteLoadListAndManifest) {
   auto written = (*store)->Write(model, memory, info);
   ASSERT_TRUE(written.ok()) << written.status();
   EXPECT_GT(written->size_bytes, 0);
+  EXPECT_EQ(written->model_bytes, int64_t(model.num_bytes()));
+  EXPECT_EQ(written->size_bytes, int64_t(std::filesystem::file_size(root + "/versions/000001/model.ckpt")));
+  const nlohmann::json json = nlohmann::json::parse(*ReadFileToString(root + "/versions/000001/version.json"));
+  EXPECT_EQ(json.at("file_bytes"), written->size_bytes);
+  EXPECT_EQ(json.at("size_bytes"), written->size_bytes);
+  EXPECT_EQ(json.at("model_bytes"), written->model_bytes);
   EXPECT_EQ((*store)->Write(model, memory, info).status().code(), absl::StatusCode::kAlreadyExists);
 
   auto loaded = (*store)->Load(1);
   ASSERT_TRUE(loaded.ok()) << loaded.status();
   EXPECT_EQ(loaded->info.scan_id, "scan-000001");
   EXPECT_DOUBLE_EQ(loaded->info.metrics.at("new_psnr"), 25.5);
+  EXPECT_EQ(loaded->info.model_bytes, int64_t(model.num_bytes()));
   EXPECT_EQ(loaded->model.params().grid, model.params().grid);
   EXPECT_EQ(loaded->memory.num_cameras(), 1u);
   EXPECT_EQ((*store)->Load(7).status().code(), absl::StatusCode::kNotFound);
