@@ -20,6 +20,10 @@ struct ModelArgs {
   int finest_resolution = 0;
   float steps_per_diagonal = 0;
   int occupancy_resolution = 0;
+  float cone_angle = -1;           // < 0: derived.
+  float occupancy_threshold = -1;  // < 0: derived (0.01 / min step).
+  float distortion = -1;           // < 0: auto (TrainOptions::distortion_reg).
+  bool random_background = false;
   bool no_embed = false;
 };
 

@@ -38,6 +38,8 @@ FitOptions MakeFitOptions(const TrainArgs& a) {
   fo.train.threads = a.threads;
   fo.train.learning_rate = a.learning_rate;
   fo.train.target_samples = a.target_samples;
+  fo.train.distortion_reg = a.model.distortion;
+  fo.train.random_background = a.model.random_background;
   fo.curve_every = a.curve_every;
   fo.curve_views = a.curve_views;
   fo.model.network.use_embeddings = !a.model.no_embed;
@@ -51,6 +53,8 @@ ModelOptions ApplyOverrides(ModelOptions mo, const ModelArgs& a) {
   if (a.finest_resolution > 0) mo.grid.finest_resolution = a.finest_resolution;
   if (a.steps_per_diagonal > 0) mo.march.steps_per_diagonal = a.steps_per_diagonal;
   if (a.occupancy_resolution > 0) mo.occupancy.resolution = a.occupancy_resolution;
+  if (a.cone_angle >= 0) mo.march.cone_angle = a.cone_angle;
+  if (a.occupancy_threshold > 0) mo.occupancy.density_threshold = a.occupancy_threshold;
   return mo;
 }
 
@@ -67,7 +71,7 @@ nlohmann::json EvalJson(const EvalResult& r) {
 // Trains with a progress bar; shared by train and demo.
 absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, FitOptions fo, const ModelArgs& overrides) {
   if (overrides.log2_table_size > 0 || overrides.finest_resolution > 0 || overrides.steps_per_diagonal > 0 ||
-      overrides.occupancy_resolution > 0) {
+      overrides.occupancy_resolution > 0 || overrides.cone_angle >= 0 || overrides.occupancy_threshold > 0) {
     const Normalization norm = ComputeNormalization(scene);
     fo.model = ApplyOverrides(DeriveModelOptions(scene, norm, fo.capacity, fo.model), overrides);
     fo.derive_capacity = false;

@@ -20,6 +20,13 @@ int main(int argc, char** argv) {
     c->add_option("--finest-res", m->finest_resolution, "Finest grid resolution (default: derived)");
     c->add_option("--steps-per-diagonal", m->steps_per_diagonal, "March steps across the box diagonal (default: derived)");
     c->add_option("--occupancy-res", m->occupancy_resolution, "Occupancy grid resolution (default: derived)");
+    c->add_option("--cone-angle", m->cone_angle, "March cone angle (exponential steps; default: derived)");
+    c->add_option("--occupancy-threshold", m->occupancy_threshold,
+                  "Occupancy density threshold (default: 0.01 / minimum step)");
+    c->add_option("--distortion", m->distortion,
+                  "Distortion-loss weight (default: 0.002 for real captures, 0 for objects)");
+    c->add_flag("--random-background", m->random_background,
+                "Real captures: train on random background colours");
     c->add_flag("--no-embed", m->no_embed, "Disable per-time-step embeddings");
   };
   // Flags of every verb that talks to a server.

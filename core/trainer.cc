@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include "absl/strings/str_format.h"
+#include "core/contraction.h"
 #include "core/field.h"
 #include "core/volume_rendering.h"
 
@@ -30,7 +31,7 @@ struct Trainer::ThreadScratch {
   FieldContext field;
   std::vector<RaySample> samples;
   std::vector<int> seg, seg2, keep;
-  std::vector<float> dt, weights, t_final;
+  std::vector<float> dt, weights, t_final, mid, width;
   std::vector<float> d_rgb, d_sigma;
   std::vector<float> grad_mlp, grad_emb;
   std::vector<float> store_pos, store_dfeat;  // For the grid backward phase.
@@ -83,6 +84,10 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
   const float inv_n = 1.0f / float(std::max(nrays, 1));
   const float lambda = options_.opacity_reg;
   const Eigen::Vector3f bg = model.background();
+  const float dist_reg = options_.distortion_reg >= 0 ? options_.distortion_reg
+                         : model.contracted()         ? TrainOptions::kAutoDistortion
+                                                      : 0.0f;
+  const float inv_box = 1.0f / (2.0f * model.bound());
 
   const int nblocks = (nrays + kBlockRays - 1) / kBlockRays;
   // Reset every scratch, not only those of the threads that run: the OpenMP
@@ -137,8 +142,13 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
       s.t_final.resize(nr);
       s.seg2.assign(1, 0);
       s.keep.clear();
+      s.mid.resize(m);
+      s.width.resize(m);
       for (int i = 0; i < nr; ++i) {
         const int a = s.seg[i], n_i = s.seg[i + 1] - a;
+        const Eigen::Map<const Eigen::Vector3f> o(&batch.origin[3 * size_t(r0 + i)]),
+            d(&batch.dir[3 * size_t(r0 + i)]);
+        const Eigen::Vector3f q0 = model.contracted() ? Contract(o) : Eigen::Vector3f(o);
         s.t_final[i] = 1.0f;
         const int used =
             n_i > 0 ? CompositeWeights(&fc.sigma[a], &s.dt[a], n_i, kMinTransmittance, &s.weights[a], &s.t_final[i])
@@ -146,6 +156,18 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         for (int j = a; j < a + used; ++j) {
           const int w = int(s.keep.size());
           s.keep.push_back(j);
+          if (dist_reg > 0) {
+            // Interval midpoint and width in normalised ray distance.
+            const float tm = s.samples[j].t + 0.5f * s.dt[j];
+            if (model.contracted()) {
+              const Eigen::Vector3f x = o + tm * d;
+              s.mid[w] = (Contract(x) - q0).norm() * inv_box;
+              s.width[w] = s.dt[j] * ContractDirectional(x, d).norm() * inv_box;
+            } else {
+              s.mid[w] = tm * inv_box;
+              s.width[w] = s.dt[j] * inv_box;
+            }
+          }
           s.dt[w] = s.dt[j];
           s.weights[w] = s.weights[j];
         }
@@ -189,6 +211,11 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         if (used > 0) {
           CompositeBackward(&fc.sigma[a], &s.dt[a], rgb, &s.weights[a], used, s.t_final[i], bgr, dc,
                             d_opacity, &s.d_rgb[3 * size_t(a)], &s.d_sigma[a]);
+          if (dist_reg > 0) {
+            s.loss += dist_reg * inv_n *
+                      DistortionLoss(&s.dt[a], &s.weights[a], &s.mid[a], &s.width[a], used, dist_reg * inv_n,
+                                     &s.d_sigma[a]);
+          }
         }
       }
       // 6. Field backward; stash grid-input gradients for phase 2.

@@ -48,11 +48,17 @@ struct TrainOptions {
   float learning_rate = 1e-2f;    // Initial learning rate (all blocks).
   float lr_final_ratio = 1.0f / 30.0f;  // Cosine decay to lr * ratio.
   float opacity_reg = 1e-3f;      // Weight of mean(-o log o).
+  // Weight of the distortion loss (mip-NeRF 360) on each ray's weights, in
+  // ray distance normalised by the box size (contracted distance for
+  // unbounded scenes). < 0 = auto: kAutoDistortion for unbounded scenes, 0 for
+  // bounded ones.
+  float distortion_reg = -1.0f;
+  static constexpr float kAutoDistortion = 2e-3f;
   // Unbounded (real) scenes: composite each training ray onto a random
   // background colour (instant-ngp's trick), so the field cannot explain
   // dark pixels with transparency and must become opaque; this is what lets
   // rays terminate early. Rendering still uses the model's background.
-  bool random_background = true;
+  bool random_background = false;
   AdamOptions adam;
   uint64_t seed = 0;
   int threads = 0;                // OpenMP threads; 0 = all cores.

@@ -1,6 +1,7 @@
 #include "core/volume_rendering.h"
 
 #include <cmath>
+#include <vector>
 
 namespace clnerf {
 
@@ -53,6 +54,45 @@ void CompositeBackward(const float* sigma, const float* dt, const float* rgb, co
     d_rgb[3 * i + 2] = weights[i] * d_out[2];
     T = t_next;
   }
+}
+
+float DistortionLoss(const float* dt, const float* weights, const float* mid, const float* width, int used,
+                     float scale, float* d_sigma) {
+  if (used <= 0) return 0.0f;
+  double W = 0, WM = 0;
+  for (int i = 0; i < used; ++i) {
+    W += weights[i];
+    WM += double(weights[i]) * mid[i];
+  }
+  // g_i = dL/dw_i = 2 sum_j w_j |m_i - m_j| + 2/3 w_i s_i, with the sum split
+  // at i using prefix sums (m ascending).
+  thread_local std::vector<float> g;
+  g.resize(used);
+  double loss = 0, Wl = 0, WMl = 0;
+  for (int i = 0; i < used; ++i) {
+    const double wi = weights[i], mi = mid[i];
+    const double below = mi * Wl - WMl;
+    const double above = (WM - WMl - wi * mi) - mi * (W - Wl - wi);
+    const double spread = below + above;
+    loss += wi * spread + wi * wi * width[i] / 3.0;
+    g[i] = float(2.0 * spread + 2.0 / 3.0 * wi * width[i]);
+    Wl += wi;
+    WMl += wi * mi;
+  }
+  // dw_i/dsigma_k = dt_k (T_{k+1} [i == k] - w_i [i > k]), T_{k+1} = T_k - w_k.
+  double suffix = 0;  // sum_{i > k} g_i w_i
+  double T_next = 1.0;
+  // Transmittances front to back.
+  thread_local std::vector<double> T;
+  T.resize(used + 1);
+  T[0] = 1.0;
+  for (int i = 0; i < used; ++i) T[i + 1] = T[i] - weights[i];
+  for (int k = used - 1; k >= 0; --k) {
+    T_next = T[k + 1];
+    d_sigma[k] += scale * float(dt[k] * (g[k] * T_next - suffix));
+    suffix += double(g[k]) * weights[k];
+  }
+  return float(loss);
 }
 
 }  // namespace clnerf

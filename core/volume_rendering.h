@@ -30,6 +30,16 @@ void CompositeBackward(const float* sigma, const float* dt, const float* rgb, co
                        int used, float t_final, const float* background, const float* d_out,
                        float d_opacity, float* d_rgb, float* d_sigma);
 
+// Distortion loss of one ray (mip-NeRF 360, eq. 15):
+//   L = sum_ij w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 s_i,
+// with m_i the midpoint and s_i the width of sample i's interval in a
+// normalised ray distance (ascending m). It pulls each ray's weights into one
+// compact surface, removing fog and floaters. Returns L and adds
+// scale * dL/dsigma_i to d_sigma (through the weights of CompositeWeights;
+// used = number of composited samples).
+float DistortionLoss(const float* dt, const float* weights, const float* mid, const float* width, int used,
+                     float scale, float* d_sigma);
+
 }  // namespace clnerf
 
 #endif  // CLNERF_CORE_VOLUME_RENDERING_H_
