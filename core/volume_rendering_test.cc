@@ -224,5 +224,77 @@ TEST(CompositeBackwardTest, MatchesFiniteDifferencesWithTermination) {
   CheckBackward(r, 7, /*expect_termination=*/true);
 }
 
+// Distortion loss in double precision, straight from its definition:
+// L = sum_ij w_i w_j |m_i - m_j| + 1/3 sum_i w_i^2 s_i, with w from sigma.
+double ReferenceDistortion(const std::vector<double>& sigma, const std::vector<float>& dt,
+                           const std::vector<float>& mid, const std::vector<float>& width, int used) {
+  std::vector<double> w(used);
+  double T = 1.0;
+  for (int i = 0; i < used; ++i) {
+    const double a = 1.0 - std::exp(-sigma[i] * dt[i]);
+    w[i] = T * a;
+    T *= 1.0 - a;
+  }
+  double l = 0;
+  for (int i = 0; i < used; ++i) {
+    for (int j = 0; j < used; ++j) l += w[i] * w[j] * std::abs(double(mid[i]) - mid[j]);
+    l += w[i] * w[i] * width[i] / 3.0;
+  }
+  return l;
+}
+
+TEST(DistortionLossTest, ValueAndGradientMatchTheDefinition) {
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (int trial = 0; trial < 5; ++trial) {
+    const int n = 6 + trial * 5;
+    std::vector<float> sigma(n), dt(n), mid(n), width(n);
+    float pos = 0.1f;
+    for (int i = 0; i < n; ++i) {
+      sigma[i] = 0.5f + 20.0f * u(rng);
+      dt[i] = 0.01f + 0.05f * u(rng);
+      width[i] = dt[i] * (0.2f + u(rng));
+      mid[i] = pos + 0.5f * width[i];
+      pos += width[i];
+    }
+    std::vector<float> w(n);
+    float t_final;
+    const int used = CompositeWeights(sigma.data(), dt.data(), n, 0.0f, w.data(), &t_final);
+    std::vector<float> d_sigma(n, 0.5f);  // Accumulates onto what is there.
+    const float scale = 0.7f;
+    const float loss = DistortionLoss(dt.data(), w.data(), mid.data(), width.data(), used, scale, d_sigma.data());
+    std::vector<double> sd(sigma.begin(), sigma.end());
+    const double ref = ReferenceDistortion(sd, dt, mid, width, used);
+    EXPECT_NEAR(loss, ref, 1e-5 + 1e-4 * ref);
+    EXPECT_GT(ref, 0.0);
+    for (int i = 0; i < used; ++i) {
+      const double h = 1e-5 * std::max(1.0, sd[i]);
+      const double s0 = sd[i];
+      sd[i] = s0 + h;
+      const double lp = ReferenceDistortion(sd, dt, mid, width, used);
+      sd[i] = s0 - h;
+      const double lm = ReferenceDistortion(sd, dt, mid, width, used);
+      sd[i] = s0;
+      const double fd = scale * (lp - lm) / (2 * h);
+      EXPECT_NEAR(d_sigma[i] - 0.5f, fd, 1e-5 + 1e-3 * std::abs(fd)) << "trial " << trial << " sample " << i;
+    }
+  }
+}
+
+TEST(DistortionLossTest, OneCompactSurfaceCostsLessThanFog) {
+  // Same total opacity, concentrated in one sample vs spread over ten.
+  const int n = 10;
+  std::vector<float> dt(n, 0.1f), mid(n), width(n, 0.1f), w(n), d(n, 0.0f);
+  for (int i = 0; i < n; ++i) mid[i] = 0.05f + 0.1f * i;
+  std::vector<float> fog(n, 0.9f), surface(n, 0.0f);
+  surface[5] = 9.0f;  // sigma dt = 0.9 in one sample: the same opacity.
+  float tf;
+  CompositeWeights(fog.data(), dt.data(), n, 0.0f, w.data(), &tf);
+  const float l_fog = DistortionLoss(dt.data(), w.data(), mid.data(), width.data(), n, 1.0f, d.data());
+  CompositeWeights(surface.data(), dt.data(), n, 0.0f, w.data(), &tf);
+  const float l_surface = DistortionLoss(dt.data(), w.data(), mid.data(), width.data(), n, 1.0f, d.data());
+  EXPECT_LT(l_surface, 0.2f * l_fog);
+}
+
 }  // namespace
 }  // namespace clnerf
