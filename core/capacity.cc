@@ -71,6 +71,11 @@ ModelOptions DeriveModelOptions(const Scene& scene, const Normalization& norm, c
     base.march.steps_per_diagonal =
         std::clamp(cap.steps_per_cell * std::sqrt(3.0f) / footprint_px, 128.0f, 1024.0f);
     base.march.cone_angle = std::clamp(1.0f / focal_px, 1.0f / 256.0f, 1.0f / 32.0f);
+    // Upstream's occupancy threshold (0.01 opacity over its 1/1024-diagonal
+    // step), not 0.01 / our coarser step: on fox_8 (500 steps) the lower
+    // derived threshold (2.3) left fog marked occupied, 24.43 vs 23.08 dB and
+    // 164 vs 340 samples per ray; 20 lost 1.7 dB.
+    if (base.occupancy.density_threshold <= 0) base.occupancy.density_threshold = 0.01f * 1024.0f / std::sqrt(3.0f);
   }
   if (report) {
     report->pixel_footprint = footprint;

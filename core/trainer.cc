@@ -27,12 +27,27 @@ absl::Status TrainOptions::Validate() const {
   return adam.Validate();
 }
 
-struct Trainer::ThreadScratch {
-  FieldContext field;
+// One marching wave of a block: the samples its live rays marched, their
+// field context, and which of them were kept (up to early termination).
+struct TrainWave {
+  FieldContext fc;
   std::vector<RaySample> samples;
-  std::vector<int> seg, seg2, keep;
-  std::vector<float> dt, weights, t_final, mid, width;
-  std::vector<float> d_rgb, d_sigma;
+  std::vector<int> seg, seg_ray;      // Marched segments (one per live ray).
+  std::vector<int> keep, kseg, kray;  // Kept samples (ascending) and their segments.
+  std::vector<int> ray_kseg;          // Per ray of the block: its kept segment, or -1.
+  std::vector<float> kt, kdt;         // t and dt of kept samples.
+  std::vector<float> d_rgb, d_sigma;  // Per kept sample.
+};
+
+struct Trainer::ThreadScratch {
+  static constexpr int kMaxWaves = 3;
+  TrainWave waves[kMaxWaves];
+  // Per ray of the block.
+  std::vector<float> ray_t, ray_t1, ray_T;
+  std::vector<uint8_t> ray_alive;
+  // Kept samples gathered per ray across waves (gseg: ray offsets).
+  std::vector<int> gseg, gwave, gcol;
+  std::vector<float> gsigma, gdt, gw, grgb, gmid, gwidth, gdrgb, gdsigma, t_final;
   std::vector<float> grad_mlp, grad_emb;
   std::vector<float> store_pos, store_dfeat;  // For the grid backward phase.
   double sq_err = 0, loss = 0;
@@ -102,92 +117,136 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
     s.sq_err = s.loss = 0;
     s.samples_marched = s.samples_used = 0;
   }
+  // Rays march in waves: the first covers about what a ray composites on
+  // average, and only rays still above the termination threshold march on,
+  // so samples behind early termination are rarely marched or evaluated.
+  const int first_wave = std::clamp(int(1.5 * mean_used_per_ray_) + 8, 16, mo.max_samples);
 #pragma omp parallel num_threads(threads_)
   {
     ThreadScratch& s = *scratch_[omp_get_thread_num()];
-    FieldContext& fc = s.field;
 #pragma omp for schedule(static, 1)
     for (int b = 0; b < nblocks; ++b) {
       const int r0 = b * kBlockRays, nr = std::min(kBlockRays, nrays - r0);
-      // 1. March (first sample jittered).
-      s.samples.clear();
-      s.seg.assign(1, 0);
+      auto origin = [&](int i) { return Eigen::Map<const Eigen::Vector3f>(&batch.origin[3 * size_t(r0 + i)]); };
+      auto dir = [&](int i) { return Eigen::Map<const Eigen::Vector3f>(&batch.dir[3 * size_t(r0 + i)]); };
+      s.ray_t.resize(nr);
+      s.ray_t1.resize(nr);
+      s.ray_T.assign(nr, 1.0f);
+      s.ray_alive.resize(nr);
       for (int i = 0; i < nr; ++i) {
-        const int r = r0 + i;
-        const Eigen::Map<const Eigen::Vector3f> o(&batch.origin[3 * size_t(r)]), d(&batch.dir[3 * size_t(r)]);
-        float t0, t1;
-        if (model.RayInterval(o, d, &t0, &t1)) {
-          const float t = t0 + jitter[r] * model.StepAt(o, d, t0);
-          model.March(o, d, t, t1, mo.max_samples, &s.samples);
-        }
-        s.seg.push_back(int(s.samples.size()));
+        float t0 = 0, t1 = 0;
+        s.ray_alive[i] = model.RayInterval(origin(i), dir(i), &t0, &t1);
+        // First sample jittered.
+        s.ray_t[i] = s.ray_alive[i] ? t0 + jitter[r0 + i] * model.StepAt(origin(i), dir(i), t0) : 0.0f;
+        s.ray_t1[i] = t1;
       }
-      const int m = int(s.samples.size());
-      s.samples_marched += m;
-      field.SetRays(nr, &batch.dir[3 * size_t(r0)], &batch.time_step[r0], 0, &fc);
-      field.ResizeSamples(m, &fc);
-      s.dt.resize(m);
-      for (int i = 0; i < nr; ++i) {
-        const int r = r0 + i;
-        const Eigen::Map<const Eigen::Vector3f> o(&batch.origin[3 * size_t(r)]), d(&batch.dir[3 * size_t(r)]);
-        for (int j = s.seg[i]; j < s.seg[i + 1]; ++j) {
-          field.SetSample(j, o + s.samples[j].t * d, &fc);
-          s.dt[j] = s.samples[j].dt;
+      // 1. March, evaluate density and composite, wave by wave.
+      int nwaves = 0;
+      for (int wv = 0; wv < ThreadScratch::kMaxWaves; ++wv) {
+        TrainWave& W = s.waves[wv];
+        const int budget = wv + 1 == ThreadScratch::kMaxWaves ? mo.max_samples : first_wave << wv;
+        W.samples.clear();
+        W.seg.assign(1, 0);
+        W.seg_ray.clear();
+        for (int i = 0; i < nr; ++i) {
+          if (!s.ray_alive[i]) continue;
+          const size_t before = W.samples.size();
+          s.ray_t[i] = model.March(origin(i), dir(i), s.ray_t[i], s.ray_t1[i], budget, &W.samples);
+          if (W.samples.size() == before) {
+            s.ray_alive[i] = 0;
+            continue;
+          }
+          W.seg.push_back(int(W.samples.size()));
+          W.seg_ray.push_back(i);
         }
-      }
-      // 2. Density on every marched sample.
-      field.Density(m, s.seg.data(), nullptr, nr, &fc);
-      // 3. Composite sigma; keep samples up to early termination.
-      s.weights.resize(m);
-      s.t_final.resize(nr);
-      s.seg2.assign(1, 0);
-      s.keep.clear();
-      s.mid.resize(m);
-      s.width.resize(m);
-      for (int i = 0; i < nr; ++i) {
-        const int a = s.seg[i], n_i = s.seg[i + 1] - a;
-        const Eigen::Map<const Eigen::Vector3f> o(&batch.origin[3 * size_t(r0 + i)]),
-            d(&batch.dir[3 * size_t(r0 + i)]);
-        const Eigen::Vector3f q0 = model.contracted() ? Contract(o) : Eigen::Vector3f(o);
-        s.t_final[i] = 1.0f;
-        const int used =
-            n_i > 0 ? CompositeWeights(&fc.sigma[a], &s.dt[a], n_i, kMinTransmittance, &s.weights[a], &s.t_final[i])
-                    : 0;
-        for (int j = a; j < a + used; ++j) {
-          const int w = int(s.keep.size());
-          s.keep.push_back(j);
-          if (dist_reg > 0) {
-            // Interval midpoint and width in normalised ray distance.
-            const float tm = s.samples[j].t + 0.5f * s.dt[j];
-            if (model.contracted()) {
-              const Eigen::Vector3f x = o + tm * d;
-              s.mid[w] = (Contract(x) - q0).norm() * inv_box;
-              s.width[w] = s.dt[j] * ContractDirectional(x, d).norm() * inv_box;
-            } else {
-              s.mid[w] = tm * inv_box;
-              s.width[w] = s.dt[j] * inv_box;
+        const int m = int(W.samples.size());
+        W.ray_kseg.assign(nr, -1);
+        if (m == 0) break;
+        nwaves = wv + 1;
+        s.samples_marched += m;
+        const int nseg = int(W.seg_ray.size());
+        field.SetRays(nr, &batch.dir[3 * size_t(r0)], &batch.time_step[r0], 0, &W.fc);
+        field.ResizeSamples(m, &W.fc);
+        for (int k = 0; k < nseg; ++k) {
+          const int i = W.seg_ray[k];
+          for (int j = W.seg[k]; j < W.seg[k + 1]; ++j) field.SetSample(j, origin(i) + W.samples[j].t * dir(i), &W.fc);
+        }
+        field.Density(m, W.seg.data(), W.seg_ray.data(), nseg, &W.fc);
+        // Keep samples up to early termination (the sample that crosses the
+        // threshold included, as CompositeWeights does).
+        W.keep.clear();
+        W.kseg.assign(1, 0);
+        W.kray.clear();
+        W.kt.clear();
+        W.kdt.clear();
+        for (int k = 0; k < nseg; ++k) {
+          const int i = W.seg_ray[k];
+          float T = s.ray_T[i];
+          for (int j = W.seg[k]; j < W.seg[k + 1]; ++j) {
+            W.keep.push_back(j);
+            W.kt.push_back(W.samples[j].t);
+            W.kdt.push_back(W.samples[j].dt);
+            const float alpha = 1.0f - std::exp(-W.fc.sigma[j] * W.samples[j].dt);  // As CompositeWeights.
+            T *= 1.0f - alpha;
+            if (T <= kMinTransmittance) {
+              s.ray_alive[i] = 0;
+              break;
             }
           }
-          s.dt[w] = s.dt[j];
-          s.weights[w] = s.weights[j];
+          s.ray_T[i] = T;
+          W.ray_kseg[i] = int(W.kray.size());
+          W.kseg.push_back(int(W.keep.size()));
+          W.kray.push_back(i);
         }
-        s.seg2.push_back(int(s.keep.size()));
+        field.Select(W.keep.data(), int(W.keep.size()), /*for_backward=*/true, &W.fc);
+        // 2. Colour on the kept samples.
+        field.Colour(int(W.keep.size()), W.kseg.data(), W.kray.data(), int(W.kray.size()), &W.fc);
       }
-      const int m2 = int(s.keep.size());
-      field.Select(s.keep.data(), m2, /*for_backward=*/true, &fc);
+      // 3. Gather each ray's kept samples across waves, in order.
+      s.gseg.assign(1, 0);
+      s.gwave.clear();
+      s.gcol.clear();
+      for (int i = 0; i < nr; ++i) {
+        for (int wv = 0; wv < nwaves; ++wv) {
+          const TrainWave& W = s.waves[wv];
+          const int k = W.ray_kseg[i];
+          if (k < 0) continue;
+          for (int c = W.kseg[k]; c < W.kseg[k + 1]; ++c) {
+            s.gwave.push_back(wv);
+            s.gcol.push_back(c);
+          }
+        }
+        s.gseg.push_back(int(s.gwave.size()));
+      }
+      const int m2 = int(s.gwave.size());
       s.samples_used += m2;
-      // 4. Colour on kept samples.
-      field.Colour(m2, s.seg2.data(), nullptr, nr, &fc);
-      // 5. Loss and compositing backward.
-      s.d_rgb.assign(3 * size_t(m2), 0.0f);
-      s.d_sigma.assign(m2, 0.0f);
+      s.gsigma.resize(m2);
+      s.gdt.resize(m2);
+      s.gw.resize(m2);
+      s.grgb.resize(3 * size_t(m2));
+      s.gmid.resize(m2);
+      s.gwidth.resize(m2);
+      s.gdrgb.assign(3 * size_t(m2), 0.0f);
+      s.gdsigma.assign(m2, 0.0f);
+      s.t_final.resize(nr);
+      for (int j = 0; j < m2; ++j) {
+        const TrainWave& W = s.waves[s.gwave[j]];
+        const int c = s.gcol[j];
+        s.gsigma[j] = W.fc.sigma[c];
+        s.gdt[j] = W.kdt[c];
+        for (int k = 0; k < 3; ++k) s.grgb[3 * size_t(j) + k] = W.fc.ws.rgb(k, c);
+      }
+      // 4. Loss and compositing backward per ray.
       for (int i = 0; i < nr; ++i) {
         const int r = r0 + i;
-        const int a = s.seg2[i], used = s.seg2[i + 1] - a;
-        const float* rgb = fc.ws.rgb.data() + 3 * size_t(a);
+        const int a = s.gseg[i], n_i = s.gseg[i + 1] - a;
+        s.t_final[i] = 1.0f;
+        const int used =
+            n_i > 0 ? CompositeWeights(&s.gsigma[a], &s.gdt[a], n_i, kMinTransmittance, &s.gw[a], &s.t_final[i]) : 0;
+        const float* rgb = &s.grgb[3 * size_t(a)];
         float c[3];
         const float* bgr = ray_bg ? &ray_bg[3 * size_t(r)] : bg.data();
-        CompositeColour(&s.weights[a], rgb, used, s.t_final[i], bgr, c);
+        CompositeColour(&s.gw[a], rgb, used, s.t_final[i], bgr, c);
         const float* gt = &batch.target[3 * size_t(r)];
         const float wr = batch.weight[r];
         const bool robust = !batch.robust.empty() && batch.robust[r] != 0;
@@ -208,21 +267,50 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         s.sq_err += se / 3.0f;
         s.loss += (wr * data_loss / 3.0f + lambda * (-o * std::log(o))) * inv_n;
         const float d_opacity = lambda * -(std::log(o) + 1.0f) * inv_n;
-        if (used > 0) {
-          CompositeBackward(&fc.sigma[a], &s.dt[a], rgb, &s.weights[a], used, s.t_final[i], bgr, dc,
-                            d_opacity, &s.d_rgb[3 * size_t(a)], &s.d_sigma[a]);
-          if (dist_reg > 0) {
-            s.loss += dist_reg * inv_n *
-                      DistortionLoss(&s.dt[a], &s.weights[a], &s.mid[a], &s.width[a], used, dist_reg * inv_n,
-                                     &s.d_sigma[a]);
+        if (used == 0) continue;
+        CompositeBackward(&s.gsigma[a], &s.gdt[a], rgb, &s.gw[a], used, s.t_final[i], bgr, dc, d_opacity,
+                          &s.gdrgb[3 * size_t(a)], &s.gdsigma[a]);
+        if (dist_reg > 0) {
+          // Interval midpoints and widths in normalised ray distance.
+          const Eigen::Vector3f o3 = origin(i), d3 = dir(i);
+          const Eigen::Vector3f q0 = model.contracted() ? Contract(o3) : o3;
+          for (int j = a; j < a + used; ++j) {
+            const float tm = s.waves[s.gwave[j]].kt[s.gcol[j]] + 0.5f * s.gdt[j];
+            if (model.contracted()) {
+              const Eigen::Vector3f x = o3 + tm * d3;
+              s.gmid[j] = (Contract(x) - q0).norm() * inv_box;
+              s.gwidth[j] = s.gdt[j] * ContractDirectional(x, d3).norm() * inv_box;
+            } else {
+              s.gmid[j] = tm * inv_box;
+              s.gwidth[j] = s.gdt[j] * inv_box;
+            }
           }
+          s.loss += dist_reg * inv_n *
+                    DistortionLoss(&s.gdt[a], &s.gw[a], &s.gmid[a], &s.gwidth[a], used, dist_reg * inv_n,
+                                   &s.gdsigma[a]);
         }
       }
-      // 6. Field backward; stash grid-input gradients for phase 2.
-      field.Backward(m2, s.seg2.data(), nullptr, nr, s.d_rgb.data(), s.d_sigma.data(), &fc, s.grad_mlp.data(),
-                     s.grad_emb.data());
-      s.store_pos.insert(s.store_pos.end(), fc.pos.begin(), fc.pos.begin() + 3 * size_t(m2));
-      s.store_dfeat.insert(s.store_dfeat.end(), fc.d_feat.begin(), fc.d_feat.begin() + size_t(m2) * Dg);
+      // 5. Scatter the gradients back to the waves; field backward per wave;
+      // stash grid-input gradients for phase 2.
+      for (int wv = 0; wv < nwaves; ++wv) {
+        TrainWave& W = s.waves[wv];
+        W.d_rgb.assign(3 * W.keep.size(), 0.0f);
+        W.d_sigma.assign(W.keep.size(), 0.0f);
+      }
+      for (int j = 0; j < m2; ++j) {
+        TrainWave& W = s.waves[s.gwave[j]];
+        const int c = s.gcol[j];
+        for (int k = 0; k < 3; ++k) W.d_rgb[3 * size_t(c) + k] = s.gdrgb[3 * size_t(j) + k];
+        W.d_sigma[c] = s.gdsigma[j];
+      }
+      for (int wv = 0; wv < nwaves; ++wv) {
+        TrainWave& W = s.waves[wv];
+        const int mk = int(W.keep.size());
+        field.Backward(mk, W.kseg.data(), W.kray.data(), int(W.kray.size()), W.d_rgb.data(), W.d_sigma.data(), &W.fc,
+                       s.grad_mlp.data(), s.grad_emb.data());
+        s.store_pos.insert(s.store_pos.end(), W.fc.pos.begin(), W.fc.pos.begin() + 3 * size_t(mk));
+        s.store_dfeat.insert(s.store_dfeat.end(), W.fc.d_feat.begin(), W.fc.d_feat.begin() + size_t(mk) * Dg);
+      }
     }
   }
   // Phase 2: hash-grid backward, levels partitioned over threads.
@@ -399,6 +487,8 @@ absl::Status Trainer::Step() {
 
   // Adapt the batch so it marches about target_samples samples.
   const double spr = batch.size() > 0 ? double(batch_samples_) / batch.size() : 0.0;
+  const double upr = batch.size() > 0 ? double(batch_composited_) / batch.size() : 0.0;
+  mean_used_per_ray_ = mean_used_per_ray_ == 0 ? upr : 0.9 * mean_used_per_ray_ + 0.1 * upr;
   mean_samples_per_ray_ = mean_samples_per_ray_ == 0 ? spr : 0.9 * mean_samples_per_ray_ + 0.1 * spr;
   if (options_.target_samples > 0 && mean_samples_per_ray_ > 0) {
     const int want = int(options_.target_samples / mean_samples_per_ray_);

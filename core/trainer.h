@@ -125,6 +125,7 @@ class Trainer {
   int step_ = 0;
   int batch_rays_;
   double mean_samples_per_ray_ = 0;
+  double mean_used_per_ray_ = 0;  // Composited samples per ray (sizes the first march wave).
   StepStats last_;
   double total_seconds_ = 0;
   long long total_samples_ = 0;
