@@ -8,7 +8,7 @@ PKGS=(
   build-essential cmake pkg-config
   libgrpc-dev libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libabsl-dev libeigen3-dev libopenimageio-dev openimageio-tools libspdlog-dev libfmt-dev
-  libgtest-dev libgmock-dev nlohmann-json3-dev libcli11-dev
+  libgtest-dev libgmock-dev nlohmann-json3-dev libcli11-dev zlib1g-dev
   python3 python3-matplotlib linux-perf valgrind
 )
 
