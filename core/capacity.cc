@@ -15,6 +15,7 @@ absl::Status CapacityOptions::Validate() const {
     return absl::InvalidArgumentError("capacity: need 10 <= min_log2_table_size <= max_log2_table_size <= 24");
   }
   if (!(steps_per_cell > 0)) return absl::InvalidArgumentError("capacity: steps_per_cell must be > 0");
+  if (!(unbounded_step_pixels > 0)) return absl::InvalidArgumentError("capacity: unbounded_step_pixels must be > 0");
   return absl::OkStatus();
 }
 
@@ -64,13 +65,13 @@ ModelOptions DeriveModelOptions(const Scene& scene, const Normalization& norm, c
         std::clamp(cap.steps_per_cell * float(finest) / (2.0f * norm.bound) * 1.0f, 128.0f, 1024.0f);
     base.march.cone_angle = 0.0f;
   } else {
-    // Contracted space: steps of one pixel footprint (at the median camera's
-    // distance to the centre) near the cameras, growing with the pixel cone
-    // (one pixel's angle, at least upstream's 1/256) beyond. Finer steps
-    // only add samples: fox_8 at 1/2.3 of this marched 2x the samples.
-    base.march.steps_per_diagonal =
-        std::clamp(cap.steps_per_cell * std::sqrt(3.0f) / footprint_px, 128.0f, 1024.0f);
-    base.march.cone_angle = std::clamp(1.0f / focal_px, 1.0f / 256.0f, 1.0f / 32.0f);
+    // Contracted space: steps of unbounded_step_pixels pixel footprints (at
+    // the median camera's distance to the centre) near the cameras, growing
+    // with the pixel cone (that many pixels' angle, at least upstream's
+    // 1/256) beyond.
+    const float px = cap.unbounded_step_pixels;
+    base.march.steps_per_diagonal = std::clamp(std::sqrt(3.0f) / (px * footprint_px), 64.0f, 1024.0f);
+    base.march.cone_angle = std::clamp(px / focal_px, 1.0f / 256.0f, 1.0f / 16.0f);
     // Upstream's occupancy threshold (0.01 opacity over its 1/1024-diagonal
     // step), not 0.01 / our coarser step: on fox_8 (500 steps) the lower
     // derived threshold (2.3) left fog marked occupied, 24.43 vs 23.08 dB and

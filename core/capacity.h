@@ -26,8 +26,13 @@ struct CapacityOptions {
   float table_factor = 0.0625f;
   int min_log2_table_size = 14;
   int max_log2_table_size = 16;
-  // March steps per finest grid cell along a ray.
+  // March steps per finest grid cell along a ray (bounded scenes).
   float steps_per_cell = 1.0f;
+  // Unbounded scenes: pixel footprints per march step, near the cameras
+  // (minimum step) and along the cone beyond. Measured on fox_8 (1500 steps):
+  // 1 -> 28.99 dB, 115 samples marched per ray; 2 -> 28.63 dB, 67 per ray;
+  // 3 (with 15 levels) -> 26.75 dB, 77 per ray (coarser steps grew fog).
+  float unbounded_step_pixels = 2.0f;
   absl::Status Validate() const;
 };
 
