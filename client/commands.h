@@ -6,12 +6,18 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
+#include "absl/status/statusor.h"
 #include "client/remote_commands.h"
 #include "nlohmann/json_fwd.hpp"
 
 namespace clnerf {
+
+struct FitOptions;  // core/fit.h
+struct FitResult;   // core/fit.h
+struct Scene;       // core/scene.h
 
 // Overrides of model capacity (0 / negative = derive from the scene).
 struct ModelArgs {
@@ -103,6 +109,21 @@ struct BenchRenderArgs {
   std::string json;
 };
 
+// `bench scenes`: trains and evaluates each dataset as `clnerf train` does
+// with its defaults, optionally with a table-size sweep around the derived
+// capacity, and writes a table (JSON, CSV, markdown) and charts to `out`.
+struct BenchScenesArgs {
+  std::vector<std::string> dirs;
+  std::string out = "bench/results/scenes";
+  int iterations = TrainArgs{}.iterations;  // `clnerf train`'s default.
+  bool capacity_sweep = false;  // Also log2 tables {derived-2 .. derived+1}, clamped to [12, 20].
+  int threads = 0;
+  int curve_every = 0;  // PSNR-vs-time curve every N steps (0 = iterations / 10).
+  int curve_views = 8;  // Held-out views per curve point.
+  int train_views = 8;  // Training views scored for the train-view PSNR.
+  bool force = false;   // Re-run configurations whose results are already in `out`.
+};
+
 struct BenchContinualArgs {
   std::string method = "clnerf";  // nt|ewc|er|meil|clnerf|clnerf-noer|ub
   std::string data;               // Dataset, scan-folder directory, or "procedural".
@@ -129,6 +150,13 @@ void SetThreads(int threads);
 // Writes `j` to `path` ("-" = stdout, "" = nowhere).
 absl::Status WriteJson(const std::string& path, const nlohmann::json& j);
 
+// `clnerf train`'s pieces, shared by the verbs that train like it: the
+// FitOptions its flags give, and FitScene with a progress bar (on stderr,
+// labelled `label`) after applying the explicit capacity overrides.
+FitOptions MakeFitOptions(const TrainArgs& args);
+absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, FitOptions fo, const ModelArgs& overrides,
+                                            const std::string& label = "train");
+
 int RunTrain(const TrainArgs& args);
 int RunBenchRender(const BenchRenderArgs& args);
 int RunEval(const EvalArgs& args);
@@ -137,6 +165,7 @@ int RunRemoteRender(const RenderArgs& args);
 int RunDemo(const DemoArgs& args);
 int RunScans(const ScansArgs& args);
 int RunBenchContinual(const BenchContinualArgs& args);
+int RunBenchScenes(const BenchScenesArgs& args);
 
 }  // namespace clnerf
 

@@ -31,22 +31,6 @@ const std::vector<View>* Split(const Scene& scene, const std::string& name) {
   return nullptr;
 }
 
-FitOptions MakeFitOptions(const TrainArgs& a) {
-  FitOptions fo;
-  fo.train.iterations = a.iterations;
-  fo.train.seed = a.seed;
-  fo.train.threads = a.threads;
-  fo.train.learning_rate = a.learning_rate;
-  fo.train.target_samples = a.target_samples;
-  fo.train.distortion_reg = a.model.distortion;
-  fo.train.random_background = a.model.random_background;
-  fo.curve_every = a.curve_every;
-  fo.curve_views = a.curve_views;
-  fo.model.network.use_embeddings = !a.model.no_embed;
-  if (a.model.levels > 0) fo.model.grid.levels = a.model.levels;
-  return fo;
-}
-
 // Applies explicit capacity overrides after derivation.
 ModelOptions ApplyOverrides(ModelOptions mo, const ModelArgs& a) {
   if (a.log2_table_size > 0) mo.grid.log2_table_size = a.log2_table_size;
@@ -68,15 +52,33 @@ nlohmann::json EvalJson(const EvalResult& r) {
           {"mean_render_ms", r.mean_render_seconds * 1e3}, {"images", per}};
 }
 
-// Trains with a progress bar; shared by train and demo.
-absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, FitOptions fo, const ModelArgs& overrides) {
+}  // namespace
+
+FitOptions MakeFitOptions(const TrainArgs& a) {
+  FitOptions fo;
+  fo.train.iterations = a.iterations;
+  fo.train.seed = a.seed;
+  fo.train.threads = a.threads;
+  fo.train.learning_rate = a.learning_rate;
+  fo.train.target_samples = a.target_samples;
+  fo.train.distortion_reg = a.model.distortion;
+  fo.train.random_background = a.model.random_background;
+  fo.curve_every = a.curve_every;
+  fo.curve_views = a.curve_views;
+  fo.model.network.use_embeddings = !a.model.no_embed;
+  if (a.model.levels > 0) fo.model.grid.levels = a.model.levels;
+  return fo;
+}
+
+absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, FitOptions fo, const ModelArgs& overrides,
+                                            const std::string& label) {
   if (overrides.log2_table_size > 0 || overrides.finest_resolution > 0 || overrides.steps_per_diagonal > 0 ||
       overrides.occupancy_resolution > 0 || overrides.cone_angle >= 0 || overrides.occupancy_threshold > 0) {
     const Normalization norm = ComputeNormalization(scene);
     fo.model = ApplyOverrides(DeriveModelOptions(scene, norm, fo.capacity, fo.model), overrides);
     fo.derive_capacity = false;
   }
-  ProgressBar bar("train", fo.train.iterations);
+  ProgressBar bar(label, fo.train.iterations);
   double rays = 0, secs = 0;
   auto result = FitScene(scene, fo, [&](const StepStats& s, const Trainer& t) {
     rays += s.rays;
@@ -88,8 +90,6 @@ absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, FitOptions fo, c
   else std::fprintf(stderr, "\n");
   return result;
 }
-
-}  // namespace
 
 void SetThreads(int threads) {
   if (threads > 0) omp_set_num_threads(threads);

@@ -191,6 +191,21 @@ int main(int argc, char** argv) {
   bcc->add_option("--threads", bc.threads, "Threads (0 = all cores)");
   bcc->add_option("--json", bc.json, "Write JSON here ('-' = stdout)");
 
+  BenchScenesArgs bsc;
+  CLI::App* bss = bench->add_subcommand(
+      "scenes", "Scene suite: train (default flags) and evaluate each dataset; table, CSV and charts");
+  bss->add_option("dirs", bsc.dirs, "Dataset directories")->required();
+  bss->add_option("--out", bsc.out, "Output directory (models, JSON, CSV, markdown, PNG charts)")
+      ->capture_default_str();
+  bss->add_option("--iters", bsc.iterations, "Training steps per run (as `train`)")->capture_default_str();
+  bss->add_flag("--capacity-sweep", bsc.capacity_sweep,
+                "Also train with log2 tables derived-2..derived+1 (PSNR vs bytes chart)");
+  bss->add_option("--threads", bsc.threads, "Threads (0 = all cores)");
+  bss->add_option("--curve-every", bsc.curve_every, "PSNR-vs-time curve every N steps (default: iters / 10)");
+  bss->add_option("--curve-views", bsc.curve_views, "Held-out views per curve point")->capture_default_str();
+  bss->add_option("--train-views", bsc.train_views, "Training views for the train-view PSNR")->capture_default_str();
+  bss->add_flag("--force", bsc.force, "Re-run configurations whose results are already in --out");
+
   CLI11_PARSE(app, argc, argv);
   // Logs go to stderr so stdout carries only results (lines and JSON).
   spdlog::set_default_logger(spdlog::stderr_color_mt("clnerf"));
@@ -204,6 +219,7 @@ int main(int argc, char** argv) {
   if (*br) return RunBenchRender(bench_render);
   if (*bs) return RunBenchServe(bench_serve);
   if (*bcc) return RunBenchContinual(bc);
+  if (*bss) return RunBenchScenes(bsc);
   if (*up) return RunUpload(upload);
   if (*w) return RunWatch(watch);
   if (*js) return RunJobs(jobs);
