@@ -27,6 +27,7 @@ struct ModelArgs {
   float steps_per_diagonal = 0;
   int occupancy_resolution = 0;
   float cone_angle = -1;           // < 0: derived.
+  float near = -1;                 // < 0: derived (model units from the camera).
   float occupancy_threshold = -1;  // < 0: derived (0.01 / min step).
   float distortion = -1;           // < 0: auto (TrainOptions::distortion_reg).
   bool random_background = false;

@@ -38,6 +38,7 @@ ModelOptions ApplyOverrides(ModelOptions mo, const ModelArgs& a) {
   if (a.steps_per_diagonal > 0) mo.march.steps_per_diagonal = a.steps_per_diagonal;
   if (a.occupancy_resolution > 0) mo.occupancy.resolution = a.occupancy_resolution;
   if (a.cone_angle >= 0) mo.march.cone_angle = a.cone_angle;
+  if (a.near >= 0) mo.march.near = a.near;
   if (a.occupancy_threshold > 0) mo.occupancy.density_threshold = a.occupancy_threshold;
   return mo;
 }
@@ -73,7 +74,8 @@ FitOptions MakeFitOptions(const TrainArgs& a) {
 absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, FitOptions fo, const ModelArgs& overrides,
                                             const std::string& label) {
   if (overrides.log2_table_size > 0 || overrides.finest_resolution > 0 || overrides.steps_per_diagonal > 0 ||
-      overrides.occupancy_resolution > 0 || overrides.cone_angle >= 0 || overrides.occupancy_threshold > 0) {
+      overrides.occupancy_resolution > 0 || overrides.cone_angle >= 0 || overrides.occupancy_threshold > 0 ||
+      overrides.near >= 0) {
     const Normalization norm = ComputeNormalization(scene);
     fo.model = ApplyOverrides(DeriveModelOptions(scene, norm, fo.capacity, fo.model), overrides);
     fo.derive_capacity = false;

@@ -21,6 +21,7 @@ int main(int argc, char** argv) {
     c->add_option("--steps-per-diagonal", m->steps_per_diagonal, "March steps across the box diagonal (default: derived)");
     c->add_option("--occupancy-res", m->occupancy_resolution, "Occupancy grid resolution (default: derived)");
     c->add_option("--cone-angle", m->cone_angle, "March cone angle (exponential steps; default: derived)");
+    c->add_option("--near", m->near, "Near plane in model units (default: derived)");
     c->add_option("--occupancy-threshold", m->occupancy_threshold,
                   "Occupancy density threshold (default: 0.01 / minimum step)");
     c->add_option("--distortion", m->distortion,
