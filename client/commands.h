@@ -89,6 +89,8 @@ struct DemoArgs {
   int size = 64;
   uint64_t seed = 0;
   int threads = 0;
+  bool thin = false;      // Thin rods (ProceduralSceneOptions::thin_structures).
+  bool backdrop = false;  // Unbounded scene (ProceduralSceneOptions::backdrop).
 };
 
 struct ScansArgs {
@@ -98,6 +100,7 @@ struct ScansArgs {
   int train_views = 50;
   int test_views = 8;
   uint64_t seed = 0;
+  bool thin = false;  // Thin rods (ProceduralSceneOptions::thin_structures).
 };
 
 struct BenchRenderArgs {

@@ -256,6 +256,8 @@ int RunDemo(const DemoArgs& a) {
   po.width = po.height = a.size;
   po.num_train_views = 60;
   po.num_test_views = 12;
+  po.thin_structures = a.thin;
+  po.backdrop = a.backdrop;
   spdlog::info("generating a procedural scene ({} train / {} test views at {}x{})", po.num_train_views,
                po.num_test_views, a.size, a.size);
   absl::StatusOr<ProceduralDataset> data = GenerateProceduralDataset(po);

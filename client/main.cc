@@ -132,6 +132,10 @@ int main(int argc, char** argv) {
   d->add_option("--size", demo.size, "Image size (pixels)")->capture_default_str();
   d->add_option("--seed", demo.seed, "Random seed")->capture_default_str();
   d->add_option("--threads", demo.threads, "Threads (0 = all cores)");
+  d->add_flag("--thin", demo.thin, "Add thin rods (about a pixel wide) to the scene");
+  d->add_flag("--backdrop", demo.backdrop,
+              "Unbounded scene: ground plane, pillars and a far backdrop, trained in contracted space "
+              "(the scene folder written is Blender format, which loads back as a bounded scene)");
 
   ScansArgs scans;
   CLI::App* sc = app.add_subcommand("scans", "Write scans of the procedural changing scene (one folder per scan, for upload)");
@@ -141,6 +145,7 @@ int main(int argc, char** argv) {
   sc->add_option("--train-views", scans.train_views, "Training views per scan")->capture_default_str();
   sc->add_option("--test-views", scans.test_views, "Held-out views per scan")->capture_default_str();
   sc->add_option("--seed", scans.seed, "Random seed")->capture_default_str();
+  sc->add_flag("--thin", scans.thin, "Add thin rods (about a pixel wide) to the scene");
 
   CLI::App* bench = app.add_subcommand("bench", "Benchmarks (print figures and JSON)");
   bench->require_subcommand(1);

@@ -18,6 +18,7 @@ int RunScans(const ScansArgs& a) {
   po.num_train_views = a.train_views;
   po.num_test_views = a.test_views;
   po.num_time_steps = a.scans;
+  po.thin_structures = a.thin;
   spdlog::info("generating {} scans of the procedural changing scene ({} train / {} test views each, {}x{})", a.scans,
                po.num_train_views, po.num_test_views, a.size, a.size);
   absl::StatusOr<ProceduralDataset> data = GenerateProceduralDataset(po);

@@ -168,13 +168,139 @@ void ApplyGeometryChange(uint64_t seed, int time_step, ProceduralWorld* world) {
   objs.push_back(RandomObject(rng, objs, *world, next_id));
 }
 
+// Thin rods (ProceduralSceneOptions::thin_structures), from their own random
+// stream and the objects present now (time step 0): poles standing on the
+// floor slab, bars lying across object tops and one arch.
+void AddThinStructures(uint64_t seed, ProceduralWorld* world) {
+  Rng rng(Mix(seed, 0x7410ull));
+  const float lim = world->floor_half_size - 0.05f;
+  auto rod = [&](const Eigen::Vector3f& center, const Eigen::Vector3f& half,
+                 const Eigen::Vector3f& color) {
+    ProceduralObject o;
+    o.shape = ProceduralObject::Shape::kBox;
+    o.center = center;
+    o.half_extent = half;
+    o.color = color;
+    o.id = 1000 + int(world->rods.size());
+    world->rods.push_back(o);
+  };
+  // Dark, saturated colours so that sub-pixel rods still show on the light
+  // floor and the white background.
+  auto color = [&] { return HsvToRgb(rng.Uniform(), rng.Uniform(0.5f, 0.9f), rng.Uniform(0.15f, 0.4f)); };
+  auto width = [&] { return rng.Uniform(0.025f, 0.04f); };
+  // Poles.
+  const int poles = 2 + rng.Below(2);
+  for (int i = 0; i < poles; ++i) {
+    const float w = width(), h = rng.Uniform(0.6f, 1.1f);
+    const Eigen::Vector3f c(rng.Uniform(-1.0f, 1.0f), rng.Uniform(-1.0f, 1.0f), world->floor_z + 0.5f * h);
+    rod(c, Eigen::Vector3f(0.5f * w, 0.5f * w, 0.5f * h), color());
+  }
+  // Bars lying across the tops of objects, along x or y.
+  const int bars = world->objects.empty() ? 0 : 1 + rng.Below(2);
+  for (int i = 0; i < bars; ++i) {
+    const ProceduralObject& obj = world->objects[rng.Below(int(world->objects.size()))];
+    const float w = width(), len = rng.Uniform(0.8f, 1.2f);
+    const int axis = rng.Below(2);
+    Eigen::Vector3f half = Eigen::Vector3f::Constant(0.5f * w);
+    half[axis] = 0.5f * len;
+    Eigen::Vector3f c = obj.center;
+    c[axis] = std::clamp(c[axis], -lim + half[axis], lim - half[axis]);
+    c.z() = obj.center.z() + obj.half_extent.z() + 0.5f * w;
+    rod(c, half, color());
+  }
+  // An arch: two posts and a lintel over them.
+  {
+    const float w = width(), span = rng.Uniform(0.6f, 1.0f), h = rng.Uniform(0.5f, 0.8f);
+    const int axis = rng.Below(2);
+    const Eigen::Vector3f col = color();
+    Eigen::Vector3f c(rng.Uniform(-0.6f, 0.6f), rng.Uniform(-0.6f, 0.6f), world->floor_z + 0.5f * h);
+    for (float side : {-0.5f, 0.5f}) {
+      Eigen::Vector3f pc = c;
+      pc[axis] += side * span;
+      rod(pc, Eigen::Vector3f(0.5f * w, 0.5f * w, 0.5f * h), col);
+    }
+    Eigen::Vector3f half = Eigen::Vector3f::Constant(0.5f * w);
+    half[axis] = 0.5f * (span + w);
+    c.z() = world->floor_z + h + 0.5f * w;
+    rod(c, half, col);
+  }
+}
+
+// The backdrop (ProceduralSceneOptions::backdrop): ground plane at the floor
+// slab's bottom, pillars outside the camera ring, and the backdrop sphere.
+void AddBackdrop(const ProceduralSceneOptions& options, ProceduralWorld* world) {
+  Rng rng(Mix(options.seed, 0xBAC4D0ull));
+  const float rc = options.camera_radius;
+  world->backdrop_radius = 5.0f * rc;
+  world->ground_z = world->floor_z - world->floor_thickness;
+  world->backdrop_phase = rng.Uniform(0.0f, 2 * kPi);
+  world->backdrop_hue = rng.Uniform();
+  constexpr int kPillars = 5;
+  const float az0 = rng.Uniform(0.0f, 2 * kPi);
+  for (int k = 0; k < kPillars; ++k) {
+    ProceduralObject o;
+    o.shape = ProceduralObject::Shape::kBox;
+    o.id = 2000 + k;
+    const float hx = rng.Uniform(0.25f, 0.45f), hy = rng.Uniform(0.25f, 0.45f);
+    const float top = rng.Uniform(1.5f, 3.5f);
+    const float footprint = std::sqrt(hx * hx + hy * hy);
+    // Nearest point at least 1 unit outside the camera ring.
+    const float dist = rng.Uniform(rc + 1.0f + footprint, 2.5f * rc - footprint);
+    const float az = az0 + 2 * kPi * (float(k) + rng.Uniform(0.15f, 0.85f)) / kPillars;
+    o.half_extent = Eigen::Vector3f(hx, hy, 0.5f * (top - world->ground_z));
+    o.center = Eigen::Vector3f(dist * std::cos(az), dist * std::sin(az), 0.5f * (top + world->ground_z));
+    o.color = RandomColor(rng);
+    world->pillars.push_back(o);
+  }
+}
+
 // --- Ray casting ---------------------------------------------------------------
 
 struct Hit {
   float t = kInf;
   Eigen::Vector3f normal = Eigen::Vector3f::Zero();
   Eigen::Vector3f albedo = Eigen::Vector3f::Zero();
+  bool emissive = false;  // The backdrop sphere: `albedo` is the radiance, unlit.
 };
+
+float SmoothStep(float e0, float e1, float x) {
+  const float t = std::clamp((x - e0) / (e1 - e0), 0.0f, 1.0f);
+  return t * t * (3.0f - 2.0f * t);
+}
+
+Eigen::Vector3f Lerp(const Eigen::Vector3f& a, const Eigen::Vector3f& b, float t) {
+  return a + t * (b - a);
+}
+
+// The backdrop's radiance in direction `u` (unit) from the origin: a sky
+// gradient (warm horizon, blue zenith) under soft lat-long stripes, 12
+// sectors in azimuth by bands of ~20 degrees in elevation, whose edges are
+// tanh-smoothed so the pattern is band-limited (learnable) but clearly
+// textured.
+Eigen::Vector3f BackdropColor(const ProceduralWorld& world, const Eigen::Vector3f& u) {
+  const float el = std::asin(std::clamp(u.z(), -1.0f, 1.0f));
+  const float az = std::atan2(u.y(), u.x());
+  const Eigen::Vector3f horizon(0.92f, 0.84f, 0.7f), zenith(0.3f, 0.5f, 0.85f);
+  const Eigen::Vector3f sky = Lerp(horizon, zenith, SmoothStep(-0.1f, 1.2f, el));
+  const float wave =
+      std::sin(6.0f * az + world.backdrop_phase) * std::sin(9.0f * el + 0.5f * world.backdrop_phase + 0.8f);
+  const float m = 0.5f + 0.5f * std::tanh(2.5f * wave);
+  const Eigen::Vector3f band = HsvToRgb(world.backdrop_hue + 0.06f * std::sin(az), 0.65f, 0.45f);
+  return Lerp(sky, band, 0.75f * m).cwiseMax(0.0f).cwiseMin(1.0f);
+}
+
+// Albedo of the ground plane at `p`: a soft checker of 1-unit cells (grass
+// and sand) fading into haze between 1.5 and 4.5 camera radii (a quarter and
+// nine tenths of the backdrop radius), so the far ground is smooth.
+Eigen::Vector3f GroundAlbedo(const ProceduralWorld& world, const Eigen::Vector3f& p) {
+  constexpr float kCell = 1.0f;
+  const float wave = std::sin(kPi * p.x() / kCell) * std::sin(kPi * p.y() / kCell);
+  const float m = 0.5f + 0.5f * std::tanh(3.0f * wave);
+  const Eigen::Vector3f grass(0.32f, 0.46f, 0.28f), sand(0.74f, 0.67f, 0.5f), haze(0.62f, 0.66f, 0.7f);
+  const float r = p.head<2>().norm();
+  const float fade = SmoothStep(0.3f * world.backdrop_radius, 0.9f * world.backdrop_radius, r);
+  return Lerp(Lerp(grass, sand, m), haze, fade);
+}
 
 // Nearest t > t_min where the ray enters the sphere (or leaves it, if the
 // origin is inside).
@@ -244,21 +370,24 @@ bool CastRay(const ProceduralWorld& world, const Eigen::Vector3f& o, const Eigen
   const ProceduralObject* best_obj = nullptr;
   Eigen::Vector3f best_n = Eigen::Vector3f::Zero();
   bool floor_hit = false;
+  bool ground_hit = false;
   float t;
   Eigen::Vector3f n;
-  for (const ProceduralObject& obj : world.objects) {
-    bool h;
-    if (obj.shape == ProceduralObject::Shape::kSphere) {
-      h = IntersectSphere(o, d, obj.center, obj.half_extent.x(), kTMin, &t, &n);
-    } else {
-      h = IntersectBox(o, d, obj.center - obj.half_extent, obj.center + obj.half_extent, kTMin,
-                       &t, &n);
-    }
-    if (h && t < best) {
-      if (any_hit) return true;
-      best = t;
-      best_obj = &obj;
-      best_n = n;
+  for (const std::vector<ProceduralObject>* list : {&world.objects, &world.rods, &world.pillars}) {
+    for (const ProceduralObject& obj : *list) {
+      bool h;
+      if (obj.shape == ProceduralObject::Shape::kSphere) {
+        h = IntersectSphere(o, d, obj.center, obj.half_extent.x(), kTMin, &t, &n);
+      } else {
+        h = IntersectBox(o, d, obj.center - obj.half_extent, obj.center + obj.half_extent, kTMin,
+                         &t, &n);
+      }
+      if (h && t < best) {
+        if (any_hit) return true;
+        best = t;
+        best_obj = &obj;
+        best_n = n;
+      }
     }
   }
   const Eigen::Vector3f flo(-world.floor_half_size, -world.floor_half_size,
@@ -271,10 +400,36 @@ bool CastRay(const ProceduralWorld& world, const Eigen::Vector3f& o, const Eigen
     best_n = n;
     floor_hit = true;
   }
+  if (world.backdrop_radius > 0) {
+    // The ground plane, a disc out to the backdrop sphere.
+    if (d.z() != 0.0f) {
+      t = (world.ground_z - o.z()) / d.z();
+      if (t > kTMin && t < best && (o + t * d).norm() < world.backdrop_radius) {
+        if (any_hit) return true;
+        best = t;
+        best_obj = nullptr;
+        best_n = Eigen::Vector3f::UnitZ();
+        floor_hit = false;
+        ground_hit = true;
+      }
+    }
+    // The emissive backdrop sphere encloses everything else and casts no
+    // shadows, so it only matters for camera rays that hit nothing else.
+    if (best == kInf && !any_hit &&
+        IntersectSphere(o, d, Eigen::Vector3f::Zero(), world.backdrop_radius, kTMin, &t, &n)) {
+      hit->t = t;
+      hit->normal = -n;
+      hit->albedo = BackdropColor(world, n);
+      hit->emissive = true;
+      return true;
+    }
+  }
   if (best == kInf) return false;
   hit->t = best;
   hit->normal = best_n;
-  if (floor_hit) {
+  if (ground_hit) {
+    hit->albedo = GroundAlbedo(world, o + best * d);
+  } else if (floor_hit) {
     if (best_n.z() > 0.5f) {
       const Eigen::Vector3f p = o + best * d;
       const int cx = int(std::floor(p.x() / world.checker_size));
@@ -292,6 +447,7 @@ bool CastRay(const ProceduralWorld& world, const Eigen::Vector3f& o, const Eigen
 
 Eigen::Vector3f Shade(const ProceduralWorld& world, const Eigen::Vector3f& o,
                       const Eigen::Vector3f& d, const Hit& hit) {
+  if (hit.emissive) return hit.albedo;
   Eigen::Vector3f n = hit.normal;
   if (n.dot(d) > 0) n = -n;
   const ProceduralLight& light = world.light;
@@ -499,6 +655,9 @@ absl::Status ProceduralSceneOptions::Validate() const {
   if (samples_per_axis < 1 || samples_per_axis > 8) {
     return absl::InvalidArgumentError("samples_per_axis must be in [1, 8]");
   }
+  if (backdrop && camera_radius > 20.0f) {
+    return absl::InvalidArgumentError("backdrop scenes need camera_radius <= 20");
+  }
   return absl::OkStatus();
 }
 
@@ -507,14 +666,16 @@ bool ProceduralWorld::Occupied(const Eigen::Vector3f& p) const {
                   Eigen::Vector3f(floor_half_size, floor_half_size, floor_z))) {
     return true;
   }
-  for (const ProceduralObject& o : objects) {
-    if (o.shape == ProceduralObject::Shape::kSphere) {
-      if ((p - o.center).squaredNorm() <= o.half_extent.x() * o.half_extent.x()) return true;
-    } else if (BoxContains(p, o.center - o.half_extent, o.center + o.half_extent)) {
-      return true;
+  for (const std::vector<ProceduralObject>* list : {&objects, &rods, &pillars}) {
+    for (const ProceduralObject& o : *list) {
+      if (o.shape == ProceduralObject::Shape::kSphere) {
+        if ((p - o.center).squaredNorm() <= o.half_extent.x() * o.half_extent.x()) return true;
+      } else if (BoxContains(p, o.center - o.half_extent, o.center + o.half_extent)) {
+        return true;
+      }
     }
   }
-  return false;
+  return backdrop_radius > 0 && p.z() <= ground_z && p.norm() < backdrop_radius;
 }
 
 ProceduralWorld ProceduralWorldAt(const ProceduralSceneOptions& options, int time_step) {
@@ -524,6 +685,8 @@ ProceduralWorld ProceduralWorldAt(const ProceduralSceneOptions& options, int tim
     world.objects.push_back(RandomObject(rng, world.objects, world, i));
   }
   world.light = LightAt(options.seed, 0);
+  if (options.thin_structures) AddThinStructures(options.seed, &world);
+  if (options.backdrop) AddBackdrop(options, &world);
   for (int s = 1; s <= time_step; ++s) {
     if (options.change_geometry) ApplyGeometryChange(options.seed, s, &world);
   }
@@ -639,6 +802,13 @@ absl::StatusOr<ProceduralDataset> GenerateProceduralDataset(
   scene.background = Eigen::Vector3f::Ones();
   scene.world_scale_hint = 1.0f / 3.0f;
   scene.world_offset_hint = Eigen::Vector3f::Zero();
+  if (options.backdrop) {
+    // Every ray hits the backdrop (alpha = 1); the content reaches far
+    // beyond any box, so the scene is a real-capture-like unbounded one.
+    scene.kind = SceneKind::kUnbounded;
+    scene.background = Eigen::Vector3f::Zero();
+    scene.world_scale_hint = 0.0f;
+  }
   scene.train.resize(n_train);
   scene.test.resize(n_test);
   ds.alpha.train.resize(n_train);

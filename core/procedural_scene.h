@@ -11,6 +11,11 @@
 // subsamples per pixel; alpha is the fraction of subsamples that hit anything,
 // and colours are composited onto a white background.
 //
+// Options add what object scenes like lego lack: `thin_structures` (rods
+// about a pixel thick) and `backdrop` (an unbounded scene with a ground plane,
+// pillars and an environment sphere far outside the NeRF-synthetic box, so
+// content lies at many depths; see ProceduralSceneOptions).
+//
 // Time steps: at each step t > 0 the world changes deterministically from the
 // world at t - 1: with `change_lighting` the light's direction, colour and
 // intensity change; with `change_geometry` one object is removed, one new
@@ -74,6 +79,27 @@ struct ProceduralSceneOptions {
   // Anti-aliasing: samples_per_axis^2 stratified jittered rays per pixel
   // (1..8; 1 means a single ray through the pixel centre).
   int samples_per_axis = 2;
+  // Unbounded scene: besides the objects on the floor slab, content at many
+  // depths all around: an extended ground plane (the slab's bottom plane,
+  // z = floor_z - floor_thickness, with a soft large checker that fades into
+  // haze with distance) out to the backdrop; a few tall box pillars standing
+  // at horizontal distances in [camera_radius + 1, 2.5 * camera_radius]
+  // (outside the camera ring); and an emissive (unlit, never in shadow)
+  // inward-facing sphere of radius 5 * camera_radius centred on the origin
+  // whose colour is a smooth lat-long pattern of the viewing direction (soft
+  // stripes over a sky gradient). Every ray hits something, so alpha = 1
+  // everywhere, and the Scene is kUnbounded with a black background and no
+  // normalisation hints (ComputeNormalization centres it on the cameras'
+  // look-at point, the origin). Needs camera_radius <= 20.
+  bool backdrop = false;
+  // Thin structures: a few axis-aligned rods with a square cross-section of
+  // 0.025-0.04 world units (about 0.6-0.9 pixel at 64 px and the default
+  // field of view and camera radius) and lengths around 1 unit: 2-3 poles
+  // standing on the floor slab, 1-2 bars lying across the tops of objects and
+  // one arch (two posts and a lintel). Placed from the seed and the objects
+  // at time step 0, and the same at every time step.
+  bool thin_structures = false;
+  // Both flags false reproduce the original scenes bit for bit.
 
   absl::Status Validate() const;
 };
@@ -106,9 +132,22 @@ struct ProceduralWorld {
   float floor_z = -0.5f;
   float floor_thickness = 0.04f;
   float checker_size = 0.3f;
+  // Thin rods (ProceduralSceneOptions::thin_structures), boxes with albedo.
+  std::vector<ProceduralObject> rods;
+  // Backdrop (ProceduralSceneOptions::backdrop): pillars (boxes standing on
+  // the ground plane), the ground plane z = ground_z (a disc of radius
+  // backdrop_radius) and the emissive backdrop sphere of that radius around
+  // the origin. backdrop_radius == 0 means no backdrop, ground or pillars.
+  std::vector<ProceduralObject> pillars;
+  float backdrop_radius = 0.0f;
+  float ground_z = 0.0f;
+  float backdrop_phase = 0.0f;  // Seeded offsets of the backdrop pattern.
+  float backdrop_hue = 0.0f;
 
-  // True if world point `p` is inside an object or the floor slab (the
-  // ground-truth occupancy, e.g. for occupancy-grid tests).
+  // True if world point `p` is inside an object, a rod, a pillar, the floor
+  // slab or (with a backdrop) below the ground plane inside the backdrop
+  // sphere: the ground-truth occupancy, e.g. for occupancy-grid tests. The
+  // backdrop sphere itself is a surface and occupies nothing.
   bool Occupied(const Eigen::Vector3f& p) const;
 };
 
@@ -151,7 +190,8 @@ struct ProceduralDataset {
 // scene.train / scene.test in time-step order (scene.val stays empty). View
 // names are "train/r_<i>" / "test/r_<i>" with i the index within the split.
 // scene.kind = kBounded, background white, world_scale_hint = 1/3,
-// world_offset_hint = 0. Returns INVALID_ARGUMENT for bad options.
+// world_offset_hint = 0; with options.backdrop, kind = kUnbounded, background
+// black, world_scale_hint = 0. Returns INVALID_ARGUMENT for bad options.
 absl::StatusOr<ProceduralDataset> GenerateProceduralDataset(const ProceduralSceneOptions& options);
 // As above, without the alpha channels.
 absl::StatusOr<Scene> GenerateProceduralScene(const ProceduralSceneOptions& options);
@@ -167,7 +207,9 @@ absl::StatusOr<Scene> GenerateProceduralScene(const ProceduralSceneOptions& opti
 // `alpha`, alpha = 1. Empty splits get a json with no frames. All views of a
 // split must share one pinhole camera model (same size, fx == fy, centred
 // principal point, no distortion) and have images; otherwise INVALID_ARGUMENT.
-// I/O failures give INTERNAL. Existing files in `dir` are overwritten.
+// I/O failures give INTERNAL. Existing files in `dir` are overwritten. The
+// format has no scene kind: a backdrop (kUnbounded) scene written here loads
+// back as a bounded object scene.
 absl::Status WriteBlenderDataset(const Scene& scene, const std::string& dir,
                                  const ViewAlphas* alpha = nullptr);
 absl::Status WriteBlenderDataset(const ProceduralDataset& dataset, const std::string& dir);

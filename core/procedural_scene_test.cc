@@ -4,6 +4,8 @@
 
 #include <OpenImageIO/imageio.h>
 
+#include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <filesystem>
@@ -384,6 +386,189 @@ TEST(ProceduralSceneTest, WriterRejectsUnsupportedCameras) {
   auto img = ReadImage((dir.path() / "train" / "r_0.png").string());
   ASSERT_TRUE(img.ok());
   EXPECT_NEAR(img->rgb[5], scene->train[0].image.rgb[5], 0.51f / 255.0f);
+}
+
+// --- Backdrop (unbounded) and thin structures ----------------------------------
+
+ProceduralSceneOptions BackdropOptions() {
+  ProceduralSceneOptions o;
+  o.width = o.height = 48;
+  o.num_train_views = 6;
+  o.num_test_views = 2;
+  o.seed = 11;
+  o.min_elevation_deg = 5.0f;
+  o.max_elevation_deg = 30.0f;
+  o.backdrop = true;
+  return o;
+}
+
+bool IsWhite(const float* p) { return p[0] == 1.0f && p[1] == 1.0f && p[2] == 1.0f; }
+
+TEST(ProceduralSceneTest, DefaultWorldHasNoBackdropOrRods) {
+  const ProceduralWorld w = ProceduralWorldAt(SmallOptions(), 0);
+  EXPECT_TRUE(w.rods.empty());
+  EXPECT_TRUE(w.pillars.empty());
+  EXPECT_EQ(w.backdrop_radius, 0.0f);
+  ProceduralSceneOptions o;
+  o.backdrop = true;
+  o.camera_radius = 30.0f;
+  EXPECT_EQ(o.Validate().code(), absl::StatusCode::kInvalidArgument);
+  o.camera_radius = 20.0f;
+  EXPECT_TRUE(o.Validate().ok());
+}
+
+TEST(ProceduralSceneTest, BackdropSceneIsUnboundedAndOpaque) {
+  const ProceduralSceneOptions o = BackdropOptions();
+  auto ds = GenerateProceduralDataset(o);
+  ASSERT_TRUE(ds.ok()) << ds.status();
+  const Scene& scene = ds->scene;
+  EXPECT_EQ(scene.kind, SceneKind::kUnbounded);
+  EXPECT_EQ(scene.background, Eigen::Vector3f::Zero());
+  EXPECT_TRUE(ValidateScene(scene).ok());
+  for (const auto* split : {&ds->alpha.train, &ds->alpha.test}) {
+    for (const std::vector<float>& alpha : *split) {
+      for (float a : alpha) ASSERT_EQ(a, 1.0f);
+    }
+  }
+  for (const View& v : scene.train) {
+    size_t white = 0;
+    for (size_t p = 0; p < v.image.num_pixels(); ++p) white += IsWhite(&v.image.rgb[p * 3]);
+    EXPECT_LT(white, v.image.num_pixels() / 100) << v.name;
+  }
+  // Contracted space centred on the cameras' look-at point, the origin.
+  const Normalization n = ComputeNormalization(scene);
+  EXPECT_FLOAT_EQ(n.bound, 2.0f);
+  EXPECT_LT(n.center.norm(), 0.05f);
+  // Pillars stand outside the camera ring, inside the backdrop sphere; the
+  // world has content from the slab out to the backdrop.
+  const ProceduralWorld w = ProceduralWorldAt(o, 0);
+  EXPECT_FLOAT_EQ(w.backdrop_radius, 5.0f * o.camera_radius);
+  ASSERT_GE(w.pillars.size(), 3u);
+  for (const ProceduralObject& p : w.pillars) {
+    const Eigen::Vector2f lo = (p.center - p.half_extent).head<2>();
+    const Eigen::Vector2f hi = (p.center + p.half_extent).head<2>();
+    const Eigen::Vector2f nearest = Eigen::Vector2f::Zero().cwiseMax(lo).cwiseMin(hi);
+    EXPECT_GE(nearest.norm(), o.camera_radius + 1.0f - 1e-4f);
+    EXPECT_LE((p.center.head<2>()).norm() + p.half_extent.head<2>().norm(), 2.5f * o.camera_radius + 1e-3f);
+    EXPECT_NEAR(p.center.z() - p.half_extent.z(), w.ground_z, 1e-5f);
+    EXPECT_GE(p.center.z() + p.half_extent.z(), 1.5f - 1e-4f);
+    EXPECT_TRUE(w.Occupied(p.center));
+  }
+  EXPECT_TRUE(w.Occupied(Eigen::Vector3f(8.0f, -6.0f, w.ground_z - 0.1f)));  // Below the ground.
+  EXPECT_FALSE(w.Occupied(Eigen::Vector3f(8.0f, -6.0f, 4.0f)));  // Above everything.
+  EXPECT_FALSE(w.Occupied(Eigen::Vector3f(30.0f, 0.0f, w.ground_z - 0.1f)));  // Beyond the backdrop.
+}
+
+TEST(ProceduralSceneTest, BackdropShowsAboveTheHorizonAndIsTextured) {
+  ProceduralSceneOptions o = BackdropOptions();
+  o.min_elevation_deg = o.max_elevation_deg = 8.0f;
+  o.num_train_views = 4;
+  ProceduralSceneOptions plain = o;
+  plain.backdrop = false;
+  const ProceduralWorld with = ProceduralWorldAt(o, 0), without = ProceduralWorldAt(plain, 0);
+  float lo = 1.0f, hi = 0.0f;
+  int sky = 0;
+  for (const Camera& cam : ProceduralCameras(o, 0, /*test_split=*/false)) {
+    const ProceduralRender a = RenderProceduralView(with, cam, o.samples_per_axis, o.seed);
+    const ProceduralRender b = RenderProceduralView(without, cam, o.samples_per_axis, o.seed);
+    // The top rows look above the horizon: the backdrop (or a pillar) there,
+    // white without it.
+    for (int py = 0; py < 3; ++py) {
+      for (int px = 0; px < o.width; ++px) {
+        Eigen::Vector3f origin, dir;
+        cam.Ray(px + 0.5f, py + 0.5f, &origin, &dir);
+        if (dir.z() < 0.02f) continue;
+        ++sky;
+        EXPECT_TRUE(IsWhite(b.image.pixel(px, py)));
+        EXPECT_FALSE(IsWhite(a.image.pixel(px, py)));
+        EXPECT_EQ(a.alpha[size_t(py) * o.width + px], 1.0f);
+        const float* p = a.image.pixel(px, py);
+        lo = std::min(lo, p[0] + p[1] + p[2]);
+        hi = std::max(hi, p[0] + p[1] + p[2]);
+      }
+    }
+    // Where the plain world covers a pixel (slab and objects), the backdrop
+    // changes nothing: it lies behind, and the pillars shadow nothing there.
+    int covered = 0;
+    for (size_t p = 0; p < b.alpha.size(); ++p) {
+      if (b.alpha[p] < 1.0f) continue;
+      ++covered;
+      for (int c = 0; c < 3; ++c) ASSERT_EQ(a.image.rgb[p * 3 + c], b.image.rgb[p * 3 + c]);
+    }
+    EXPECT_GT(covered, o.width * o.height / 10);
+  }
+  EXPECT_GT(sky, 4 * o.width);
+  EXPECT_GT(hi - lo, 0.3f) << "the backdrop should be clearly textured";
+}
+
+TEST(ProceduralSceneTest, ThinStructuresAreVisibleButSparse) {
+  ProceduralSceneOptions o = SmallOptions();
+  o.width = o.height = 64;
+  o.num_time_steps = 1;
+  o.num_train_views = 8;
+  o.thin_structures = true;
+  ProceduralSceneOptions plain = o;
+  plain.thin_structures = false;
+  const ProceduralWorld with = ProceduralWorldAt(o, 0), without = ProceduralWorldAt(plain, 0);
+  ASSERT_GE(with.rods.size(), 6u);
+  ASSERT_LE(with.rods.size(), 9u);
+  EXPECT_EQ(with.objects.size(), without.objects.size());
+  for (const ProceduralObject& r : with.rods) {
+    const Eigen::Vector3f size = 2.0f * r.half_extent;
+    std::array<float, 3> s = {size.x(), size.y(), size.z()};
+    std::sort(s.begin(), s.end());
+    EXPECT_GE(s[0], 0.025f - 1e-5f);
+    EXPECT_LE(s[1], 0.04f + 1e-5f);  // Square cross-section, thin.
+    EXPECT_GE(s[2], 0.5f);           // Long.
+    EXPECT_LE(s[2], 1.3f);
+    EXPECT_LE((r.center - r.half_extent).head<2>().minCoeff(), 1.2f);
+    EXPECT_GE((r.center - r.half_extent).head<2>().minCoeff(), -1.2f);
+    EXPECT_LE((r.center + r.half_extent).head<2>().maxCoeff(), 1.2f);
+    EXPECT_GE(r.center.z() - r.half_extent.z(), with.floor_z - 1e-5f);
+    EXPECT_TRUE(with.Occupied(r.center));
+  }
+  size_t changed = 0, total = 0;
+  for (const Camera& cam : ProceduralCameras(o, 0, /*test_split=*/false)) {
+    const Image a = RenderProceduralView(with, cam, o.samples_per_axis, o.seed).image;
+    const Image b = RenderProceduralView(without, cam, o.samples_per_axis, o.seed).image;
+    size_t view_changed = 0;
+    for (size_t p = 0; p < a.num_pixels(); ++p) {
+      float d = 0;
+      for (int c = 0; c < 3; ++c) d = std::max(d, std::abs(a.rgb[p * 3 + c] - b.rgb[p * 3 + c]));
+      view_changed += d > 0.05f;
+    }
+    EXPECT_GT(view_changed, 10u);
+    changed += view_changed;
+    total += a.num_pixels();
+  }
+  const double coverage = double(changed) / double(total);
+  RecordProperty("rod_coverage", std::to_string(coverage));
+  EXPECT_GT(coverage, 0.005);
+  EXPECT_LT(coverage, 0.08);  // Rods (and their shadows) are a small part of the image.
+}
+
+TEST(ProceduralSceneTest, BackdropAndThinScenesAreDeterministic) {
+  ProceduralSceneOptions o = BackdropOptions();
+  o.thin_structures = true;
+  o.num_time_steps = 2;
+  auto a = GenerateProceduralDataset(o);
+  auto b = GenerateProceduralDataset(o);
+  ASSERT_TRUE(a.ok() && b.ok());
+  ASSERT_EQ(a->scene.train.size(), b->scene.train.size());
+  for (size_t i = 0; i < a->scene.train.size(); ++i) {
+    EXPECT_EQ(a->scene.train[i].image.rgb, b->scene.train[i].image.rgb);
+  }
+  // Rods and pillars are fixed over time steps; another seed moves them.
+  const ProceduralWorld w0 = ProceduralWorldAt(o, 0), w1 = ProceduralWorldAt(o, 1);
+  ASSERT_EQ(w0.rods.size(), w1.rods.size());
+  for (size_t i = 0; i < w0.rods.size(); ++i) EXPECT_EQ(w0.rods[i].center, w1.rods[i].center);
+  ASSERT_EQ(w0.pillars.size(), w1.pillars.size());
+  for (size_t i = 0; i < w0.pillars.size(); ++i) EXPECT_EQ(w0.pillars[i].center, w1.pillars[i].center);
+  ProceduralSceneOptions other = o;
+  other.seed = o.seed + 1;
+  const ProceduralWorld w2 = ProceduralWorldAt(other, 0);
+  EXPECT_NE(w0.rods[0].center, w2.rods[0].center);
+  EXPECT_NE(w0.pillars[0].center, w2.pillars[0].center);
 }
 
 }  // namespace
