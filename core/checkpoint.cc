@@ -410,13 +410,12 @@ std::array<float, 256> DensityTable(float ref, float low) {
 // the visible cells (over all of them if none is visible), capped at their
 // maximum so that it quantises to kCodeLow again.
 float LowValue(const std::vector<float>& density, const std::vector<uint8_t>& codes,
-               const std::vector<uint8_t>& visible, float ref) {
+               const std::vector<uint8_t>& visible) {
   double sum_visible = 0, sum_all = 0;
   size_t n_visible = 0, n_all = 0;
   float max_low = 0;
   for (size_t i = 0; i < density.size(); ++i) {
-    // Empty cells coded "low" above the low limit do not count.
-    if (codes[i] != kCodeLow || !(density[i] < LowLimit(ref))) continue;
+    if (codes[i] != kCodeLow) continue;
     sum_all += density[i];
     ++n_all;
     max_low = std::max(max_low, density[i]);
@@ -698,14 +697,7 @@ absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const Che
     const size_t cells = occ.num_cells();
     const float ref = DensityReference(occ.threshold());
     std::vector<uint8_t> codes(cells);
-    // Only occupied cells keep their density code: an empty cell's EMA is
-    // stored as "low" (it stays empty, its bit is exact, and its next refresh
-    // max(decay * low, sigma) restores it), which keeps the deflated codes
-    // small for the millions of foggy-but-empty cells of real captures.
-    for (size_t i = 0; i < cells; ++i) {
-      codes[i] = DensityCode(occ.density()[i], ref);
-      if (!occ.OccupiedCell(uint32_t(i)) && codes[i] > kCodeLow) codes[i] = kCodeLow;
-    }
+    for (size_t i = 0; i < cells; ++i) codes[i] = DensityCode(occ.density()[i], ref);
     std::string visible((cells + 7) / 8, '\0');
     for (size_t i = 0; i < cells; ++i) {
       if (occ.visible()[i]) visible[i / 8] = char(uint8_t(visible[i / 8]) | (1u << (i % 8)));
@@ -716,7 +708,7 @@ absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const Che
     w.Put(occ.threshold());
     w.Put(uint64_t(cells));
     w.Put(ref);
-    w.Put(LowValue(occ.density(), codes, occ.visible(), ref));
+    w.Put(LowValue(occ.density(), codes, occ.visible()));
     w.String(packed);
     w.Array(occ.bits());
     packed.clear();
