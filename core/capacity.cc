@@ -45,7 +45,6 @@ ModelOptions DeriveModelOptions(const Scene& scene, const Normalization& norm, c
     std::nth_element(footprints.begin(), footprints.begin() + footprints.size() / 2, footprints.end());
     footprint = footprints[footprints.size() / 2];
   }
-  const float footprint_px = footprint;  // Model units per pixel at the centre.
   const int base_res = base.grid.base_resolution;
   const int upstream_finest = int(2048 * norm.bound);
   // Resolution over the box needed to resolve a pixel footprint near the centre.
@@ -70,7 +69,7 @@ ModelOptions DeriveModelOptions(const Scene& scene, const Normalization& norm, c
     // with the pixel cone (that many pixels' angle, at least upstream's
     // 1/256) beyond.
     const float px = cap.unbounded_step_pixels;
-    base.march.steps_per_diagonal = std::clamp(std::sqrt(3.0f) / (px * footprint_px), 64.0f, 1024.0f);
+    base.march.steps_per_diagonal = std::clamp(std::sqrt(3.0f) / (px * footprint), 64.0f, 1024.0f);
     base.march.cone_angle = std::clamp(px / focal_px, 1.0f / 256.0f, 1.0f / 16.0f);
     // Occupancy threshold: a cell is empty when one minimum step through it
     // has < 5 % opacity, at most upstream's fixed 0.01 * 1024 / sqrt(3) = 5.9.

@@ -90,16 +90,24 @@ float ContractedFarBound(const MarchOptions& opt) {
   return 1.0f / std::max(opt.min_step(), 1e-4f);
 }
 
-float ContractedStepAt(const Eigen::Vector3f& x, const Eigen::Vector3f& d, float t, const MarchOptions& opt,
-                       float* speed_out) {
-  const float speed = std::max(ContractDirectional(x, d).norm(), 1e-12f);
-  if (speed_out) *speed_out = speed;
+namespace {
+// The contracted step at x for a ray whose contracted direction J d has
+// length `speed` (contracted units per model unit).
+float ContractedStepFromSpeed(const Eigen::Vector3f& x, float speed, float t, const MarchOptions& opt) {
   // Near the cameras: the pixel cone, clamped like MarchRay's steps but in
   // contracted units. Beyond the inner cube the far field gets at most about
   // kContractedShellSteps samples across the shell.
   const float min_step = opt.min_step(), max_step = opt.max_step(kContractedBound);
   const float lo = InfNorm(x) > 1.0f ? std::max(min_step, 1.0f / kContractedShellSteps) : min_step;
   return std::clamp(t * opt.cone_angle * speed, lo, std::max(lo, max_step)) / speed;
+}
+}  // namespace
+
+float ContractedStepAt(const Eigen::Vector3f& x, const Eigen::Vector3f& d, float t, const MarchOptions& opt,
+                       float* speed_out) {
+  const float speed = std::max(ContractDirectional(x, d).norm(), 1e-12f);
+  if (speed_out) *speed_out = speed;
+  return ContractedStepFromSpeed(x, speed, t, opt);
 }
 
 float MarchRayContracted(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
@@ -110,9 +118,9 @@ float MarchRayContracted(const OccupancyGrid& grid, const Eigen::Vector3f& o, co
   for (int iter = 0; t < t_end && count < max_count && iter < kMaxMarchIterations; ++iter) {
     const Eigen::Vector3f p = o + t * d;
     const Eigen::Vector3f q = Contract(p);
-    const Eigen::Vector3f dq = ContractDirectional(p, d);
-    float speed;
-    const float dt = ContractedStepAt(p, d, t, opt, &speed);
+    const Eigen::Vector3f dq = ContractDirectional(p, d);  // Once per step: the step and the cell exit use it.
+    const float speed = std::max(dq.norm(), 1e-12f);
+    const float dt = ContractedStepFromSpeed(p, speed, t, opt);
     const int c = grid.CascadeOf(q);
     if (c < 0) break;  // Past the outer face.
     if (grid.OccupiedCell(grid.CellIndex(q, c))) {

@@ -165,7 +165,15 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         nwaves = wv + 1;
         s.samples_marched += m;
         const int nseg = int(W.seg_ray.size());
-        field.SetRays(nr, &batch.dir[3 * size_t(r0)], &batch.time_step[r0], 0, &W.fc);
+        if (wv == 0) {
+          field.SetRays(nr, &batch.dir[3 * size_t(r0)], &batch.time_step[r0], 0, &W.fc);
+        } else {  // The per-ray inputs are the same for every wave: copy, don't recompute.
+          const FieldContext& first = s.waves[0].fc;
+          W.fc.num_rays = first.num_rays;
+          W.fc.ray_step = first.ray_step;
+          W.fc.ray_sh = first.ray_sh;
+          W.fc.ray_colour_bias = first.ray_colour_bias;
+        }
         field.ResizeSamples(m, &W.fc);
         for (int k = 0; k < nseg; ++k) {
           const int i = W.seg_ray[k];

@@ -81,15 +81,13 @@ float DistortionLoss(const float* dt, const float* weights, const float* mid, co
   }
   // dw_i/dsigma_k = dt_k (T_{k+1} [i == k] - w_i [i > k]), T_{k+1} = T_k - w_k.
   double suffix = 0;  // sum_{i > k} g_i w_i
-  double T_next = 1.0;
   // Transmittances front to back.
   thread_local std::vector<double> T;
   T.resize(used + 1);
   T[0] = 1.0;
   for (int i = 0; i < used; ++i) T[i + 1] = T[i] - weights[i];
   for (int k = used - 1; k >= 0; --k) {
-    T_next = T[k + 1];
-    d_sigma[k] += scale * float(dt[k] * (g[k] * T_next - suffix));
+    d_sigma[k] += scale * float(dt[k] * (g[k] * T[k + 1] - suffix));
     suffix += double(g[k]) * weights[k];
   }
   return float(loss);
