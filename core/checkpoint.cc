@@ -365,7 +365,8 @@ bool Inflate(std::string_view in, size_t size, std::string* out) {
 }
 
 // ---------------------------------------------------------------------------
-// Occupancy density EMA quantisation (section OCCP, version 2).
+// Occupancy density EMA quantisation (section OCCP, version 2; read only:
+// version 3 stores no densities).
 //
 // Each cell's density d becomes one byte, relative to a reference density r
 // (the threshold when it is positive and finite, else 1):
@@ -384,19 +385,7 @@ constexpr int kCodeLow = 1;
 constexpr int kCodeRef = 18;  // The code of r itself.
 constexpr double kCodesPerOctave = 8.0;
 
-float DensityReference(float threshold) {
-  return threshold > 0 && std::isfinite(threshold) ? threshold : 1.0f;
-}
-
 float LowLimit(float ref) { return ref * 0.25f; }
-
-uint8_t DensityCode(float d, float ref) {
-  if (!(d > 0)) return kCodeZero;
-  if (d < LowLimit(ref)) return kCodeLow;
-  if (!std::isfinite(d)) return 255;
-  const double c = std::round(kCodesPerOctave * std::log2(double(d) / double(ref))) + kCodeRef;
-  return uint8_t(std::clamp(c, double(kCodeLow + 1), 255.0));
-}
 
 std::array<float, 256> DensityTable(float ref, float low) {
   std::array<float, 256> t{};
@@ -404,29 +393,6 @@ std::array<float, 256> DensityTable(float ref, float low) {
   t[kCodeLow] = low;
   for (int c = kCodeLow + 1; c < 256; ++c) t[c] = float(double(ref) * std::exp2((c - kCodeRef) / kCodesPerOctave));
   return t;
-}
-
-// The value restored for kCodeLow cells: the mean of their densities over
-// the visible cells (over all of them if none is visible), capped at their
-// maximum so that it quantises to kCodeLow again.
-float LowValue(const std::vector<float>& density, const std::vector<uint8_t>& codes,
-               const std::vector<uint8_t>& visible) {
-  double sum_visible = 0, sum_all = 0;
-  size_t n_visible = 0, n_all = 0;
-  float max_low = 0;
-  for (size_t i = 0; i < density.size(); ++i) {
-    if (codes[i] != kCodeLow) continue;
-    sum_all += density[i];
-    ++n_all;
-    max_low = std::max(max_low, density[i]);
-    if (visible[i]) {
-      sum_visible += density[i];
-      ++n_visible;
-    }
-  }
-  if (n_all == 0) return 0.0f;
-  const double mean = n_visible > 0 ? sum_visible / double(n_visible) : sum_all / double(n_all);
-  return std::min(float(mean), max_low);
 }
 
 // ---------------------------------------------------------------------------
@@ -567,6 +533,46 @@ absl::Status ReadOccupancy(Reader* r, uint64_t cells, const std::string& source,
   return absl::OkStatus();
 }
 
+// The density EMA a version-3 checkpoint restores: the threshold on occupied
+// cells, 0 elsewhere. Rendering reads only the bits (stored exactly); a warm
+// start's first occupancy updates (every cell during warm-up, new =
+// max(decay * old, sigma)) rebuild the EMA from the field itself.
+float RestoredDensity(bool occupied, float threshold) {
+  return occupied && threshold > 0 && std::isfinite(threshold) ? threshold : 0.0f;
+}
+
+// Version 3 occupancy payload after threshold and cell count (see
+// SerializeCheckpoint).
+absl::Status ReadOccupancyV3(Reader* r, uint64_t cells, float threshold, const std::string& source,
+                             std::vector<float>* density, std::vector<uint8_t>* visible,
+                             std::vector<uint64_t>* bits) {
+  std::string packed_visible;
+  if (!r->String(&packed_visible)) return Corrupt(source, "occupancy section is truncated");
+  const size_t nbytes = size_t((cells + 7) / 8);
+  std::string flags, occupied;
+  if (!UnpackBits(packed_visible, nbytes, &flags)) {
+    return Corrupt(source, "occupancy visibility flags do not decode to one bit per cell");
+  }
+  std::string_view rest;
+  r->Bytes(r->remaining(), &rest);
+  if (!Inflate(rest, nbytes, &occupied)) {
+    return Corrupt(source, "occupancy bits do not decode to one bit per cell");
+  }
+  if (cells % 8 != 0 && ((uint8_t(flags.back()) >> (cells % 8)) != 0 || (uint8_t(occupied.back()) >> (cells % 8)) != 0)) {
+    return Corrupt(source, "occupancy bitfields have bits set beyond the last cell");
+  }
+  density->resize(size_t(cells));
+  visible->resize(size_t(cells));
+  bits->assign(size_t((cells + 63) / 64), 0);
+  for (size_t i = 0; i < size_t(cells); ++i) {
+    const bool occ = (uint8_t(occupied[i / 8]) >> (i % 8)) & 1;
+    (*visible)[i] = (uint8_t(flags[i / 8]) >> (i % 8)) & 1;
+    (*density)[i] = RestoredDensity(occ, threshold);
+    if (occ) (*bits)[i / 64] |= uint64_t(1) << (i % 64);
+  }
+  return absl::OkStatus();
+}
+
 // Version 1 occupancy payload after threshold and cell count: float32
 // density[cells] | uint8 visible[cells] (0 or 1) | uint64 bits[(cells + 63) / 64].
 absl::Status ReadOccupancyV1(Reader* r, std::string_view payload, uint64_t cells, const std::string& source,
@@ -686,33 +692,26 @@ absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const Che
     w.EndSection(at);
   }
 
-  // Occupancy (OCCP): float32 threshold | uint64 cells | float32 reference
-  // density | float32 low value | uint64 n | n bytes: PackBits of the
-  // visibility bitfield ((cells + 7) / 8 bytes, cell i in bit i % 8 of byte
-  // i / 8) | uint64[(cells + 63) / 64] occupancy bits | zlib (deflate) of the
-  // `cells` density codes (to the end of the section; the codes vary
-  // smoothly in space, so deflate takes a trained unbounded scene's 6.3 M
-  // codes to a fraction of PackBits' size).
+  // Occupancy (OCCP, version 3): float32 threshold | uint64 cells | uint64 n |
+  // n bytes: PackBits of the visibility bitfield ((cells + 7) / 8 bytes, cell
+  // i in bit i % 8 of byte i / 8) | zlib (deflate) of the occupancy bits as
+  // (cells + 7) / 8 bytes in the same order (to the end of the section). The
+  // density EMA is not stored: see RestoredDensity.
   {
     const size_t cells = occ.num_cells();
-    const float ref = DensityReference(occ.threshold());
-    std::vector<uint8_t> codes(cells);
-    for (size_t i = 0; i < cells; ++i) codes[i] = DensityCode(occ.density()[i], ref);
-    std::string visible((cells + 7) / 8, '\0');
+    std::string visible((cells + 7) / 8, '\0'), occupied((cells + 7) / 8, '\0');
     for (size_t i = 0; i < cells; ++i) {
       if (occ.visible()[i]) visible[i / 8] = char(uint8_t(visible[i / 8]) | (1u << (i % 8)));
+      if (occ.OccupiedCell(uint32_t(i))) occupied[i / 8] = char(uint8_t(occupied[i / 8]) | (1u << (i % 8)));
     }
     std::string packed;
     PackBits(visible, &packed);
     at = w.BeginSection(kTagOccupancy);
     w.Put(occ.threshold());
     w.Put(uint64_t(cells));
-    w.Put(ref);
-    w.Put(LowValue(occ.density(), codes, occ.visible()));
     w.String(packed);
-    w.Array(occ.bits());
     packed.clear();
-    Deflate(std::string_view(reinterpret_cast<const char*>(codes.data()), codes.size()), &packed);
+    Deflate(occupied, &packed);
     w.Bytes(packed);
     w.EndSection(at);
   }
@@ -955,8 +954,9 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
                                              want_cells));
     }
     const uint64_t words = (cells + 63) / 64;
-    if (absl::Status s = version >= 2 ? ReadOccupancy(&r, cells, source, &density, &visible, &bits)
-                                      : ReadOccupancyV1(&r, *payload, cells, source, &density, &visible, &bits);
+    if (absl::Status s = version >= 3   ? ReadOccupancyV3(&r, cells, threshold, source, &density, &visible, &bits)
+                         : version == 2 ? ReadOccupancy(&r, cells, source, &density, &visible, &bits)
+                                        : ReadOccupancyV1(&r, *payload, cells, source, &density, &visible, &bits);
         !s.ok()) {
       return s;
     }

@@ -36,31 +36,28 @@
 // sections; adding a field to an options struct means adding a new section
 // (or bumping the version), never changing the payload of an existing one.
 //
-// Format version 2 (this build writes it; it also reads version 1) has the
-// sections MODL HGOP NTOP OGOP MROP PENC PGRD PMLP PEMB OCCP META XSEC*
+// Format version 3 (this build writes it; it also reads versions 1 and 2) has
+// the sections MODL HGOP NTOP OGOP MROP PENC PGRD PMLP PEMB OCCP META XSEC*
 // (version 1: no PENC, and OCCG with the raw occupancy state instead of OCCP):
 //  * parameters may be stored as IEEE binary16 (CheckpointOptions::
 //    fp16_params, recorded in section PENC); they load as float32.
-//  * the occupancy grid is stored compactly (section OCCP, see checkpoint.cc):
-//    the occupancy bits and the threshold exactly, the visibility flags as a
-//    run-length-coded bitfield, and the density EMA (which only warm-started
-//    training needs) quantised to 8 bits on a log2 scale with a step of 1/8
-//    (relative error <= 2^(1/16) - 1 = 4.4 %) relative to the threshold.
-//    Densities below a quarter of the threshold are stored as one shared
-//    value, the mean of those densities over the visible cells, so the mean
-//    that sets the next threshold is preserved. Most cells of a trained model
-//    are empty, so the run-length-coded codes take about one byte per cell
-//    at or above a quarter of the threshold: trained lego and fox files are
-//    1.04x-1.09x their parameter bytes (NgpModel::num_bytes()) instead of
-//    1.6x-2.5x. A grid with many cells near or above the threshold costs up
-//    to one byte per such cell.
-//  * version 2 also marks the contracted parameterisation of unbounded scenes
-//    (SceneKind::kUnbounded); version-1 checkpoints of unbounded scenes used
-//    the old, uncontracted one and are refused (FAILED_PRECONDITION: re-train
-//    them). Version-1 checkpoints of bounded scenes load unchanged.
+//  * the occupancy grid is stored as bits (section OCCP, see checkpoint.cc):
+//    the threshold and the occupancy bits exactly (deflated), the visibility
+//    flags as a run-length-coded bitfield. The per-cell density EMA, which
+//    only warm-started training reads, is not stored: it loads as the
+//    threshold on occupied cells and 0 elsewhere, and a warm start's first
+//    occupancy updates (every cell during warm-up) rebuild it from the field.
+//    Version 2 stored the EMA as 8-bit log codes, which cost up to a byte per
+//    cell: a trained fox_8 file was 1.38x its parameter bytes; version 3 is
+//    about 1.02x (NgpModel::num_bytes()). Version-2 files still load with
+//    their quantised EMA.
+//  * versions 2 and 3 also mark the contracted parameterisation of unbounded
+//    scenes (SceneKind::kUnbounded); version-1 checkpoints of unbounded scenes
+//    used the old, uncontracted one and are refused (FAILED_PRECONDITION:
+//    re-train them). Version-1 checkpoints of bounded scenes load unchanged.
 // A fp32 save/load round trip is bit-exact except for the density EMA, which
-// is within the quantisation described above; re-saving a loaded model
-// reproduces the file exactly.
+// is restored as described above; re-saving a loaded model reproduces the file
+// exactly.
 //
 // Errors: NOT_FOUND (missing file), INVALID_ARGUMENT (not a clnerf checkpoint:
 // bad magic), FAILED_PRECONDITION (unsupported format version, unknown
@@ -90,10 +87,10 @@
 
 namespace clnerf {
 
-// The format version this build writes, and the newest it reads. Version 2
-// also marks checkpoints whose unbounded scenes (SceneKind::kUnbounded) use
-// contracted unbounded space.
-inline constexpr uint32_t kCheckpointFormatVersion = 2;
+// The format version this build writes, and the newest it reads. Versions 2
+// and 3 also mark checkpoints whose unbounded scenes (SceneKind::kUnbounded)
+// use contracted unbounded space; version 3 stores occupancy as bits only.
+inline constexpr uint32_t kCheckpointFormatVersion = 3;
 // The oldest format version this build reads (bounded scenes only).
 inline constexpr uint32_t kOldestReadableCheckpointFormatVersion = 1;
 // The eight magic bytes at the start of every checkpoint.
