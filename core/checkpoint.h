@@ -48,9 +48,10 @@
 //    threshold on occupied cells and 0 elsewhere, and a warm start's first
 //    occupancy updates (every cell during warm-up) rebuild it from the field.
 //    Version 2 stored the EMA as 8-bit log codes, which cost up to a byte per
-//    cell: a trained fox_8 file was 1.38x its parameter bytes; version 3 is
-//    about 1.02x (NgpModel::num_bytes()). Version-2 files still load with
-//    their quantised EMA.
+//    cell: a trained fox_8 file was 1.38x its model bytes
+//    (NgpModel::num_bytes()); in version 3 it is 0.97x (lego: 0.87x), as
+//    measured by `clnerf bench scenes`. Version-2 files still load with their
+//    quantised EMA.
 //  * versions 2 and 3 also mark the contracted parameterisation of unbounded
 //    scenes (SceneKind::kUnbounded); version-1 checkpoints of unbounded scenes
 //    used the old, uncontracted one and are refused (FAILED_PRECONDITION:

@@ -24,7 +24,6 @@
 #include "core/half.h"
 #include "core/renderer.h"
 #include "gtest/gtest.h"
-#include <zlib.h>
 
 namespace clnerf {
 namespace {
