@@ -30,6 +30,9 @@ struct ModelArgs {
   float near = -1;                 // < 0: derived (model units from the camera).
   float occupancy_threshold = -1;  // < 0: derived (0.01 / min step).
   float distortion = -1;           // < 0: auto (TrainOptions::distortion_reg).
+  float near_density = -1;         // < 0: auto (TrainOptions::near_density_reg).
+  float near_density_distance = -1;  // < 0: TrainOptions' default.
+  float near_density_fade = -1;      // < 0: TrainOptions' default.
   bool random_background = false;
   bool no_embed = false;
 };

@@ -63,6 +63,9 @@ FitOptions MakeFitOptions(const TrainArgs& a) {
   fo.train.learning_rate = a.learning_rate;
   fo.train.target_samples = a.target_samples;
   fo.train.distortion_reg = a.model.distortion;
+  fo.train.near_density_reg = a.model.near_density;
+  if (a.model.near_density_distance >= 0) fo.train.near_density_distance = a.model.near_density_distance;
+  if (a.model.near_density_fade >= 0) fo.train.near_density_fade = a.model.near_density_fade;
   fo.train.random_background = a.model.random_background;
   fo.curve_every = a.curve_every;
   fo.curve_views = a.curve_views;

@@ -25,7 +25,13 @@ int main(int argc, char** argv) {
     c->add_option("--occupancy-threshold", m->occupancy_threshold,
                   "Occupancy density threshold (default: 0.01 / minimum step)");
     c->add_option("--distortion", m->distortion,
-                  "Distortion-loss weight (default: 0.002 for real captures, 0 for objects)");
+                  "Distortion-loss weight (default: 0.01 for real captures, 0 for objects)");
+    c->add_option("--near-density", m->near_density,
+                  "Occlusion-penalty weight on density near the cameras (default: 0.01 for real captures, 0 for objects)");
+    c->add_option("--near-density-distance", m->near_density_distance,
+                  "Distance from the camera, in model units, within which density is penalised (default 0.2)");
+    c->add_option("--near-density-fade", m->near_density_fade,
+                  "Fade the occlusion penalty to 0 over this fraction of training (0 = constant)");
     c->add_flag("--random-background", m->random_background,
                 "Real captures: train on random background colours");
     c->add_flag("--no-embed", m->no_embed, "Disable per-time-step embeddings");

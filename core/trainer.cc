@@ -23,6 +23,15 @@ absl::Status TrainOptions::Validate() const {
     return absl::InvalidArgumentError("train: learning_rate must be > 0 and lr_final_ratio in (0, 1]");
   }
   if (!(opacity_reg >= 0)) return absl::InvalidArgumentError("train: opacity_reg must be >= 0");
+  if (!std::isfinite(distortion_reg) || !std::isfinite(near_density_reg)) {
+    return absl::InvalidArgumentError("train: distortion_reg and near_density_reg must be finite");
+  }
+  if (!(near_density_fade >= 0) || !std::isfinite(near_density_fade)) {
+    return absl::InvalidArgumentError("train: near_density_fade must be finite and >= 0");
+  }
+  if (!(near_density_distance >= 0) || !std::isfinite(near_density_distance)) {
+    return absl::InvalidArgumentError("train: near_density_distance must be finite and >= 0");
+  }
   if (threads < 0) return absl::InvalidArgumentError("train: threads must be >= 0");
   return adam.Validate();
 }
@@ -103,6 +112,13 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
                          : model.contracted()         ? TrainOptions::kAutoDistortion
                                                       : 0.0f;
   const float inv_box = 1.0f / (2.0f * model.bound());
+  float near_reg = options_.near_density_reg >= 0 ? options_.near_density_reg
+                   : model.contracted()           ? TrainOptions::kAutoNearDensity
+                                                  : 0.0f;
+  if (options_.near_density_fade > 0 && options_.iterations > 0) {
+    near_reg *= std::max(0.0f, 1.0f - float(step_) / (options_.near_density_fade * float(options_.iterations)));
+  }
+  const float near_dist = options_.near_density_distance;
 
   const int nblocks = (nrays + kBlockRays - 1) / kBlockRays;
   // Reset every scratch, not only those of the threads that run: the OpenMP
@@ -278,6 +294,14 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         if (used == 0) continue;
         CompositeBackward(&s.gsigma[a], &s.gdt[a], rgb, &s.gw[a], used, s.t_final[i], bgr, dc, d_opacity,
                           &s.gdrgb[3 * size_t(a)], &s.gdsigma[a]);
+        if (near_reg > 0) {  // Occlusion penalty: sum of sigma * dt close to the camera.
+          for (int j = a; j < a + used; ++j) {
+            const TrainWave& W = s.waves[s.gwave[j]];
+            if (W.kt[s.gcol[j]] >= near_dist) break;  // Samples are in ray order.
+            s.loss += near_reg * inv_n * s.gsigma[j] * s.gdt[j];
+            s.gdsigma[j] += near_reg * inv_n * s.gdt[j];
+          }
+        }
         if (dist_reg > 0) {
           // Interval midpoints and widths in normalised ray distance.
           const Eigen::Vector3f o3 = origin(i), d3 = dir(i);

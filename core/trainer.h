@@ -1,6 +1,7 @@
 // Trainer: optimises a NgpModel on rays from a RaySampler with Adam, the
-// cosine learning-rate schedule, MSE + opacity-entropy loss, and periodic
-// occupancy-grid refreshes.
+// cosine learning-rate schedule, MSE + opacity-entropy loss (plus, on real
+// captures, the distortion loss and an occlusion penalty near the cameras),
+// and periodic occupancy-grid refreshes.
 //
 // One training step: sample rays -> march through the occupancy grid (first
 // sample jittered) -> hash-encode + density MLP on every marched sample ->
@@ -53,7 +54,21 @@ struct TrainOptions {
   // unbounded scenes). < 0 = auto: kAutoDistortion for unbounded scenes, 0 for
   // bounded ones.
   float distortion_reg = -1.0f;
-  static constexpr float kAutoDistortion = 2e-3f;
+  static constexpr float kAutoDistortion = 1e-2f;
+  // Occlusion penalty near the cameras (FreeNeRF): adds weight * sigma * dt
+  // for every composited sample closer than `near_density_distance` (model
+  // units) to its ray's origin. A region just in front of one camera is seen
+  // by almost no other camera, so on real captures with large textureless
+  // surfaces the field can explain each view with a "billboard" there; this
+  // makes that solution cost more than the true surface. < 0 = auto:
+  // kAutoNearDensity for unbounded scenes, 0 for bounded ones.
+  float near_density_reg = -1.0f;
+  float near_density_distance = 0.2f;
+  // > 0: the weight fades linearly to 0 over this fraction of `iterations`
+  // (the penalty steers early training away from billboards; once the
+  // surfaces exist it is no longer needed). 0: constant.
+  float near_density_fade = 0.0f;
+  static constexpr float kAutoNearDensity = 1e-2f;
   // Unbounded (real) scenes: composite each training ray onto a random
   // background colour (instant-ngp's trick), so the field cannot explain
   // dark pixels with transparency and must become opaque; this is what lets

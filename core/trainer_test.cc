@@ -182,7 +182,9 @@ struct Block {
 // samples); otherwise no ray gets near the termination threshold.
 // `contracted` uses an unbounded scene: contracted space, contracted
 // marching, and the distortion loss (on by default there).
-void CheckLossGradient(bool opaque, bool contracted = false) {
+// `near_reg` is the occlusion penalty's weight (0: off; `near_distance`
+// its reach); the test then also checks that the term changes the loss.
+void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.0f, float near_distance = 0.2f) {
   SerialEigen serial;
   NgpModel model = TinyModel(3, 2, contracted ? SceneKind::kUnbounded : SceneKind::kBounded);
   ModelParams& p = model.mutable_params();
@@ -204,6 +206,8 @@ void CheckLossGradient(bool opaque, bool contracted = false) {
   TrainOptions to;
   to.threads = 1;
   to.opacity_reg = 0.01f;  // Entropy gradient comparable to the MSE one.
+  to.near_density_reg = near_reg;
+  to.near_density_distance = near_distance;
   Trainer trainer(&model, &sampler, to);
   ASSERT_EQ(model.occupancy().num_occupied(), model.occupancy().num_cells());
 
@@ -259,6 +263,15 @@ void CheckLossGradient(bool opaque, bool contracted = false) {
   ASSERT_TRUE(std::isfinite(base));
   ASSERT_GT(base, 0.0f);
   ASSERT_LT(base, 0.01f);
+  if (near_reg > 0) {  // The penalty contributes a sizeable part of the loss.
+    TrainOptions off = to;
+    off.near_density_reg = 0.0f;
+    NoSampler sampler2;
+    Trainer without(&model, &sampler2, off);
+    Trainer::Gradients g0;
+    const float l0 = without.ComputeLossAndGradients(batch, jitter, &g0);
+    EXPECT_GT(base - l0, 0.1f * base) << "penalty " << base - l0 << " of " << base;
+  }
   const double ulp = double(std::nextafter(base, 1.0f)) - base;
   ASSERT_EQ(grads.grid.size(), p.grid.size());
   ASSERT_EQ(grads.mlp.size(), p.mlp.size());
@@ -343,6 +356,16 @@ TEST(TrainerGradientTest, ContractedSceneWithDistortionLossMatchesFiniteDifferen
 
 TEST(TrainerGradientTest, ContractedSceneWithEarlyTerminationMatchesFiniteDifferences) {
   CheckLossGradient(/*opaque=*/true, /*contracted=*/true);
+}
+
+// The occlusion penalty near the cameras (sigma * dt of samples within the
+// given distance of the ray origin), on a bounded and a contracted scene.
+TEST(TrainerGradientTest, NearDensityPenaltyMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/false, /*contracted=*/false, /*near_reg=*/0.002f, /*near_distance=*/2.0f);
+}
+
+TEST(TrainerGradientTest, ContractedSceneWithNearDensityPenaltyMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/false, /*contracted=*/true, /*near_reg=*/0.002f, /*near_distance=*/2.0f);
 }
 
 // The field evaluator's two callers compute one function: the trainer's
