@@ -56,7 +56,7 @@ struct Trainer::ThreadScratch {
   std::vector<uint8_t> ray_alive;
   // Kept samples gathered per ray across waves (gseg: ray offsets).
   std::vector<int> gseg, gwave, gcol;
-  std::vector<float> gsigma, gdt, gw, grgb, gmid, gwidth, gdrgb, gdsigma, t_final;
+  std::vector<float> gsigma, gt, gdt, gw, grgb, gmid, gwidth, gdrgb, gdsigma, t_final;
   std::vector<float> grad_mlp, grad_emb;
   std::vector<float> store_pos, store_dfeat;  // For the grid backward phase.
   double sq_err = 0, loss = 0;
@@ -65,6 +65,12 @@ struct Trainer::ThreadScratch {
 
 namespace {
 constexpr int kBlockRays = 128;
+
+// A regulariser weight where < 0 means "auto": `auto_weight` for unbounded
+// (contracted) scenes, 0 for bounded ones.
+float ResolveAutoWeight(float weight, float auto_weight, bool contracted) {
+  return weight >= 0 ? weight : contracted ? auto_weight : 0.0f;
+}
 
 template <typename V>
 bool AllFinite(const V& v) {
@@ -108,13 +114,10 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
   const float inv_n = 1.0f / float(std::max(nrays, 1));
   const float lambda = options_.opacity_reg;
   const Eigen::Vector3f bg = model.background();
-  const float dist_reg = options_.distortion_reg >= 0 ? options_.distortion_reg
-                         : model.contracted()         ? TrainOptions::kAutoDistortion
-                                                      : 0.0f;
+  const float dist_reg =
+      ResolveAutoWeight(options_.distortion_reg, TrainOptions::kAutoDistortion, model.contracted());
   const float inv_box = 1.0f / (2.0f * model.bound());
-  float near_reg = options_.near_density_reg >= 0 ? options_.near_density_reg
-                   : model.contracted()           ? TrainOptions::kAutoNearDensity
-                                                  : 0.0f;
+  float near_reg = ResolveAutoWeight(options_.near_density_reg, TrainOptions::kAutoNearDensity, model.contracted());
   if (options_.near_density_fade > 0 && options_.iterations > 0) {
     near_reg *= std::max(0.0f, 1.0f - float(step_) / (options_.near_density_fade * float(options_.iterations)));
   }
@@ -245,6 +248,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
       const int m2 = int(s.gwave.size());
       s.samples_used += m2;
       s.gsigma.resize(m2);
+      s.gt.resize(m2);
       s.gdt.resize(m2);
       s.gw.resize(m2);
       s.grgb.resize(3 * size_t(m2));
@@ -257,6 +261,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         const TrainWave& W = s.waves[s.gwave[j]];
         const int c = s.gcol[j];
         s.gsigma[j] = W.fc.sigma[c];
+        s.gt[j] = W.kt[c];
         s.gdt[j] = W.kdt[c];
         for (int k = 0; k < 3; ++k) s.grgb[3 * size_t(j) + k] = W.fc.ws.rgb(k, c);
       }
@@ -296,8 +301,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
                           &s.gdrgb[3 * size_t(a)], &s.gdsigma[a]);
         if (near_reg > 0) {  // Occlusion penalty: sum of sigma * dt close to the camera.
           for (int j = a; j < a + used; ++j) {
-            const TrainWave& W = s.waves[s.gwave[j]];
-            if (W.kt[s.gcol[j]] >= near_dist) break;  // Samples are in ray order.
+            if (s.gt[j] >= near_dist) break;  // Samples are in ray order.
             s.loss += near_reg * inv_n * s.gsigma[j] * s.gdt[j];
             s.gdsigma[j] += near_reg * inv_n * s.gdt[j];
           }
@@ -307,7 +311,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
           const Eigen::Vector3f o3 = origin(i), d3 = dir(i);
           const Eigen::Vector3f q0 = model.contracted() ? Contract(o3) : o3;
           for (int j = a; j < a + used; ++j) {
-            const float tm = s.waves[s.gwave[j]].kt[s.gcol[j]] + 0.5f * s.gdt[j];
+            const float tm = s.gt[j] + 0.5f * s.gdt[j];
             if (model.contracted()) {
               const Eigen::Vector3f x = o3 + tm * d3;
               s.gmid[j] = (Contract(x) - q0).norm() * inv_box;
