@@ -22,7 +22,15 @@ absl::StatusOr<FitResult> FitScene(const Scene& scene, const FitOptions& options
   const Normalization norm = ComputeNormalization(scene);
   FitResult result;
   ModelOptions mo = options.model;
-  if (options.derive_capacity) mo = DeriveModelOptions(scene, norm, options.capacity, mo, &result.capacity);
+  if (options.derive_capacity) {
+    mo = DeriveModelOptions(scene, norm, options.capacity, mo, &result.capacity);
+  } else {
+    // Sizes given by the caller: report them as they are (no footprint).
+    result.capacity.finest_resolution = mo.grid.finest_resolution;
+    result.capacity.log2_table_size = mo.grid.log2_table_size;
+    result.capacity.occupancy_resolution = mo.occupancy.resolution;
+    result.capacity.steps_per_diagonal = mo.march.steps_per_diagonal;
+  }
   absl::StatusOr<NgpModel> model =
       NgpModel::Create(mo, norm, scene.kind, scene.background, std::max(1, scene.num_time_steps()), options.train.seed);
   if (!model.ok()) return model.status();
