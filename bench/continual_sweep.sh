@@ -47,7 +47,10 @@ run() {  # run LABEL ITERS ARGS...
 
 for B in $BUDGETS; do
   for M in $METHODS; do
-    if [ "$M" = ub ]; then run ub "$B" --method ub; else run "$M-$INIT" "$B" --method "$M" --init "$INIT"; fi
+    if [ "$M" = ub ]; then
+      run ub "$B" --method ub  # Equal compute: tasks x B iterations.
+      run ub-per-step "$B" --method ub --ub-budget per-step  # The paper's protocol.
+    else run "$M-$INIT" "$B" --method "$M" --init "$INIT"; fi
   done
 done
 for B in $REINIT_BUDGETS; do

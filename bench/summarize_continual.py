@@ -12,15 +12,20 @@ import json
 import os
 import sys
 
-COLUMNS = ["label", "method", "init", "replay", "buffer", "embeddings", "iterations", "status", "psnr", "ssim",
-           "scan0_psnr", "first_scan_drop_db", "total_seconds", "model_bytes", "replay_bytes",
+COLUMNS = ["label", "method", "init", "replay", "buffer", "embeddings", "iterations", "ub_budget", "ub_iterations",
+           "status", "psnr", "ssim", "scan0_psnr", "first_scan_drop_db", "backward_transfer_db",
+           "mean_update_seconds", "max_update_seconds", "total_seconds", "model_bytes", "replay_bytes",
            "replay_bytes_per_camera", "replay_cache_peak_bytes", "peak_rss_bytes", "failed_step"]
 ORDER = ["ub", "clnerf", "clnerf-noer", "meil", "er", "ewc", "nt"]
 
 
 def label_of(j):
     if j["method"] == "ub":
-        return "ub" + ("" if j.get("embeddings", True) else " no-embed")
+        # Runs before the equal-compute default trained ub for one update's
+        # iterations: they have no ub_budget field.
+        budget = j.get("ub_budget", "per-step")
+        s = "ub (equal compute)" if budget == "total" else "ub (one update's budget)"
+        return s + ("" if j.get("embeddings", True) else " no-embed")
     s = f'{j["method"]} ({j["init"]}'
     if j.get("replay") == "online" and j["method"] in ("clnerf", "clnerf-noer", "meil"):
         s += ", online"
@@ -40,6 +45,7 @@ def load(d):
         r["label"] = label_of(j)
         per = j.get("psnr_per_step") or []
         r["scan0_psnr"] = per[0] if per else None
+        r["ub_budget"] = j.get("ub_budget", "per-step") if j["method"] == "ub" else None
         rows.append(r)
     key = lambda r: (ORDER.index(r["method"]) if r["method"] in ORDER else 99, r["label"], r["iterations"])
     return sorted(rows, key=key)
@@ -60,15 +66,18 @@ def main():
         w = csv.DictWriter(f, fieldnames=COLUMNS)
         w.writeheader()
         w.writerows(rows)
-    lines = ["| method | iters/step | PSNR | SSIM | scan-0 PSNR | scan-0 drop | total time | model | replay memory |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| method | iters/step | PSNR | SSIM | scan-0 PSNR | scan-0 drop | BWT | time per update | total time | model "
+             "| replay memory |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         if r["status"] != "ok":
-            lines.append(f'| {r["label"]} | {r["iterations"]} | diverged at update {r["failed_step"] + 1} | | | | | | |')
+            lines.append(f'| {r["label"]} | {r["iterations"]} | diverged at update {r["failed_step"] + 1} | | | | | | | | |')
             continue
         lines.append(
             f'| {r["label"]} | {r["iterations"]} | {fmt(r["psnr"], ".2f")} | {fmt(r["ssim"], ".4f")} | '
             f'{fmt(r["scan0_psnr"], ".2f")} | {fmt(r["first_scan_drop_db"], ".2f")} | '
+            f'{fmt(r["backward_transfer_db"], "+.2f")} | '
+            f'{fmt(r["mean_update_seconds"], ".1f") + " s" if r["mean_update_seconds"] is not None else "-"} | '
             f'{fmt(r["total_seconds"], ".0f")} s | {r["model_bytes"] / 1e6:.1f} MB | '
             f'{fmt(r["replay_bytes"] / 1e3 if r["replay_bytes"] else 0, ".1f")} kB |')
     table = "\n".join(lines)

@@ -135,7 +135,8 @@ struct BenchContinualArgs {
   std::string method = "clnerf";  // nt|ewc|er|meil|clnerf|clnerf-noer|ub
   std::string data;               // Dataset, scan-folder directory, or "procedural".
   int tasks = 0;                  // 0 = 10 for a static dataset, 5 procedural scans.
-  int iterations = 300;           // Training steps per update (and for ub).
+  int iterations = 300;           // Training steps per update.
+  std::string ub_budget = "total";  // ub: total (tasks x iterations) | per-step (iterations).
   std::string init = "warm";      // reinit|warm
   std::string replay = "offline"; // offline|online
   int buffer = 10;                // K real images (clnerf, er).
@@ -148,6 +149,19 @@ struct BenchContinualArgs {
   uint64_t seed = 0;
   int threads = 0;
   std::string json;
+};
+
+// `clnerf bench stability`: every method against every stressor.
+struct BenchStabilityArgs {
+  std::vector<std::string> methods = {"nt", "ewc", "er", "meil", "clnerf-noer", "clnerf", "ub"};
+  std::vector<std::string> stressors;  // Empty = all.
+  int scans = 3;
+  int size = 24;
+  int iterations = 60;
+  uint64_t seed = 0;
+  int threads = 0;
+  std::string json;
+  std::string markdown;  // Also write the table here.
 };
 
 // Prints "clnerf: error: <message>" to stderr and returns exit code 1.
@@ -173,6 +187,7 @@ int RunDemo(const DemoArgs& args);
 int RunScans(const ScansArgs& args);
 int RunBenchContinual(const BenchContinualArgs& args);
 int RunBenchScenes(const BenchScenesArgs& args);
+int RunBenchStability(const BenchStabilityArgs& args);
 
 }  // namespace clnerf
 

@@ -3,6 +3,7 @@
 // and memory as a human-readable line plus JSON.
 #include <sys/resource.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <optional>
@@ -10,6 +11,7 @@
 #include "absl/strings/str_format.h"
 #include "client/commands.h"
 #include "client/progress_bar.h"
+#include "core/continual_protocol.h"
 #include "core/continual_update.h"
 #include "core/evaluate.h"
 #include "core/fit.h"
@@ -81,6 +83,8 @@ absl::StatusOr<Scores> Score(const NgpModel& model, const ScanSequence& seq, int
 int RunBenchContinual(const BenchContinualArgs& a) {
   SetThreads(a.threads);
   const bool ub = a.method == "ub";
+  absl::StatusOr<UbBudget> ub_budget = ParseUbBudget(a.ub_budget);
+  if (!ub_budget.ok()) return Fail(ub_budget.status());
   UpdateOptions uo;
   if (!ub) {
     absl::StatusOr<ContinualMethod> m = ParseContinualMethod(a.method);
@@ -133,6 +137,11 @@ int RunBenchContinual(const BenchContinualArgs& a) {
                       {"threads", a.threads},
                       {"status", "ok"}};
   if (uo.method == ContinualMethod::kEWC && !ub) j["ewc_lambda"] = a.ewc_lambda;
+  const int ub_iterations = UpperBoundIterations(*ub_budget, T, a.iterations);
+  if (ub) {
+    j["ub_budget"] = UbBudgetName(*ub_budget);
+    j["ub_iterations"] = ub_iterations;
+  }
   if (a.warm_lr_scale != 1.0f) j["warm_lr_scale"] = a.warm_lr_scale;
   nlohmann::json matrix = nlohmann::json::array(), step_seconds = nlohmann::json::array();
   nlohmann::json steps = nlohmann::json::array();
@@ -144,12 +153,13 @@ int RunBenchContinual(const BenchContinualArgs& a) {
 
   if (ub) {
     // Upper bound: one training run on all scans (each view keeps its own
-    // time step), for the iterations of one update step.
+    // time step), for the sequence's total budget (or one update's).
     FitOptions fo;
     fo.train = uo.train;
+    fo.train.iterations = ub_iterations;
     fo.model = uo.model;
     const Scene all = seq.Union(T - 1);
-    ProgressBar bar(absl::StrFormat("ub %d steps", T), a.iterations);
+    ProgressBar bar(absl::StrFormat("ub %d steps", T), ub_iterations);
     const auto t0 = std::chrono::steady_clock::now();
     absl::StatusOr<FitResult> fit = FitScene(all, fo, [&](const StepStats& s, const Trainer&) {
       bar.Update(s.step, absl::StrFormat("loss %.5f | psnr %.2f", s.loss, s.psnr));
@@ -246,8 +256,27 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   j["replay_cache_peak_bytes"] = max_cache;
   j["peak_rss_bytes"] = PeakRssBytes();
   if (!ub && T > 1) j["first_scan_drop_db"] = matrix[0][0].get<double>() - f.psnr[0];
+  // Forgetting (continual methods; ub has only the final row).
+  std::string forgetting;
+  if (!ub) {
+    std::vector<std::vector<double>> r;
+    for (const auto& row : matrix) r.push_back(row.get<std::vector<double>>());
+    absl::StatusOr<ForgettingSummary> fs = SummarizeForgetting(r);
+    if (!fs.ok()) return Fail(fs.status());
+    j["final_mean_psnr_over_scans"] = fs->final_mean;
+    j["backward_transfer_db"] = fs->backward_transfer;
+    j["max_scan_drop_db"] = fs->max_drop;
+    double max_step = 0;
+    for (const auto& x : step_seconds) max_step = std::max(max_step, x.get<double>());
+    j["mean_update_seconds"] = total / std::max(T, 1);
+    j["max_update_seconds"] = max_step;
+    forgetting = absl::StrFormat(" | BWT %+.2f dB | update %.1fs mean, %.1fs max", fs->backward_transfer,
+                                 total / std::max(T, 1), max_step);
+  }
   // Only the settings that matter for this method.
-  std::string setting = ub ? "all scans at once" : a.init;
+  std::string setting =
+      ub ? absl::StrFormat("all scans at once, %d iterations (%s budget)", ub_iterations, UbBudgetName(*ub_budget))
+         : a.init;
   if (!ub && (uo.method == ContinualMethod::kCLNeRF || uo.method == ContinualMethod::kCLNeRFNoER ||
               uo.method == ContinualMethod::kMEIL)) {
     setting += ", " + a.replay + " replay";
@@ -258,10 +287,10 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   if (a.no_embed) setting += ", no-embed";
   std::printf(
       "bench continual %s (%s) on %s: %d steps x %d iters | PSNR %.2f dB, SSIM %.4f over %d "
-      "images | scan 0 %.2f dB | total %.1fs | model %.2f MB | replay memory %zu B (%.1f B/camera) | peak RSS "
+      "images | scan 0 %.2f dB%s | total %.1fs | model %.2f MB | replay memory %zu B (%.1f B/camera) | peak RSS "
       "%.0f MB\n",
-      a.method.c_str(), setting.c_str(), seq.name.c_str(), T, a.iterations, f.mean_psnr, f.mean_ssim, f.images, f.psnr[0], total,
-      final_model->num_bytes() / 1e6, replay_bytes, bytes_per_camera, PeakRssBytes() / 1e6);
+      a.method.c_str(), setting.c_str(), seq.name.c_str(), T, a.iterations, f.mean_psnr, f.mean_ssim, f.images, f.psnr[0],
+      forgetting.c_str(), total, final_model->num_bytes() / 1e6, replay_bytes, bytes_per_camera, PeakRssBytes() / 1e6);
   std::printf("%s\n", j.dump().c_str());
   if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
   return 0;

@@ -187,7 +187,10 @@ int main(int argc, char** argv) {
       ->required();
   bcc->add_option("--tasks", bc.tasks, "Tasks for a static dataset / scans for 'procedural' (0 = 10 / 5)")
       ->capture_default_str();
-  bcc->add_option("--iters", bc.iterations, "Training steps per update (ub: for its single run)")->capture_default_str();
+  bcc->add_option("--iters", bc.iterations, "Training steps per update")->capture_default_str();
+  bcc->add_option("--ub-budget", bc.ub_budget,
+                  "ub's iterations: total (tasks x --iters, equal compute) | per-step (--iters, the paper's protocol)")
+      ->capture_default_str();
   bcc->add_option("--init", bc.init, "reinit|warm: start each update from scratch or from the previous model")
       ->capture_default_str();
   bcc->add_option("--replay", bc.replay, "offline|online generative replay")->capture_default_str();
@@ -218,6 +221,22 @@ int main(int argc, char** argv) {
   bss->add_option("--train-views", bsc.train_views, "Training views for the train-view PSNR")->capture_default_str();
   bss->add_flag("--force", bsc.force, "Re-run configurations whose results are already in --out");
 
+  BenchStabilityArgs bst;
+  CLI::App* bstab = bench->add_subcommand(
+      "stability", "Stability matrix: every continual method (and ub) against every stressor, through the deployment gate");
+  bstab->add_option("--methods", bst.methods, "Methods (nt ewc er meil clnerf-noer clnerf ub)")->delimiter(',');
+  bstab->add_option("--stressors", bst.stressors,
+                    "Stressors (default all: none iters_x5 lr_x3 lr_x10 chain_20 blank_scan single_view far_cameras "
+                    "nan_gradient stale_memory)")
+      ->delimiter(',');
+  bstab->add_option("--scans", bst.scans, "Scans of the procedural sequence (chain_20: 20)")->capture_default_str();
+  bstab->add_option("--size", bst.size, "Image size of the procedural scans")->capture_default_str();
+  bstab->add_option("--iters", bst.iterations, "Training steps per update (ub: scans x this)")->capture_default_str();
+  bstab->add_option("--seed", bst.seed, "Random seed")->capture_default_str();
+  bstab->add_option("--threads", bst.threads, "Threads (0 = all cores)");
+  bstab->add_option("--json", bst.json, "Write JSON here ('-' = stdout)");
+  bstab->add_option("--markdown", bst.markdown, "Also write the markdown table here");
+
   CLI11_PARSE(app, argc, argv);
   // Logs go to stderr so stdout carries only results (lines and JSON).
   spdlog::set_default_logger(spdlog::stderr_color_mt("clnerf"));
@@ -232,6 +251,7 @@ int main(int argc, char** argv) {
   if (*bs) return RunBenchServe(bench_serve);
   if (*bcc) return RunBenchContinual(bc);
   if (*bss) return RunBenchScenes(bsc);
+  if (*bstab) return RunBenchStability(bst);
   if (*up) return RunUpload(upload);
   if (*w) return RunWatch(watch);
   if (*js) return RunJobs(jobs);

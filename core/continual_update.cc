@@ -1,5 +1,6 @@
 #include "core/continual_update.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 
@@ -74,6 +75,21 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
     if (v.camera.time_step != t) {
       return absl::InvalidArgumentError(
           absl::StrFormat("view '%s' has time step %d but the new scan is step %d", v.name, v.camera.time_step, t));
+    }
+  }
+  if (prev != nullptr) {
+    // M_{t-1} must be the memory of θ_{t-1}'s version: its cameras cover time
+    // steps 0..t-1. A memory from an older (or newer) version would silently
+    // drop (or invent) scans from the replay.
+    int max_step = -1;
+    for (uint32_t i = 0; i < prev->memory.num_cameras(); ++i) {
+      max_step = std::max(max_step, prev->memory.GetCamera(i).time_step);
+    }
+    if (max_step != t - 1) {
+      return absl::FailedPreconditionError(absl::StrFormat(
+          "the replay memory does not belong to the previous model: its cameras reach time step %d, the model has "
+          "%d time steps (a memory from another version?)",
+          max_step, t));
     }
   }
   const auto start = std::chrono::steady_clock::now();
@@ -178,6 +194,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
   cache.shrink_to_fit();
   rep.train_seconds = trainer.total_seconds();
   rep.samples = trainer.total_samples();
+  rep.skipped_batches = trainer.skipped_batches();
   if (progress) {
     UpdateProgress p;
     p.phase = UpdatePhase::kFinalizing;

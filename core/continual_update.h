@@ -90,6 +90,7 @@ struct UpdateReport {
   size_t replay_cache_bytes = 0;      // Offline label cache (released after).
   double train_seconds = 0;
   long long samples = 0;
+  int skipped_batches = 0;            // NaN/Inf batches skipped by the trainer.
 };
 
 using UpdateProgressFn = std::function<void(const UpdateProgress&)>;

@@ -61,6 +61,7 @@ absl::StatusOr<FitResult> FitScene(const Scene& scene, const FitOptions& options
   result.iterations = trainer.step();
   result.train_seconds = trainer.total_seconds();
   result.samples = trainer.total_samples();
+  result.skipped_batches = trainer.skipped_batches();
   result.samples_per_second = result.train_seconds > 0 ? result.samples / result.train_seconds : 0;
   result.composited_samples_per_second =
       result.train_seconds > 0 ? trainer.total_composited() / result.train_seconds : 0;

@@ -44,6 +44,7 @@ struct FitResult {
   double samples_per_second = 0;             // Marched samples (density MLP) per second.
   double composited_samples_per_second = 0;  // Samples through colour MLP + full backward.
   double rays_per_second = 0;
+  int skipped_batches = 0;    // NaN/Inf batches the trainer skipped.
   std::vector<CurvePoint> curve;
 };
 

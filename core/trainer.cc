@@ -10,6 +10,7 @@
 #include "core/contraction.h"
 #include "core/field.h"
 #include "core/volume_rendering.h"
+#include "spdlog/spdlog.h"
 
 namespace clnerf {
 
@@ -33,6 +34,9 @@ absl::Status TrainOptions::Validate() const {
     return absl::InvalidArgumentError("train: near_density_distance must be finite and >= 0");
   }
   if (threads < 0) return absl::InvalidArgumentError("train: threads must be >= 0");
+  if (max_bad_batches < 0 || inject_nan_gradient_at_step < 0) {
+    return absl::InvalidArgumentError("train: max_bad_batches and inject_nan_gradient_at_step must be >= 0");
+  }
   return adam.Validate();
 }
 
@@ -461,6 +465,7 @@ absl::Status Trainer::Step() {
   float loss = ForwardBackward(batch, jitter.data(), ray_bg.empty() ? nullptr : ray_bg.data(), /*track_touched=*/true);
   if (options_.ewc != nullptr) loss += ApplyEwc(/*track_touched=*/true);
   const int next = step_ + 1;
+  if (next == options_.inject_nan_gradient_at_step && !grad_mlp_.empty()) grad_mlp_[0] = NAN;
 
   const int L = int(touched_lists_.size());
   auto clear_grid_grads = [this, L]() {
@@ -487,8 +492,23 @@ absl::Status Trainer::Step() {
   }
   if (!bad.empty()) {
     clear_grid_grads();
+    // A transient bad batch (finite parameters) is skipped; a persistent one,
+    // or a non-finite parameter, is divergence.
+    if (consecutive_bad_ < options_.max_bad_batches && model.AllFinite()) {
+      ++consecutive_bad_;
+      ++skipped_batches_;
+      spdlog::warn("step {}: {}; batch skipped ({} in a row, at most {})", next, bad, consecutive_bad_,
+                   options_.max_bad_batches);
+      step_ = next;
+      last_ = StepStats{};
+      last_.step = step_;
+      last_.loss = loss;
+      last_.rays = batch.size();
+      return absl::OkStatus();
+    }
     return absl::InternalError(absl::StrFormat("training diverged at step %d: %s", next, bad));
   }
+  consecutive_bad_ = 0;
 
   const float lr = CurrentLearningRate();
   ModelParams& p = model.mutable_params();

@@ -78,6 +78,15 @@ struct TrainOptions {
   uint64_t seed = 0;
   int threads = 0;                // OpenMP threads; 0 = all cores.
   const EwcPenalty* ewc = nullptr;  // Optional EWC regulariser (not owned).
+  // Stability: a batch whose loss or gradient is NaN/Inf is skipped (nothing
+  // is applied, the iteration is spent, a warning is logged) as long as the
+  // parameters themselves are finite; the step fails with INTERNAL
+  // ("training diverged") once more than this many batches in a row were
+  // bad, or at once when a parameter is non-finite. 0: fail on the first.
+  int max_bad_batches = 3;
+  // Fault injection (tests and `clnerf bench stability`): poisons one
+  // gradient entry of this 1-based step with NaN. 0 = off.
+  int inject_nan_gradient_at_step = 0;
   absl::Status Validate() const;
 };
 
@@ -98,8 +107,10 @@ class Trainer {
   Trainer(NgpModel* model, RaySampler* sampler, const TrainOptions& options);
   ~Trainer();
 
-  // One iteration. INTERNAL ("training diverged at step N: ...") on NaN/Inf;
-  // the model keeps its last finite parameters.
+  // One iteration. A bad batch (NaN/Inf loss or gradient) is skipped up to
+  // options.max_bad_batches times in a row; beyond that, or when the
+  // parameters are non-finite, INTERNAL ("training diverged at step N: ...")
+  // and the model keeps its last finite parameters.
   absl::Status Step();
   // Runs until `options.iterations` steps were taken, `cancel` becomes true
   // (CANCELLED) or a step fails. `on_step` is called after every step.
@@ -112,6 +123,8 @@ class Trainer {
   double total_seconds() const { return total_seconds_; }
   long long total_samples() const { return total_samples_; }
   long long total_rays() const { return total_rays_; }
+  // Batches skipped because their loss or gradient was NaN/Inf.
+  int skipped_batches() const { return skipped_batches_; }
   // Samples that reached the colour MLP and the backward pass.
   long long total_composited() const { return total_composited_; }
 
@@ -138,6 +151,7 @@ class Trainer {
   Adam adam_;
   std::mt19937_64 rng_;
   int step_ = 0;
+  int consecutive_bad_ = 0, skipped_batches_ = 0;
   int batch_rays_;
   double mean_samples_per_ray_ = 0;
   double mean_used_per_ray_ = 0;  // Composited samples per ray (sizes the first march wave).

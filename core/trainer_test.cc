@@ -478,6 +478,73 @@ TEST(TrainerStepTest, NanWeightStopsAtStepOneWithoutTouchingParameters) {
   EXPECT_TRUE(model.AllFinite());
 }
 
+// A NaN injected into one gradient mid-run (finite parameters) is a bad
+// batch: it is skipped, nothing of it is applied, and training goes on. With
+// no tolerance (max_bad_batches = 0) the same step fails and leaves the
+// parameters of the step before bit-identical; a NaN in every batch fails
+// once the tolerance is spent.
+TEST(TrainerStepTest, TransientNanGradientIsSkippedPersistentOneFails) {
+  SerialEigen serial;
+  const View view = MakeView(/*gradient_image=*/true);
+  {
+    NgpModel model = TinyModel(5, /*time_steps=*/1);
+    auto sampler = ImageRaySampler::Create({&view}, model);
+    ASSERT_TRUE(sampler.ok()) << sampler.status();
+    TrainOptions to = StepOptions(1);
+    to.inject_nan_gradient_at_step = 3;
+    Trainer trainer(&model, sampler->get(), to);
+    ASSERT_TRUE(trainer.Step().ok());
+    ASSERT_TRUE(trainer.Step().ok());
+    const ModelParams before = model.params();
+    ASSERT_TRUE(trainer.Step().ok());  // The poisoned batch: skipped.
+    EXPECT_EQ(trainer.step(), 3);
+    EXPECT_EQ(trainer.skipped_batches(), 1);
+    EXPECT_TRUE(SameBits(model.params().grid, before.grid));
+    EXPECT_TRUE(SameBits(model.params().mlp, before.mlp));
+    EXPECT_TRUE(SameBits(model.params().emb, before.emb));
+    ASSERT_TRUE(trainer.Step().ok());  // The next batch trains again.
+    EXPECT_FALSE(SameBits(model.params().mlp, before.mlp));
+    EXPECT_TRUE(model.AllFinite());
+  }
+  {
+    NgpModel model = TinyModel(5, /*time_steps=*/1);
+    auto sampler = ImageRaySampler::Create({&view}, model);
+    ASSERT_TRUE(sampler.ok()) << sampler.status();
+    TrainOptions to = StepOptions(1);
+    to.inject_nan_gradient_at_step = 2;
+    to.max_bad_batches = 0;
+    Trainer trainer(&model, sampler->get(), to);
+    ASSERT_TRUE(trainer.Step().ok());
+    const ModelParams before = model.params();
+    const absl::Status s = trainer.Step();
+    EXPECT_EQ(s.code(), absl::StatusCode::kInternal);
+    EXPECT_NE(s.message().find("diverged at step 2"), std::string::npos) << s.message();
+    EXPECT_TRUE(SameBits(model.params().grid, before.grid));
+    EXPECT_TRUE(SameBits(model.params().mlp, before.mlp));
+  }
+  {
+    // Every batch bad (an infinite loss from a huge learning rate's
+    // overflow is not needed: a NaN pixel target does it).
+    View nan_view = view;
+    for (float& x : nan_view.image.rgb) x = NAN;
+    NgpModel model = TinyModel(5, /*time_steps=*/1);
+    auto sampler = ImageRaySampler::Create({&nan_view}, model);
+    ASSERT_TRUE(sampler.ok()) << sampler.status();
+    TrainOptions to = StepOptions(1);
+    to.max_bad_batches = 2;
+    Trainer trainer(&model, sampler->get(), to);
+    const ModelParams before = model.params();
+    EXPECT_TRUE(trainer.Step().ok());
+    EXPECT_TRUE(trainer.Step().ok());
+    const absl::Status s = trainer.Step();
+    EXPECT_EQ(s.code(), absl::StatusCode::kInternal);
+    EXPECT_NE(s.message().find("diverged at step 3"), std::string::npos) << s.message();
+    EXPECT_EQ(trainer.skipped_batches(), 2);
+    EXPECT_TRUE(SameBits(model.params().grid, before.grid));
+    EXPECT_TRUE(SameBits(model.params().mlp, before.mlp));
+  }
+}
+
 TEST(TrainerStepTest, FixedSeedTwoThreadsIsBitIdentical) {
   const View view = MakeView(/*gradient_image=*/true);
   auto run = [&view]() {

@@ -3,6 +3,8 @@
 #include "server/grpc_server.h"
 
 #include <atomic>
+#include <cstring>
+#include <functional>
 #include <cmath>
 #include <filesystem>
 #include <thread>
@@ -13,6 +15,7 @@
 #include "grpcpp/create_channel.h"
 #include "gtest/gtest.h"
 #include "server/server_test_util.h"
+#include "server/version_store.h"
 
 namespace clnerf {
 namespace {
@@ -413,6 +416,112 @@ TEST_F(ServerFixture, DeploymentGateRefusesAndKeepsThePreviousVersion) {
   ASSERT_TRUE(Render(scene.test[0].camera, -1, 0, &r).ok());
   EXPECT_EQ(r.version(), 1);
   EXPECT_EQ(Versions().size(), 1u);
+}
+
+// The stability matrix's stressors through the real service (see
+// core/stability.h): each stressed scan's job ends DONE or FAILED with a
+// reason; a FAILED job leaves the deployed version as it was; renders of
+// every time step stay finite; every stored version loads with finite
+// parameters. A diverging update (learning rate 1e30) must be refused, and a
+// single NaN gradient must not stop an update.
+TEST_F(ServerFixture, StressedScansNeverDeployANonFiniteModel) {
+  const std::string store = TempDir("srv_stress");
+  StartServer(TinyServerOptions(store));
+  const Scene scene = TinyScans(2);
+  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
+  enum class Expect { kEither, kDone, kFailed };
+  struct Case {
+    const char* name;
+    std::function<void(ServerOptions*)> options;
+    std::function<void(ScanUpload*)> scan;
+    Expect expect;
+  };
+  auto none_o = [](ServerOptions*) {};
+  auto none_s = [](ScanUpload*) {};
+  const std::vector<Case> cases = {
+      {"lr_1e30", [](ServerOptions* o) { o->update.train.learning_rate = 1e30f; }, none_s, Expect::kFailed},
+      {"lr_x10", [](ServerOptions* o) { o->update.train.learning_rate *= 10; }, none_s, Expect::kEither},
+      {"iters_x5", [](ServerOptions* o) { o->update.train.iterations *= 5; }, none_s, Expect::kEither},
+      {"nan_gradient", [](ServerOptions* o) { o->update.train.inject_nan_gradient_at_step = 15; }, none_s,
+       Expect::kDone},
+      {"blank_scan", none_o,
+       [](ScanUpload* u) {
+         Image grey(24, 24);
+         for (float& x : grey.rgb) x = 0.5f;
+         for (ScanFrame& f : u->frames) f.image = *EncodePng(grey);
+       },
+       Expect::kEither},
+      {"single_view", none_o,
+       [](ScanUpload* u) {
+         std::vector<ScanFrame> keep;
+         bool have_train = false;
+         for (ScanFrame& f : u->frames) {
+           if (f.test || !have_train) keep.push_back(f);
+           have_train |= !f.test;
+         }
+         u->frames = keep;
+       },
+       Expect::kEither},
+      {"far_cameras", none_o,
+       [](ScanUpload* u) {
+         for (ScanFrame& f : u->frames) f.camera.c2w.col(3) *= 5.0f;
+       },
+       Expect::kEither},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    StopServer();
+    ServerOptions o = TinyServerOptions(store);
+    c.options(&o);
+    StartServer(o);
+    const int64_t before = server_->host().deployed_version();
+    ScanUpload up = UploadOf(scene, 1);
+    c.scan(&up);
+    v1::UploadScanResponse ack;
+    ASSERT_TRUE(Upload(UploadMessages(up), &ack).ok());
+    const v1::Job j = Watch(ack.job_id());
+    ASSERT_TRUE(j.phase() == v1::JOB_PHASE_DONE || j.phase() == v1::JOB_PHASE_FAILED) << j.phase();
+    if (c.expect == Expect::kDone) {
+      EXPECT_EQ(j.phase(), v1::JOB_PHASE_DONE) << j.error();
+    }
+    if (c.expect == Expect::kFailed) {
+      EXPECT_EQ(j.phase(), v1::JOB_PHASE_FAILED);
+    }
+    const int64_t after = server_->host().deployed_version();
+    if (j.phase() == v1::JOB_PHASE_FAILED) {
+      EXPECT_FALSE(j.error().empty());
+      EXPECT_EQ(after, before);
+    } else {
+      EXPECT_EQ(after, before + 1);
+    }
+    // Every time step of the deployed model renders finite pixels.
+    absl::StatusOr<VersionInfo> info = server_->host().GetVersion(after);
+    ASSERT_TRUE(info.ok()) << info.status();
+    for (int t = 0; t < info->time_steps; ++t) {
+      grpc::ClientContext ctx;
+      v1::RenderRequest req;
+      testing_util::FillCamera(scene.test[0].camera, req.mutable_camera());
+      req.set_time_step(t);
+      req.set_format(v1::IMAGE_FORMAT_FLOAT32);
+      v1::RenderResponse r;
+      ASSERT_TRUE(stub_->Render(&ctx, req, &r).ok());
+      ASSERT_EQ(r.image().size(), size_t(r.width()) * r.height() * 3 * sizeof(float));
+      std::vector<float> px(r.image().size() / sizeof(float));
+      std::memcpy(px.data(), r.image().data(), r.image().size());
+      for (float x : px) ASSERT_TRUE(std::isfinite(x));
+    }
+  }
+  StopServer();
+  absl::StatusOr<std::unique_ptr<VersionStore>> vs = VersionStore::Open(store);
+  ASSERT_TRUE(vs.ok()) << vs.status();
+  absl::StatusOr<std::vector<VersionInfo>> all = (*vs)->List();
+  ASSERT_TRUE(all.ok());
+  EXPECT_GE(all->size(), 2u);  // The first scan plus at least nan_gradient's.
+  for (const VersionInfo& v : *all) {
+    absl::StatusOr<LoadedVersion> lv = (*vs)->Load(v.version);
+    ASSERT_TRUE(lv.ok()) << lv.status();
+    EXPECT_TRUE(lv->model.AllFinite()) << v.version;
+  }
 }
 
 TEST_F(ServerFixture, TokenGuardsMutatingCallsOnly) {

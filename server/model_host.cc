@@ -9,7 +9,7 @@
 #include "absl/strings/str_format.h"
 #include "core/continual_update.h"
 #include "core/renderer.h"
-#include "server/deployment_gate.h"
+#include "core/deployment_gate.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {

@@ -8,16 +8,6 @@
 
 namespace clnerf {
 
-absl::Status GateOptions::Validate() const {
-  if (!(min_new_psnr >= 0 && min_new_psnr < 100)) return absl::InvalidArgumentError("gate.min_new_psnr must be in [0, 100)");
-  if (!(max_replay_drop_db >= 0)) return absl::InvalidArgumentError("gate.max_replay_drop_db must be >= 0");
-  if (!(min_replay_consistency_psnr >= 0 && min_replay_consistency_psnr < 100)) {
-    return absl::InvalidArgumentError("gate.min_replay_consistency_psnr must be in [0, 100)");
-  }
-  if (validation_views < 1) return absl::InvalidArgumentError("gate.validation_views must be >= 1");
-  return absl::OkStatus();
-}
-
 UpdateOptions ServerOptions::DefaultUpdateOptions() {
   UpdateOptions u;
   u.method = ContinualMethod::kCLNeRF;

@@ -20,24 +20,9 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "core/continual_update.h"
+#include "core/deployment_gate.h"
 
 namespace clnerf {
-
-// The deployment gate: a trained θ_t is published only if all checks pass.
-struct GateOptions {
-  // Minimum PSNR (dB) of θ_t on the new scan's held-out test frames (on up to
-  // `validation_views` of its training frames when the upload has none).
-  float min_new_psnr = 15.0f;
-  // Past views: the largest PSNR drop (dB) of θ_t against θ_{t-1} allowed on
-  // the buffered real images of earlier scans.
-  float max_replay_drop_db = 2.0f;
-  // Past views without a real image: minimum PSNR of θ_t against θ_{t-1}'s
-  // own render (generative-replay consistency).
-  float min_replay_consistency_psnr = 18.0f;
-  // Views rendered per check (evenly spaced), to bound validation time.
-  int validation_views = 8;
-  absl::Status Validate() const;
-};
 
 struct ServerOptions {
   std::string listen = "0.0.0.0:50051";  // host:port; port 0 picks a free one.
@@ -61,7 +46,7 @@ struct ServerOptions {
   double shutdown_grace_seconds = 20;   // In-flight RPCs get this long on shutdown.
 
   UpdateOptions update = DefaultUpdateOptions();
-  GateOptions gate;
+  GateOptions gate;  // The deployment gate (core/deployment_gate.h).
 
   // CLNeRF with warm start, offline replay, 300 iterations per update
   // (a lego_100 task in ~35 s on 2 cores; see README).

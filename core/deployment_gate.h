@@ -13,9 +13,12 @@
 //  4. on other past views (cameras only), θ_t's render matches θ_{t-1}'s to
 //     at least min_replay_consistency_psnr.
 //
+// The server runs it before every publish; `clnerf bench stability` runs it
+// after every update to decide what would have been deployed.
+//
 // Thread-safety: a pure function of const inputs.
-#ifndef CLNERF_SERVER_DEPLOYMENT_GATE_H_
-#define CLNERF_SERVER_DEPLOYMENT_GATE_H_
+#ifndef CLNERF_CORE_DEPLOYMENT_GATE_H_
+#define CLNERF_CORE_DEPLOYMENT_GATE_H_
 
 #include <map>
 #include <string>
@@ -24,9 +27,25 @@
 #include "core/ngp_model.h"
 #include "core/replay_memory.h"
 #include "core/scene.h"
-#include "server/server_options.h"
 
 namespace clnerf {
+
+// Thresholds of the gate (defaults suit the server's updates; the server's
+// config file can override each).
+struct GateOptions {
+  // Minimum PSNR (dB) of θ_t on the new scan's held-out test frames (on up to
+  // `validation_views` of its training frames when the upload has none).
+  float min_new_psnr = 15.0f;
+  // Past views: the largest PSNR drop (dB) of θ_t against θ_{t-1} allowed on
+  // the buffered real images of earlier scans.
+  float max_replay_drop_db = 2.0f;
+  // Past views without a real image: minimum PSNR of θ_t against θ_{t-1}'s
+  // own render (generative-replay consistency).
+  float min_replay_consistency_psnr = 18.0f;
+  // Views rendered per check (evenly spaced), to bound validation time.
+  int validation_views = 8;
+  absl::Status Validate() const;
+};
 
 struct GateReport {
   absl::Status status;  // OK = publish; FAILED_PRECONDITION with the reason otherwise.
@@ -40,4 +59,4 @@ GateReport RunDeploymentGate(const NgpModel& next, const Scene& scan, const NgpM
 
 }  // namespace clnerf
 
-#endif  // CLNERF_SERVER_DEPLOYMENT_GATE_H_
+#endif  // CLNERF_CORE_DEPLOYMENT_GATE_H_
