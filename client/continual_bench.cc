@@ -101,6 +101,7 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   uo.prioritized_buffer = a.prioritized;
   uo.ewc_lambda = a.ewc_lambda;
   uo.warm_lr_scale = a.warm_lr_scale;
+  uo.new_scan_share = a.new_share;
   uo.train.iterations = a.iterations;
   uo.train.seed = a.seed;
   uo.train.threads = a.threads;
@@ -143,6 +144,7 @@ int RunBenchContinual(const BenchContinualArgs& a) {
     j["ub_iterations"] = ub_iterations;
   }
   if (a.warm_lr_scale != 1.0f) j["warm_lr_scale"] = a.warm_lr_scale;
+  if (a.new_share > 0) j["new_scan_share"] = a.new_share;
   nlohmann::json matrix = nlohmann::json::array(), step_seconds = nlohmann::json::array();
   nlohmann::json steps = nlohmann::json::array();
   double total = 0, eval_seconds = 0;

@@ -200,6 +200,9 @@ int main(int argc, char** argv) {
   bcc->add_option("--ewc-lambda", bc.ewc_lambda, "EWC strength")->capture_default_str();
   bcc->add_option("--warm-lr-scale", bc.warm_lr_scale, "Learning-rate factor for warm-started updates")
       ->capture_default_str();
+  bcc->add_option("--new-share", bc.new_share,
+                  "clnerf/clnerf-noer/er: fraction of each batch from the new scan (0 = uniform over all views)")
+      ->capture_default_str();
   bcc->add_option("--downscale", bc.downscale, "Shrink images by this factor")->capture_default_str();
   bcc->add_option("--procedural-size", bc.procedural_size, "Image size of the procedural scans")->capture_default_str();
   bcc->add_option("--seed", bc.seed, "Random seed")->capture_default_str();

@@ -7,8 +7,8 @@
 namespace clnerf {
 
 ContinualRaySampler::ContinualRaySampler(std::vector<SamplerView> views, const NgpModel& model,
-                                         const NgpModel* frozen, float meil_new_fraction)
-    : views_(std::move(views)), frozen_(frozen), meil_new_fraction_(meil_new_fraction) {
+                                         const NgpModel* frozen, float meil_new_fraction, float new_share)
+    : views_(std::move(views)), frozen_(frozen), meil_new_fraction_(meil_new_fraction), new_share_(new_share) {
   for (size_t v = 0; v < views_.size(); ++v) {
     model_cameras_.push_back(model.ToModelCamera(views_[v].camera));
     std::vector<uint32_t> valid;
@@ -19,6 +19,7 @@ ContinualRaySampler::ContinualRaySampler(std::vector<SamplerView> views, const N
     }
     valid_.push_back(std::move(valid));
     (views_[v].replay ? replay_views_ : new_views_).push_back(int(v));
+    (views_[v].past ? past_views_ : current_views_).push_back(int(v));
   }
 }
 
@@ -44,13 +45,16 @@ void ContinualRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
   out->Resize(n);
   std::vector<int> online;
   const bool meil = meil_new_fraction_ > 0 && !replay_views_.empty() && !new_views_.empty();
-  const int n_new = meil ? int(std::lround(n * meil_new_fraction_)) : n;
+  const bool shared = !meil && new_share_ > 0 && !past_views_.empty() && !current_views_.empty();
+  const int n_new = meil ? int(std::lround(n * meil_new_fraction_)) : shared ? int(std::lround(n * new_share_)) : n;
   // MEIL-NeRF's replay weight rises from 0 to 1 with progress r.
   const float meil_weight = 0.5f * (std::cos(float(M_PI) * (1.0f + progress_)) + 1.0f);
   std::mt19937_64& r = *rng;
   for (int i = 0; i < n; ++i) {
     int v;
-    if (!meil) {
+    if (shared) {
+      v = i < n_new ? current_views_[r() % current_views_.size()] : past_views_[r() % past_views_.size()];
+    } else if (!meil) {
       v = int(r() % views_.size());
     } else if (i < n_new) {
       v = new_views_[r() % new_views_.size()];

@@ -24,14 +24,18 @@ struct SamplerView {
   const Image* image = nullptr;  // GT or cached replay label; null = online replay.
   const Mask* mask = nullptr;
   bool replay = false;           // Generative replay (label from θ_{t-1}).
+  bool past = false;             // From an earlier scan (buffered image or replay).
 };
 
 class ContinualRaySampler : public RaySampler {
  public:
   // `model` defines model space; `frozen` renders online replay labels (may
   // be null if no view needs it). meil_new_fraction <= 0 means uniform.
+  // Uniform mode with new_share > 0: that fraction of each batch comes from
+  // the new scan's views (uniform among them), the rest uniformly from past
+  // views; new_share <= 0 is uniform over all views (the paper).
   ContinualRaySampler(std::vector<SamplerView> views, const NgpModel& model, const NgpModel* frozen,
-                      float meil_new_fraction);
+                      float meil_new_fraction, float new_share = 0.0f);
   void Sample(int n, std::mt19937_64* rng, RayBatch* out) override;
   std::vector<Camera> Cameras() const override { return model_cameras_; }
   void SetProgress(float progress) override { progress_ = progress; }
@@ -42,9 +46,11 @@ class ContinualRaySampler : public RaySampler {
   std::vector<SamplerView> views_;
   std::vector<Camera> model_cameras_;
   std::vector<std::vector<uint32_t>> valid_;
-  std::vector<int> new_views_, replay_views_;
+  std::vector<int> new_views_, replay_views_;  // By `replay` (MEIL).
+  std::vector<int> current_views_, past_views_;  // By `past` (new_share).
   const NgpModel* frozen_;
   float meil_new_fraction_;
+  float new_share_;
   float progress_ = 0;
 };
 

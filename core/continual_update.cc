@@ -52,6 +52,7 @@ absl::Status UpdateOptions::Validate() const {
   if (buffer_size < 0) return absl::InvalidArgumentError("buffer size must be >= 0");
   if (!(ewc_lambda >= 0) || ewc_batches < 1) return absl::InvalidArgumentError("bad EWC options");
   if (!(warm_lr_scale > 0 && warm_lr_scale <= 1)) return absl::InvalidArgumentError("warm_lr_scale must be in (0, 1]");
+  if (!(new_scan_share >= 0 && new_scan_share < 1)) return absl::InvalidArgumentError("new_scan_share must be in [0, 1)");
   if (!(meil_new_fraction > 0 && meil_new_fraction < 1)) {
     return absl::InvalidArgumentError("meil_new_fraction must be in (0, 1)");
   }
@@ -129,7 +130,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
     const ReplayMemory& mem = prev->memory;
     if (use_buffer) {
       for (const BufferedImage& b : mem.buffer()) {
-        views.push_back({mem.GetCamera(b.camera), &b.image, b.mask.empty() ? nullptr : &b.mask, false});
+        views.push_back({mem.GetCamera(b.camera), &b.image, b.mask.empty() ? nullptr : &b.mask, false, true});
         ++rep.buffer_views;
       }
     }
@@ -160,15 +161,16 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
             progress(p);
           }
         }
-        for (size_t k = 0; k < gr.size(); ++k) views.push_back({mem.GetCamera(gr[k]), &cache[k], nullptr, true});
+        for (size_t k = 0; k < gr.size(); ++k) views.push_back({mem.GetCamera(gr[k]), &cache[k], nullptr, true, true});
       } else {
-        for (uint32_t i : gr) views.push_back({mem.GetCamera(i), nullptr, nullptr, true});
+        for (uint32_t i : gr) views.push_back({mem.GetCamera(i), nullptr, nullptr, true, true});
       }
       rep.replay_prepare_seconds = Since(t0);
     }
   }
   const float meil = method == ContinualMethod::kMEIL ? options.meil_new_fraction : 0.0f;
-  ContinualRaySampler sampler(std::move(views), *model, prev != nullptr ? prev->model.get() : nullptr, meil);
+  ContinualRaySampler sampler(std::move(views), *model, prev != nullptr ? prev->model.get() : nullptr, meil,
+                              method == ContinualMethod::kMEIL ? 0.0f : options.new_scan_share);
 
   TrainOptions to = options.train;
   to.seed = seed;

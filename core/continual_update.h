@@ -55,6 +55,11 @@ struct UpdateOptions {
   float ewc_lambda = 1e5f;              // Paper's value.
   int ewc_batches = 16;                 // Batches for the Fisher estimate.
   float meil_new_fraction = 2.0f / 3.0f;
+  // Uniform-sampling methods (clnerf, clnerf-noer, er): the fraction of each
+  // batch's rays drawn from the new scan (the rest uniformly from past views).
+  // 0 = uniform over every view revealed so far (the paper), where the new
+  // scan of step t gets only 1/(t+1) of the rays.
+  float new_scan_share = 0.0f;
   // Warm start fine-tunes θ_{t-1}: its learning rate is train.learning_rate
   // times this factor (the first step and re-init use the full rate).
   float warm_lr_scale = 1.0f;

@@ -153,6 +153,38 @@ TEST(ContinualUpdateTest, ReplayLabelsAreThePreviousModelsRenders) {
   }
 }
 
+// new_share: that fraction of a batch comes from the new scan's views, the
+// rest from past views; 0 is uniform over all views.
+TEST(ContinualUpdateTest, NewScanShareSplitsTheBatch) {
+  const ScanSequence seq = TinySequence(1, 16, 8);
+  absl::StatusOr<ContinualState> s0 =
+      ContinualUpdate(seq.ScanScene(0), nullptr, TinyOptions(ContinualMethod::kCLNeRF, 5), nullptr, nullptr, nullptr);
+  ASSERT_TRUE(s0.ok()) << s0.status();
+  // One current view (time step 1 marks it) and seven past views.
+  std::vector<SamplerView> views;
+  for (int k = 0; k < 8; ++k) {
+    const View& v = seq.scans[0].train[k];
+    SamplerView sv{v.camera, &v.image, nullptr, false, k > 0};
+    sv.camera.time_step = k == 0 ? 1 : 0;
+    views.push_back(sv);
+  }
+  auto current_fraction = [&](float share) {
+    ContinualRaySampler sampler(views, *s0->model, nullptr, 0.0f, share);
+    std::mt19937_64 rng(3);
+    RayBatch b;
+    sampler.Sample(4000, &rng, &b);
+    int cur = 0;
+    for (int i = 0; i < b.size(); ++i) cur += b.time_step[i] == 1;
+    return double(cur) / b.size();
+  };
+  EXPECT_NEAR(current_fraction(0.5f), 0.5, 1e-3);    // Exactly round(n * share) rays.
+  EXPECT_NEAR(current_fraction(0.25f), 0.25, 1e-3);
+  EXPECT_NEAR(current_fraction(0.0f), 1.0 / 8, 0.02);  // Uniform: 1 view in 8.
+  UpdateOptions bad = TinyOptions(ContinualMethod::kCLNeRF, 5);
+  bad.new_scan_share = 1.0f;
+  EXPECT_FALSE(bad.Validate().ok());
+}
+
 TEST(ContinualUpdateTest, TimeStepsRouteToTheirEmbeddingRows) {
   const ScanSequence seq = TinySequence(1, 16, 8);
   absl::StatusOr<ContinualState> s0 =
