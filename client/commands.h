@@ -145,6 +145,7 @@ struct BenchContinualArgs {
   float ewc_lambda = 1e5f;
   float warm_lr_scale = 1.0f;     // Learning-rate factor for warm-started updates.
   float new_share = 0.0f;         // Fraction of rays from the new scan (0 = uniform).
+  bool copy_embedding = false;    // New time step's embeddings start as the last step's.
   float downscale = 1.0f;
   int procedural_size = 64;       // Image size of the procedural scans.
   uint64_t seed = 0;

@@ -102,6 +102,7 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   uo.ewc_lambda = a.ewc_lambda;
   uo.warm_lr_scale = a.warm_lr_scale;
   uo.new_scan_share = a.new_share;
+  uo.copy_embedding = a.copy_embedding;
   uo.train.iterations = a.iterations;
   uo.train.seed = a.seed;
   uo.train.threads = a.threads;
@@ -145,6 +146,7 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   }
   if (a.warm_lr_scale != 1.0f) j["warm_lr_scale"] = a.warm_lr_scale;
   if (a.new_share > 0) j["new_scan_share"] = a.new_share;
+  if (a.copy_embedding) j["copy_embedding"] = true;
   nlohmann::json matrix = nlohmann::json::array(), step_seconds = nlohmann::json::array();
   nlohmann::json steps = nlohmann::json::array();
   double total = 0, eval_seconds = 0;

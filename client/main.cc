@@ -203,6 +203,8 @@ int main(int argc, char** argv) {
   bcc->add_option("--new-share", bc.new_share,
                   "clnerf/clnerf-noer/er: fraction of each batch from the new scan (0 = uniform over all views)")
       ->capture_default_str();
+  bcc->add_flag("--copy-embedding", bc.copy_embedding,
+                "Warm start: the new time step's embeddings start as a copy of the last step's");
   bcc->add_option("--downscale", bc.downscale, "Shrink images by this factor")->capture_default_str();
   bcc->add_option("--procedural-size", bc.procedural_size, "Image size of the procedural scans")->capture_default_str();
   bcc->add_option("--seed", bc.seed, "Random seed")->capture_default_str();

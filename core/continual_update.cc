@@ -110,7 +110,11 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
     model = std::make_unique<NgpModel>(std::move(*m));
   } else if (options.init == InitMode::kWarm) {
     model = std::make_unique<NgpModel>(*prev->model);  // Copy: θ_{t-1} stays untouched.
-    model->AddTimeStep(seed);
+    if (options.copy_embedding) {
+      model->AddTimeStepCopyingLast();
+    } else {
+      model->AddTimeStep(seed);
+    }
   } else {
     const NgpModel& p = *prev->model;
     absl::StatusOr<NgpModel> m = NgpModel::Create(p.options(), p.normalization(), p.kind(), p.background(), t + 1, seed);

@@ -60,6 +60,9 @@ struct UpdateOptions {
   // 0 = uniform over every view revealed so far (the paper), where the new
   // scan of step t gets only 1/(t+1) of the rays.
   float new_scan_share = 0.0f;
+  // Warm start: the new time step's embeddings start as a copy of the last
+  // step's (true) or from random values like a fresh model's (false).
+  bool copy_embedding = false;
   // Warm start fine-tunes θ_{t-1}: its learning rate is train.learning_rate
   // times this factor (the first step and re-init use the full rate).
   float warm_lr_scale = 1.0f;

@@ -208,6 +208,15 @@ TEST(ContinualUpdateTest, TimeStepsRouteToTheirEmbeddingRows) {
     ASSERT_EQ(c.rgb.size(), a.rgb.size());
     for (size_t i = 0; i < a.rgb.size(); ++i) ASSERT_NEAR(c.rgb[i], a.rgb[i], 1e-6f) << "value " << i;
   }
+  {
+    // AddTimeStepCopyingLast appends a copy of the last row.
+    NgpModel copied = *s0->model;
+    copied.AddTimeStepCopyingLast();
+    ASSERT_EQ(copied.num_time_steps(), 2);
+    const std::vector<float>& e = copied.params().emb;
+    ASSERT_EQ(e.size(), size_t(2 * row));
+    EXPECT_TRUE(std::equal(e.begin(), e.begin() + row, e.begin() + row));
+  }
   // Training rays of step 1 only produce gradients in row 1.
   std::vector<const View*> vs;
   std::vector<View> views = seq.scans[0].train;

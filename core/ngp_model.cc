@@ -77,6 +77,18 @@ void NgpModel::AddTimeStep(uint64_t seed) {
   ++num_time_steps_;
 }
 
+void NgpModel::AddTimeStepCopyingLast() {
+  const size_t row = size_t(network_.embedding_row_size());
+  if (num_time_steps_ < 1 || params_.emb.size() < row) {
+    AddTimeStep(0);
+    return;
+  }
+  const size_t start = params_.emb.size() - row;
+  params_.emb.reserve(params_.emb.size() + row);
+  for (size_t i = 0; i < row; ++i) params_.emb.push_back(params_.emb[start + i]);
+  ++num_time_steps_;
+}
+
 size_t NgpModel::num_params() const { return params_.grid.size() + params_.mlp.size() + params_.emb.size(); }
 
 size_t NgpModel::num_bytes() const {

@@ -61,6 +61,9 @@ class NgpModel {
 
   // Appends one embedding row (for a new time step) initialised from `seed`.
   void AddTimeStep(uint64_t seed);
+  // Appends one embedding row that copies the last time step's row (a warm
+  // start for a new scan of the same place). Needs num_time_steps() >= 1.
+  void AddTimeStepCopyingLast();
   // Resets all weights, embeddings and the occupancy grid (re-init).
   void Reinitialize(uint64_t seed);
 
