@@ -158,8 +158,9 @@ struct BenchStabilityArgs {
   std::vector<std::string> methods = {"nt", "ewc", "er", "meil", "clnerf-noer", "clnerf", "ub"};
   std::vector<std::string> stressors;  // Empty = all.
   int scans = 3;
-  int size = 24;
-  int iterations = 60;
+  int size = 32;
+  int iterations = 100;
+  int batch_samples = 1 << 15;
   uint64_t seed = 0;
   int threads = 0;
   std::string json;

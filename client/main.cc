@@ -237,6 +237,8 @@ int main(int argc, char** argv) {
   bstab->add_option("--scans", bst.scans, "Scans of the procedural sequence (chain_20: 20)")->capture_default_str();
   bstab->add_option("--size", bst.size, "Image size of the procedural scans")->capture_default_str();
   bstab->add_option("--iters", bst.iterations, "Training steps per update (ub: scans x this)")->capture_default_str();
+  bstab->add_option("--batch-samples", bst.batch_samples, "Samples per training batch (rays adapt)")
+      ->capture_default_str();
   bstab->add_option("--seed", bst.seed, "Random seed")->capture_default_str();
   bstab->add_option("--threads", bst.threads, "Threads (0 = all cores)");
   bstab->add_option("--json", bst.json, "Write JSON here ('-' = stdout)");

@@ -21,6 +21,7 @@ int RunBenchStability(const BenchStabilityArgs& a) {
   o.scans = a.scans;
   o.image_size = a.size;
   o.iterations = a.iterations;
+  o.batch_samples = a.batch_samples;
   o.seed = a.seed;
   o.threads = a.threads;
   if (absl::Status s = o.Validate(); !s.ok()) return Fail(s);
@@ -59,6 +60,7 @@ int RunBenchStability(const BenchStabilityArgs& a) {
                        {"summary", summary},
                        {"stressed_deployed", c->stressed_deployed},
                        {"psnr", c->psnr},
+                       {"refused_psnr", c->refused_psnr},
                        {"scored_scans", c->scored_scans},
                        {"updates", c->updates},
                        {"failed", c->failed},

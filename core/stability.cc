@@ -167,18 +167,19 @@ absl::StatusOr<StabilityCell> RunUpperBound(StabilityCell cell, const ScanSequen
   }
   cell.skipped_batches = fit->skipped_batches;
   const GateReport gate = RunDeploymentGate(*fit->model, all, nullptr, nullptr, o.gate, o.threads);
+  std::vector<std::pair<int, int>> deployed;
+  for (int t = 0; t < seq.size(); ++t) deployed.push_back({t, t});
+  absl::StatusOr<std::pair<double, int>> sc = Score(*fit->model, seq, deployed, o.threads);
+  if (!sc.ok()) return sc.status();
   if (!gate.status.ok()) {
     cell.refused = 1;
     cell.reason = std::string(gate.status.message());
+    cell.refused_psnr = sc->first;
     cell.seconds = Since(t0);
     return cell;
   }
   cell.stressed_deployed = cell.has_model = true;
   cell.deployed_always_finite = fit->model->AllFinite();
-  std::vector<std::pair<int, int>> deployed;
-  for (int t = 0; t < seq.size(); ++t) deployed.push_back({t, t});
-  absl::StatusOr<std::pair<double, int>> sc = Score(*fit->model, seq, deployed, o.threads);
-  if (!sc.ok()) return sc.status();
   cell.psnr = sc->first;
   cell.scored_scans = sc->second;
   cell.seconds = Since(t0);
@@ -235,7 +236,7 @@ std::string StabilityCell::Summary() const {
   } else if (failed > 0) {
     s = "failed -> refused";
   } else {
-    s = "refused (gate)";
+    s = absl::StrFormat("refused by gate (%.2f)", refused_psnr);
   }
   const int others = failed + refused - (stressed_deployed ? 0 : 1);
   if (others > 0) s += absl::StrFormat(" (%d refused)", others);
@@ -309,6 +310,13 @@ absl::StatusOr<StabilityCell> RunStabilityCell(const std::string& method, Stress
       if (!gate.status.ok()) {
         ++cell.refused;
         why = std::string(gate.status.message());
+        if (stressed) {
+          std::vector<std::pair<int, int>> would = held;
+          would.push_back({t, step});
+          absl::StatusOr<std::pair<double, int>> sc = Score(*next->model, *seq, would, o.threads);
+          if (!sc.ok()) return sc.status();
+          cell.refused_psnr = sc->first;
+        }
       } else {
         if (!next->model->AllFinite()) cell.deployed_always_finite = false;
         before = std::move(deployed);

@@ -61,12 +61,12 @@ absl::StatusOr<Stressor> ParseStressor(const std::string& name);
 struct StabilityOptions {
   int scans = 3;            // Scans of the procedural sequence (chain_20: chain_scans).
   int chain_scans = 20;     // Scans for chain_20.
-  int image_size = 24;      // Square images of the procedural scans.
+  int image_size = 32;      // Square images of the procedural scans.
   int train_views = 12;     // Per scan.
   int test_views = 4;       // Per scan.
-  int iterations = 60;      // Per update (ub: scans x this, as `bench continual`).
+  int iterations = 100;     // Per update (ub: scans x this, as `bench continual`).
   int buffer = 10;          // K for clnerf / er.
-  int batch_samples = 1 << 17;  // TrainOptions::target_samples (rays adapt); tests use fewer.
+  int batch_samples = 1 << 15;  // TrainOptions::target_samples (rays adapt); small scans need few.
   uint64_t seed = 0;
   int threads = 0;          // 0 = all cores.
   GateOptions gate;         // The server's defaults.
@@ -87,12 +87,15 @@ struct StabilityCell {
   int skipped_batches = 0;    // Training batches skipped as NaN/Inf (see TrainOptions::max_bad_batches).
   bool has_model = false;     // Something is deployed at the end.
   double psnr = 0;            // Mean test PSNR of the deployed model over the scans it holds.
+  // The stressed update's own model when the gate refused it: its mean test
+  // PSNR over the scans it would have held (what the gate kept from users).
+  double refused_psnr = 0;
   int scored_scans = 0;
   bool deployed_always_finite = true;   // Invariant.
   bool previous_always_intact = true;   // Invariant: θ_{t-1} and M_{t-1} bit-identical after each update.
   double seconds = 0;
-  // "31.20", "diverged -> refused", "refused (gate)", "n/a"; chains with
-  // refusals add " (k refused)".
+  // "31.20", "diverged -> refused", "refused by gate (18.20)", "n/a";
+  // chains with refusals add " (k refused)".
   std::string Summary() const;
 };
 
