@@ -46,6 +46,13 @@ def load(d):
         per = j.get("psnr_per_step") or []
         r["scan0_psnr"] = per[0] if per else None
         r["ub_budget"] = j.get("ub_budget", "per-step") if j["method"] == "ub" else None
+        m = j.get("psnr_matrix") or []
+        if j["method"] != "ub" and r["backward_transfer_db"] is None and len(m) > 1 and j.get("status") == "ok":
+            # Runs from before the field existed: the same formula on their matrix.
+            T = len(m)
+            r["backward_transfer_db"] = sum(m[T - 1][k] - m[k][k] for k in range(T - 1)) / (T - 1)
+        if j["method"] != "ub" and r["mean_update_seconds"] is None and j.get("total_seconds") and m:
+            r["mean_update_seconds"] = j["total_seconds"] / len(m)
         rows.append(r)
     key = lambda r: (ORDER.index(r["method"]) if r["method"] in ORDER else 99, r["label"], r["iterations"])
     return sorted(rows, key=key)
