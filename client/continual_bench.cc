@@ -272,10 +272,11 @@ int RunBenchContinual(const BenchContinualArgs& a) {
     j["max_scan_drop_db"] = fs->max_drop;
     double max_step = 0;
     for (const auto& x : step_seconds) max_step = std::max(max_step, x.get<double>());
-    j["mean_update_seconds"] = total / std::max(T, 1);
+    const double mean_step = total / std::max(T, 1);
+    j["mean_update_seconds"] = mean_step;
     j["max_update_seconds"] = max_step;
-    forgetting = absl::StrFormat(" | BWT %+.2f dB | update %.1fs mean, %.1fs max", fs->backward_transfer,
-                                 total / std::max(T, 1), max_step);
+    forgetting = absl::StrFormat(" | BWT %+.2f dB | update %.1fs mean, %.1fs max", fs->backward_transfer, mean_step,
+                                 max_step);
   }
   // Only the settings that matter for this method.
   std::string setting =

@@ -83,9 +83,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
     // steps 0..t-1. A memory from an older (or newer) version would silently
     // drop (or invent) scans from the replay.
     int max_step = -1;
-    for (uint32_t i = 0; i < prev->memory.num_cameras(); ++i) {
-      max_step = std::max(max_step, prev->memory.GetCamera(i).time_step);
-    }
+    for (const CameraRecord& c : prev->memory.cameras()) max_step = std::max(max_step, int(c.time_step));
     if (max_step != t - 1) {
       return absl::FailedPreconditionError(absl::StrFormat(
           "the replay memory does not belong to the previous model: its cameras reach time step %d, the model has "

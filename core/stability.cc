@@ -140,9 +140,8 @@ absl::StatusOr<std::pair<double, int>> Score(const NgpModel& model, const ScanSe
   eo.render.threads = threads;
   absl::StatusOr<EvalResult> r = EvaluateViews(model, views, eo);
   if (!r.ok()) return r.status();
-  double sum = 0;
-  for (const ViewScore& v : r->views) sum += v.psnr;
-  return std::make_pair(sum / r->views.size(), int(deployed.size()));
+  return std::make_pair(r->psnr, int(deployed.size()));  // Mean over the views.
+
 }
 
 absl::StatusOr<StabilityCell> RunUpperBound(StabilityCell cell, const ScanSequence& seq, const StabilityOptions& o) {
