@@ -78,6 +78,12 @@ absl::Status ValidateCamera(const Camera& camera, float tolerance) {
         absl::StrFormat("focal length must be positive (fx=%g, fy=%g)", in.fx, in.fy));
   }
   if (!camera.c2w.allFinite()) return absl::InvalidArgumentError("pose contains NaN/Inf");
+  const float far = camera.c2w.col(3).cwiseAbs().maxCoeff();
+  if (far > kMaxCameraCoordinate) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "camera position %g is beyond +-%g: float32 poses cannot resolve a scene there; recentre the poses",
+        far, kMaxCameraCoordinate));
+  }
   const Eigen::Matrix3f r = camera.c2w.leftCols<3>();
   const float orth_err = (r.transpose() * r - Eigen::Matrix3f::Identity()).cwiseAbs().maxCoeff();
   if (orth_err > tolerance) {

@@ -46,9 +46,15 @@ struct Camera {
   Eigen::Vector3f position() const { return c2w.col(3); }
 };
 
-// Checks that intrinsics are positive/finite and that the rotation is a proper
-// rigid rotation (orthonormal, det +1) within `tolerance`. Returns
-// INVALID_ARGUMENT naming the problem otherwise.
+// Largest |coordinate| of a camera position. Beyond it float32 spacing
+// exceeds 1 unit, so no scene can be resolved (GPS/ECEF-sized coordinates
+// must be recentred first), and ray marching cannot advance.
+inline constexpr float kMaxCameraCoordinate = 1e7f;
+
+// Checks that intrinsics are positive/finite, that the rotation is a proper
+// rigid rotation (orthonormal, det +1) within `tolerance` and that the
+// position is within kMaxCameraCoordinate. Returns INVALID_ARGUMENT naming
+// the problem otherwise.
 absl::Status ValidateCamera(const Camera& camera, float tolerance = 1e-3f);
 
 // Applies OpenCV radial-tangential distortion to normalised coordinates.

@@ -486,13 +486,21 @@ absl::Status ReadParams(std::string_view payload, uint32_t tag, size_t count, bo
   Reader r(payload);
   if (!fp16) {
     r.Array(count, out);
-    return absl::OkStatus();
+  } else {
+    out->resize(count);
+    for (float& x : *out) {
+      uint16_t h = 0;
+      r.Get(&h);
+      x = HalfToFloat(h);
+    }
   }
-  out->resize(count);
-  for (float& x : *out) {
-    uint16_t h = 0;
-    r.Get(&h);
-    x = HalfToFloat(h);
+  // A checksum only proves the bytes are the ones written; a writer (or a
+  // forger who recomputed the CRC) may still have stored NaN/Inf.
+  for (size_t i = 0; i < out->size(); ++i) {
+    if (!std::isfinite((*out)[i])) {
+      return Corrupt(source, absl::StrFormat("section '%s' holds a non-finite parameter (%g at index %d)",
+                                             TagName(tag), (*out)[i], i));
+    }
   }
   return absl::OkStatus();
 }
@@ -602,13 +610,18 @@ const std::string* CheckpointExtras::FindSection(std::string_view name) const {
 absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const CheckpointExtras& extras,
                                                 const CheckpointOptions& options) {
   if (absl::Status s = CheckModelConsistent(model); !s.ok()) return s;
-  if (options.fp16_params) {
-    for (const auto& [name, block] : {std::pair<const char*, const std::vector<float>*>{"grid", &model.params().grid},
-                                      {"mlp", &model.params().mlp},
-                                      {"embedding", &model.params().emb}}) {
-      for (size_t i = 0; i < block->size(); ++i) {
-        const float x = (*block)[i];
-        if (std::isfinite(x) && std::isinf(HalfToFloat(FloatToHalf(x)))) {
+  // Loading refuses non-finite parameters, so never write them.
+  for (const auto& [name, block] : {std::pair<const char*, const std::vector<float>*>{"grid", &model.params().grid},
+                                    {"mlp", &model.params().mlp},
+                                    {"embedding", &model.params().emb}}) {
+    for (size_t i = 0; i < block->size(); ++i) {
+      const float x = (*block)[i];
+      if (!std::isfinite(x)) {
+        return absl::FailedPreconditionError(
+            absl::StrFormat("cannot checkpoint model: %s parameter %d is %g (non-finite)", name, i, x));
+      }
+      if (options.fp16_params) {
+        if (std::isinf(HalfToFloat(FloatToHalf(x)))) {
           return absl::FailedPreconditionError(absl::StrFormat(
               "cannot checkpoint model with fp16 parameters: %s parameter %d is %g, beyond the binary16 range "
               "(+-%g); save it as float32",
@@ -903,6 +916,14 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
   }
   if (!(norm.bound > 0 && norm.bound <= kMaxBound) || !(norm.scale > 0) || !std::isfinite(norm.scale)) {
     return Corrupt(source, absl::StrFormat("invalid normalisation (scale %g, bound %g)", norm.scale, norm.bound));
+  }
+  if (!norm.center.allFinite() || norm.center.cwiseAbs().maxCoeff() > kMaxCameraCoordinate) {
+    return Corrupt(source, absl::StrFormat("invalid scene centre (%g, %g, %g)", norm.center.x(), norm.center.y(),
+                                           norm.center.z()));
+  }
+  if (!background.allFinite() || background.minCoeff() < 0.0f || background.maxCoeff() > 1.0f) {
+    return Corrupt(source, absl::StrFormat("invalid background colour (%g, %g, %g)", background.x(), background.y(),
+                                           background.z()));
   }
   const HashGrid grid(options.grid);
   const Network network(options.network, grid.output_dim());

@@ -365,16 +365,34 @@ TEST(CheckpointTest, RoundTripUnboundedSceneWithCascades) {
   ExpectRoundTrip(model);
 }
 
-TEST(CheckpointTest, RoundTripPreservesSpecialFloatBits) {
+TEST(CheckpointTest, RoundTripPreservesSpecialFiniteBits) {
   NgpModel model = MakeModel(TinyOptions(), 1, 19);
   std::vector<float>& grid = model.mutable_params().grid;
-  const uint32_t nan_payload = 0x7fa12345u;  // A signalling NaN with a payload.
-  std::memcpy(&grid[0], &nan_payload, 4);
   grid[1] = -0.0f;
-  grid[2] = std::numeric_limits<float>::infinity();
   grid[3] = std::numeric_limits<float>::denorm_min();
-  model.mutable_params().mlp[5] = -std::numeric_limits<float>::quiet_NaN();
+  grid[4] = -std::numeric_limits<float>::max();
   ExpectRoundTrip(model);
+}
+
+TEST(CheckpointTest, NonFiniteParametersAreNeitherWrittenNorRead) {
+  NgpModel model = MakeModel(TinyOptions(), 1, 19);
+  const std::string good = Serialize(model);
+  for (float bad : {std::numeric_limits<float>::quiet_NaN(), std::numeric_limits<float>::infinity()}) {
+    NgpModel m = MakeModel(TinyOptions(), 1, 19);
+    m.mutable_params().mlp[5] = bad;
+    absl::StatusOr<std::string> bytes = SerializeCheckpoint(m);
+    ASSERT_FALSE(bytes.ok());
+    EXPECT_EQ(bytes.status().code(), absl::StatusCode::kFailedPrecondition) << bytes.status();
+    EXPECT_NE(bytes.status().message().find("mlp parameter 5"), std::string::npos) << bytes.status();
+  }
+  // A file whose CRC is consistent but whose parameters are NaN (a forger or
+  // a buggy writer): DATA_LOSS, never a model that renders NaN.
+  std::vector<Section> sections = SplitSections(good);
+  StoreLE<float>(&Find(&sections, "PMLP")->payload, 8, std::numeric_limits<float>::quiet_NaN());
+  absl::StatusOr<LoadedCheckpoint> loaded = DeserializeCheckpoint(BuildFile(sections), "crafted");
+  ASSERT_FALSE(loaded.ok());
+  EXPECT_EQ(loaded.status().code(), absl::StatusCode::kDataLoss) << loaded.status();
+  EXPECT_NE(loaded.status().message().find("non-finite parameter"), std::string::npos) << loaded.status();
 }
 
 TEST(CheckpointTest, ExtrasRoundTrip) {
@@ -594,6 +612,21 @@ TEST(CheckpointTest, InconsistentContentIsRejected) {
       {"infinite bound",
        [](std::vector<Section>* s) {
          StoreLE<float>(&Find(s, "MODL")->payload, 20, std::numeric_limits<float>::infinity());
+       }},
+      {"NaN scene centre",
+       [](std::vector<Section>* s) {
+         StoreLE<float>(&Find(s, "MODL")->payload, 4, std::numeric_limits<float>::quiet_NaN());
+       }},
+      {"scene centre at 3e38",
+       [](std::vector<Section>* s) { StoreLE<float>(&Find(s, "MODL")->payload, 8, 3e38f); }},
+      {"NaN background",
+       [](std::vector<Section>* s) {
+         StoreLE<float>(&Find(s, "MODL")->payload, 24, std::numeric_limits<float>::quiet_NaN());
+       }},
+      {"background above 1", [](std::vector<Section>* s) { StoreLE<float>(&Find(s, "MODL")->payload, 28, 7.0f); }},
+      {"infinite embedding",
+       [](std::vector<Section>* s) {
+         StoreLE<float>(&Find(s, "PEMB")->payload, 0, std::numeric_limits<float>::infinity());
        }},
       {"larger bound (more cascades)",
        [](std::vector<Section>* s) { StoreLE<float>(&Find(s, "MODL")->payload, 20, 4.0f); }},
@@ -967,13 +1000,11 @@ TEST(CheckpointTest, Fp16RefusesParametersBeyondItsRange) {
   CheckpointOptions half;
   half.fp16_params = true;
   model.mutable_params().mlp[3] = 65519.0f;  // Rounds to 65504.
-  model.mutable_params().grid[2] = std::numeric_limits<float>::infinity();  // Stays infinite.
   absl::StatusOr<std::string> ok = SerializeCheckpoint(model, {}, half);
   ASSERT_TRUE(ok.ok()) << ok.status();
   absl::StatusOr<LoadedCheckpoint> loaded = DeserializeCheckpoint(*ok);
   ASSERT_TRUE(loaded.ok()) << loaded.status();
   EXPECT_EQ(loaded->model.params().mlp[3], 65504.0f);
-  EXPECT_EQ(loaded->model.params().grid[2], std::numeric_limits<float>::infinity());
 
   model.mutable_params().emb[1] = -70000.0f;
   absl::StatusOr<std::string> bad = SerializeCheckpoint(model, {}, half);

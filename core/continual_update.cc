@@ -150,7 +150,9 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
           const Camera cam = mem.GetCamera(gr[k]);
           RenderOptions ro;
           ro.time_step = cam.time_step;
+          if (cancel != nullptr) ro.should_stop = [cancel] { return cancel->load(std::memory_order_relaxed); };
           absl::StatusOr<RenderedView> r = RenderView(*prev->model, cam, ro);
+          if (absl::IsCancelled(r.status())) return absl::CancelledError("update cancelled while preparing replay");
           if (!r.ok()) return r.status();
           cache.push_back(std::move(r->rgb));
           rep.replay_cache_bytes += cache.back().rgb.size() * sizeof(float);

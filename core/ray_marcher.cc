@@ -62,13 +62,12 @@ float MarchRay(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen:
     const Eigen::Vector3f p = o + t * d;
     const int c = grid.CascadeOf(p);
     const float dt = StepAt(t, opt, min_step, max_step);
+    const float before = t;
     if (c < 0) {
       // Rounding can put a point on the box face just outside it; t_end
       // (the box exit) bounds the loop.
       t += dt;
-      continue;
-    }
-    if (grid.OccupiedCell(grid.CellIndex(p, c))) {
+    } else if (grid.OccupiedCell(grid.CellIndex(p, c))) {
       out->push_back({t, dt});
       ++count;
       t += dt;
@@ -78,9 +77,16 @@ float MarchRay(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen:
       if (opt.cone_angle == 0.0f) {
         t += std::max(1.0f, std::ceil((target - t) / dt)) * dt;
       } else {
-        for (int k = 0; t < target && k < kMaxMarchIterations; ++k) t += StepAt(t, opt, min_step, max_step);
+        for (int k = 0; t < target && k < kMaxMarchIterations; ++k) {
+          const float next = t + StepAt(t, opt, min_step, max_step);
+          if (!(next > t)) break;
+          t = next;
+        }
       }
     }
+    // A step too small to change t (a ray starting at |t| ~ 1e30, where the
+    // spacing of floats exceeds the step) would never end: stop the ray.
+    if (!(t > before)) break;
   }
   return t;
 }
@@ -129,7 +135,9 @@ float MarchRayContracted(const OccupancyGrid& grid, const Eigen::Vector3f& o, co
       t += dt;
     } else {
       const float exit = DistanceToCellExit(q, dq.cwiseInverse(), grid.CellSize(c), grid.cascade_half_size(c));
-      t += std::max(dt, exit + 1e-5f / speed);
+      const float next = t + std::max(dt, exit + 1e-5f / speed);
+      if (!(next > t)) break;  // See MarchRay.
+      t = next;
     }
   }
   return t;

@@ -44,7 +44,8 @@ inline float StepAt(float t, const MarchOptions& opt, float min_step, float max_
 // Marches from t_start (e.g. t0 + jitter * dt) to t_end, appending up to
 // `max_count` samples in occupied cells. Returns the t where marching stopped
 // (so inference can resume a ray later). The loop is bounded (at most
-// kMaxMarchIterations cell visits), so non-finite or absurd rays end.
+// kMaxMarchIterations cell visits, and it stops as soon as a step fails to
+// advance t), so non-finite or absurd rays end.
 float MarchRay(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
                float t_start, float t_end, const MarchOptions& opt, float bound, int max_count,
                std::vector<RaySample>* out);

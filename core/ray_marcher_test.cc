@@ -289,5 +289,23 @@ TEST(MarchRayTest, RaysStartingOnTheBoxFaceAreMarched) {
   EXPECT_GT(marched, 1500);
 }
 
+TEST(MarchRayTest, RaysWhoseStepCannotMoveTEnd) {
+  // A camera 3e30 units away (finite, so it passes pose validation): at
+  // t ~ 3e30 adding a step of ~0.01 leaves t unchanged. The march must end
+  // after one sample instead of repeating it (or spinning) up to the caps.
+  const MarchOptions mo = Opts(64);
+  const OccupancyGrid grid(GridOptions(8), 0.5f, mo.min_step());  // Fully occupied.
+  const Eigen::Vector3f o(-3e30f, 0, 0), d(1, 0, 0);
+  std::vector<RaySample> s;
+  const float t = MarchRay(grid, o, d, 3e30f, 3e30f + 1e25f, mo, 0.5f, 1000, &s);
+  EXPECT_LE(s.size(), 1u);
+  EXPECT_EQ(t, 3e30f);
+  MarchOptions cone = mo;
+  cone.cone_angle = 1.0f / 256;
+  s.clear();
+  MarchRay(grid, o, d, 3e30f, 3e30f + 1e25f, cone, 0.5f, 1000, &s);
+  EXPECT_LE(s.size(), 1u);
+}
+
 }  // namespace
 }  // namespace clnerf

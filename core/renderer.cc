@@ -3,6 +3,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 
 #include "absl/strings/str_format.h"
@@ -141,14 +142,20 @@ long long RenderRays(const NgpModel& model, const float* origins, const float* d
   const int nblocks = (n + block - 1) / block;
   long long total = 0;
   const int threads = options.threads > 0 ? options.threads : omp_get_max_threads();
+  std::atomic<bool> stopped{false};
 #pragma omp parallel for schedule(dynamic) reduction(+ : total) num_threads(threads)
   for (int b = 0; b < nblocks; ++b) {
+    if (stopped.load(std::memory_order_relaxed)) continue;
+    if (options.should_stop && options.should_stop()) {
+      stopped = true;
+      continue;
+    }
     const int begin = b * block, m = std::min(block, n - begin);
     total += RenderBlock(field, origins + 3 * size_t(begin), dirs + 3 * size_t(begin), m, t, options.min_weight,
                          rgb + 3 * size_t(begin), opacity ? opacity + begin : nullptr,
                          depth ? depth + begin : nullptr);
   }
-  return total;
+  return stopped ? -1 : total;
 }
 
 absl::StatusOr<RenderedView> RenderView(const NgpModel& model, const Camera& world_camera,
@@ -180,6 +187,7 @@ absl::StatusOr<RenderedView> RenderView(const NgpModel& model, const Camera& wor
   out.depth.resize(n);
   out.samples = RenderRays(model, o.data(), d.data(), int(n), options.time_step, options, out.rgb.rgb.data(),
                            out.opacity.data(), out.depth.data());
+  if (out.samples < 0) return absl::CancelledError("render stopped before it finished");
   for (float& z : out.depth) z /= model.normalization().scale;
   return out;
 }

@@ -11,6 +11,7 @@
 #ifndef CLNERF_CORE_RENDERER_H_
 #define CLNERF_CORE_RENDERER_H_
 
+#include <functional>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -25,6 +26,12 @@ struct RenderOptions {
   int block_rays = 512;     // Rays per parallel task.
   int threads = 0;          // OpenMP threads; 0 = all available.
   float min_weight = 2e-5f; // Samples with smaller weight skip the colour MLP.
+  // Polled before each block of rays (from the rendering threads, so it must
+  // be thread-safe); once it returns true the remaining blocks are skipped
+  // and RenderView returns CANCELLED. Empty = never stop. Used for renders
+  // whose caller went away or whose deadline passed, and for cancelled
+  // updates.
+  std::function<bool()> should_stop;
   absl::Status Validate() const;
 };
 
@@ -37,12 +44,14 @@ struct RenderedView {
 
 // Renders rays given in model space (origins/directions n x 3; directions
 // unit length). rgb: n x 3, opacity/depth: n (may be null; depth in model
-// units). Returns the number of density evaluations.
+// units). Returns the number of density evaluations, or -1 when
+// options.should_stop stopped it (the outputs are then incomplete).
 long long RenderRays(const NgpModel& model, const float* origins, const float* dirs, int n, int time_step,
                      const RenderOptions& options, float* rgb, float* opacity, float* depth);
 
 // Renders a full image for a world-space camera. INVALID_ARGUMENT for a bad
-// camera or a time step the model does not have.
+// camera or a time step the model does not have; CANCELLED when
+// options.should_stop stopped it.
 absl::StatusOr<RenderedView> RenderView(const NgpModel& model, const Camera& world_camera,
                                         const RenderOptions& options);
 
