@@ -22,10 +22,19 @@ int RunWatch(const JobArgs& a) {
 int RunJobs(const ListArgs& a) {
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
   if (!client.ok()) return FailRemote("jobs", client.status());
+  // Every page, so the list is complete however long the history is.
   clnerf::v1::ListJobsResponse response;
-  grpc::Status s =
-      (*client)->service().ListJobs((*client)->Context(kUnaryTimeoutSeconds).get(), clnerf::v1::ListJobsRequest(), &response);
-  if (!s.ok()) return FailRemote("jobs", s, a.remote);
+  clnerf::v1::ListJobsRequest request;
+  request.set_page_size(1000);
+  while (true) {
+    clnerf::v1::ListJobsResponse page;
+    grpc::Status s = (*client)->service().ListJobs((*client)->Context(kUnaryTimeoutSeconds).get(), request, &page);
+    if (!s.ok()) return FailRemote("jobs", s, a.remote);
+    for (clnerf::v1::Job& j : *page.mutable_jobs()) *response.add_jobs() = std::move(j);
+    response.set_total_jobs(page.total_jobs());
+    if (page.next_page_token().empty()) break;
+    request.set_page_token(page.next_page_token());
+  }
   if (a.remote.json) {
     std::printf("%s\n", ProtoToJson(response).dump(2).c_str());
     return 0;

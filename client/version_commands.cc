@@ -80,6 +80,8 @@ int RunInfo(const ListArgs& a) {
   } else {
     std::printf("server     %s (%s)\n", a.remote.server.c_str(), info.server_version().c_str());
     std::printf("health     %s\n", health_text.c_str());
+    std::printf("store      %s\n", info.store_error().empty() ? "writable"
+                                                            : ("READ-ONLY: " + info.store_error()).c_str());
     std::printf("deployed   version %lld, %d time step(s), model %s\n", (long long)info.deployed_version(),
                 info.time_steps(), FormatBytes(info.model_bytes()).c_str());
     std::printf("method     %s, %d iterations per update, %lld replay camera(s)\n", info.method().c_str(),

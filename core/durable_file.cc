@@ -162,4 +162,29 @@ void RemoveTempEntries(const std::string& dir) {
   }
 }
 
+int RemoveAtomicWriteTemps(const std::string& path) {
+  namespace fs = std::filesystem;
+  const fs::path p(path);
+  const std::string prefix = p.filename().string() + ".tmp.";
+  std::error_code ec;
+  int removed = 0;
+  for (const auto& e : fs::directory_iterator(p.has_parent_path() ? p.parent_path() : fs::path("."), ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.size() <= prefix.size() || name.compare(0, prefix.size(), prefix) != 0) continue;
+    // Only "<pid>.<n>" suffixes: never a user's file that merely looks alike.
+    const std::string rest = name.substr(prefix.size());
+    const size_t dot = rest.find('.');
+    const auto digits = [](std::string_view s) {
+      return !s.empty() && s.find_first_not_of("0123456789") == std::string_view::npos;
+    };
+    if (dot == std::string::npos || !digits(std::string_view(rest).substr(0, dot)) ||
+        !digits(std::string_view(rest).substr(dot + 1))) {
+      continue;
+    }
+    std::error_code rm;
+    if (fs::remove(e.path(), rm)) ++removed;
+  }
+  return removed;
+}
+
 }  // namespace clnerf

@@ -39,6 +39,10 @@ absl::Status WriteDirectoryAtomically(const std::string& dir,
 // Removes the entries of `dir` whose names start with ".tmp-": what writes
 // interrupted by a crash left behind.
 void RemoveTempEntries(const std::string& dir);
+// Removes the temporaries AtomicWriteFile(path) leaves when a crash (or a
+// kill) interrupts it: siblings named "<file name of path>.tmp.<pid>.<n>".
+// Returns how many were removed.
+int RemoveAtomicWriteTemps(const std::string& path);
 // Reads a whole file. NOT_FOUND names `what` (e.g. "checkpoint").
 absl::StatusOr<std::string> ReadFileToString(const std::string& path, absl::string_view what = "file");
 

@@ -67,7 +67,7 @@ absl::StatusOr<std::unique_ptr<GrpcServer>> GrpcServer::Start(const ServerOption
   return srv;
 }
 
-void GrpcServer::Shutdown() {
+bool GrpcServer::Shutdown() {
   std::call_once(shutdown_once_, [this] {
     spdlog::info("shutting down: health NOT_SERVING, finishing in-flight calls");
     if (grpc::HealthCheckServiceInterface* health = server_->GetHealthCheckService()) {
@@ -75,12 +75,13 @@ void GrpcServer::Shutdown() {
     }
     // Stop training first so long WatchJob streams and the worker end
     // promptly; new uploads and renders are refused (UNAVAILABLE).
-    host_->Shutdown();
+    clean_ = host_->Shutdown();
     const auto deadline = std::chrono::system_clock::now() +
                           std::chrono::milliseconds(int64_t(host_->options().shutdown_grace_seconds * 1000));
     server_->Shutdown(deadline);
-    spdlog::info("shutdown complete");
+    spdlog::info(clean_ ? "shutdown complete" : "shutdown incomplete: the update worker is still running");
   });
+  return clean_;
 }
 
 void GrpcServer::Wait() { server_->Wait(); }

@@ -30,12 +30,15 @@ class GrpcServer {
 
   int port() const { return port_; }  // The bound port (useful with port 0).
   ModelHost& host() { return *host_; }
-  void Shutdown();
+  // False if the update worker did not stop within the grace period (the
+  // caller should then exit the process without running destructors).
+  bool Shutdown();
   void Wait();
 
  private:
   GrpcServer() = default;
   std::unique_ptr<ModelHost> host_;
+  bool clean_ = true;
   std::unique_ptr<ClnerfServiceImpl> service_;
   std::unique_ptr<grpc::Server> server_;
   int port_ = 0;

@@ -2,17 +2,22 @@
 
 #include <chrono>
 #include <cstring>
+#include <functional>
+#include <optional>
 
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "core/image.h"
+#include "server/log_util.h"
 #include "server/proto_convert.h"
+#include "server/scan_assembler.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {
 
 namespace {
 
-constexpr int64_t kMaxChunkBytes = 1 << 20;
+constexpr int64_t kMaxRenderChunkBytes = 1 << 20;
 
 grpc::Status Invalid(const std::string& msg) { return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, msg); }
 
@@ -55,72 +60,52 @@ grpc::Status ClnerfServiceImpl::UploadScan(grpc::ServerContext* ctx, grpc::Serve
                                            v1::UploadScanResponse* response) {
   if (grpc::Status a = CheckAuth(ctx); !a.ok()) return a;
   if (host_->shutting_down()) return Unavailable();
-  const ServerOptions& opt = host_->options();
+  if (absl::Status h = host_->WritableStatus(); !h.ok()) return ToGrpcStatus(h);
+  ScanAssembler assembler(host_->options().upload_limits());
   v1::UploadScanRequest msg;
-  if (!reader->Read(&msg)) return Invalid("upload is empty: the first message must be the scan header");
-  if (!msg.has_header()) return Invalid("the first upload message must be the scan header");
-  const v1::ScanHeader header = msg.header();
-  const int n = header.frames_size() + header.test_frames_size();
-  if (n > opt.max_frames) {
-    return Invalid(absl::StrCat("scan has ", n, " frames; the limit is ", opt.max_frames));
-  }
-  absl::StatusOr<ScanUpload> upload = ScanFromHeader(header);
-  if (!upload.ok()) return ToGrpcStatus(upload.status());
-  std::vector<int64_t> want_image(n), want_mask(n);
-  int64_t total = 0;
-  for (int i = 0; i < n; ++i) {
-    const v1::Frame& f = i < header.frames_size() ? header.frames(i) : header.test_frames(i - header.frames_size());
-    want_image[i] = f.image_bytes();
-    want_mask[i] = f.mask_bytes();
-    total += f.image_bytes() + f.mask_bytes();
-  }
-  if (total > opt.max_scan_bytes) {
-    return Invalid(absl::StrCat("scan declares ", total, " bytes; the limit is ", opt.max_scan_bytes));
-  }
-  int64_t received = 0;
+  bool first = true;
   while (reader->Read(&msg)) {
     if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "upload cancelled by the client");
-    if (!msg.has_chunk()) return Invalid("only one scan header is allowed per upload");
-    const v1::Chunk& c = msg.chunk();
-    if (c.frame_index() < 0 || c.frame_index() >= n) {
-      return Invalid(absl::StrCat("chunk for frame ", c.frame_index(), " but the scan has ", n, " frames"));
+    absl::Status s;
+    if (msg.has_header()) {
+      absl::StatusOr<ScanHeaderDecl> decl =
+          assembler.begun() ? absl::InvalidArgumentError("only one scan header is allowed per upload")
+                            : HeaderFromProto(msg.header());
+      s = decl.ok() ? assembler.Begin(*std::move(decl)) : decl.status();
+    } else if (msg.has_chunk()) {
+      const v1::Chunk& c = msg.chunk();
+      s = first ? absl::InvalidArgumentError("the first upload message must be the scan header")
+                : assembler.Add(c.frame_index(), c.is_mask(), c.offset(), c.data());
+    } else {
+      s = absl::InvalidArgumentError("upload message has neither a header nor a chunk");
     }
-    if (int64_t(c.data().size()) > kMaxChunkBytes) {
-      return Invalid(absl::StrCat("chunk of ", c.data().size(), " bytes exceeds 1 MiB"));
-    }
-    ScanFrame& f = upload->frames[c.frame_index()];
-    std::string& dst = c.is_mask() ? f.mask : f.image;
-    const int64_t want = c.is_mask() ? want_mask[c.frame_index()] : want_image[c.frame_index()];
-    if (c.offset() != int64_t(dst.size())) {
-      return Invalid(absl::StrCat("frame ", c.frame_index(), c.is_mask() ? " mask" : " image", ": chunk at offset ",
-                                  c.offset(), " but ", dst.size(), " bytes were received (missing or reordered chunk)"));
-    }
-    if (int64_t(dst.size() + c.data().size()) > want) {
-      return Invalid(absl::StrCat("frame ", c.frame_index(), c.is_mask() ? " mask" : " image", ": more bytes than the ",
-                                  want, " declared"));
-    }
-    if (dst.empty() && want > 0) dst.reserve(size_t(want));
-    dst.append(c.data());
-    received += int64_t(c.data().size());
+    if (!s.ok()) return ToGrpcStatus(s);
+    first = false;
   }
   if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "upload cancelled by the client");
-  for (int i = 0; i < n; ++i) {
-    const ScanFrame& f = upload->frames[i];
-    if (int64_t(f.image.size()) != want_image[i] || int64_t(f.mask.size()) != want_mask[i]) {
-      return Invalid(absl::StrCat("upload is truncated: frame ", i, " ('", f.name, "') has ", f.image.size(), " of ",
-                                  want_image[i], " image bytes and ", f.mask.size(), " of ", want_mask[i],
-                                  " mask bytes"));
-    }
+  if (first) {
+    // The sync API reports a message that failed to parse like the end of
+    // the stream, so the two cannot be told apart here.
+    return Invalid(
+        "upload is empty or its first message is not a clnerf.v1.UploadScanRequest (a stream must start with the "
+        "scan header; bytes that fail to parse as protobuf, or strings that are not UTF-8, end the stream)");
+  }
+  const std::string name = assembler.name();
+  absl::StatusOr<ScanUpload> upload = assembler.Finish();
+  if (!upload.ok()) {
+    // Either the client stopped early or a later message failed to parse.
+    return ToGrpcStatus(absl::InvalidArgumentError(absl::StrCat(
+        upload.status().message(), " (the stream ended early, or a message failed to parse as protobuf)")));
   }
   absl::StatusOr<UploadAck> ack = host_->AcceptScan(*upload);
   if (!ack.ok()) {
-    spdlog::warn("upload '{}' rejected: {}", header.name(), ack.status().ToString());
+    spdlog::warn("upload '{}' rejected: {}", EscapeForLog(name), EscapeForLog(ack.status().ToString()));
     return ToGrpcStatus(ack.status());
   }
   response->set_scan_id(ack->scan_id);
   response->set_job_id(ack->job_id);
   response->set_time_step(ack->time_step);
-  response->set_bytes_received(received);
+  response->set_bytes_received(assembler.received_bytes());
   return grpc::Status::OK;
 }
 
@@ -131,8 +116,19 @@ grpc::Status ClnerfServiceImpl::GetJob(grpc::ServerContext*, const v1::GetJobReq
   return grpc::Status::OK;
 }
 
-grpc::Status ClnerfServiceImpl::ListJobs(grpc::ServerContext*, const v1::ListJobsRequest*, v1::ListJobsResponse* resp) {
-  for (const JobStatus& j : host_->ListJobs()) *resp->add_jobs() = ToProto(j);
+grpc::Status ClnerfServiceImpl::ListJobs(grpc::ServerContext*, const v1::ListJobsRequest* req,
+                                         v1::ListJobsResponse* resp) {
+  constexpr int kDefaultPage = 100, kMaxPage = 1000;
+  if (req->page_size() < 0) return Invalid("page_size must be >= 0");
+  const size_t limit = size_t(req->page_size() == 0 ? kDefaultPage : std::min(req->page_size(), kMaxPage));
+  size_t offset = 0;
+  if (!req->page_token().empty() && !absl::SimpleAtoi(req->page_token(), &offset)) {
+    return Invalid(absl::StrCat("page_token '", EscapeForLog(req->page_token(), 64), "' was not issued by this server"));
+  }
+  size_t total = 0;
+  for (const JobStatus& j : host_->ListJobs(offset, limit, &total)) *resp->add_jobs() = ToProto(j);
+  if (offset + limit < total) resp->set_next_page_token(absl::StrCat(offset + limit));
+  resp->set_total_jobs(int(total));
   return grpc::Status::OK;
 }
 
@@ -162,13 +158,42 @@ grpc::Status ClnerfServiceImpl::CancelJob(grpc::ServerContext* ctx, const v1::Ca
   return grpc::Status::OK;
 }
 
-grpc::Status ClnerfServiceImpl::Render(grpc::ServerContext*, const v1::RenderRequest* req, v1::RenderResponse* resp) {
+namespace {
+
+// Stops a render whose client went away or whose deadline passed.
+std::function<bool()> StopWhenAbandoned(grpc::ServerContext* ctx) {
+  const auto deadline = ctx->deadline();
+  return [ctx, deadline] { return ctx->IsCancelled() || std::chrono::system_clock::now() >= deadline; };
+}
+
+// A render stopped by StopWhenAbandoned: DEADLINE_EXCEEDED or CANCELLED.
+grpc::Status AbandonedStatus(grpc::ServerContext* ctx, const absl::Status& s) {
+  if (std::chrono::system_clock::now() >= ctx->deadline()) {
+    return grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the call's deadline passed; the render was stopped");
+  }
+  return grpc::Status(grpc::StatusCode::CANCELLED, std::string(s.message()));
+}
+
+absl::StatusOr<std::optional<int>> TimeStepOf(bool has, int value) {
+  if (!has) return std::optional<int>();
+  if (value < 0) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("time_step ", value, " is negative; leave it unset for the latest time step"));
+  }
+  return std::optional<int>(value);
+}
+
+}  // namespace
+
+grpc::Status ClnerfServiceImpl::Render(grpc::ServerContext* ctx, const v1::RenderRequest* req,
+                                       v1::RenderResponse* resp) {
   if (host_->shutting_down()) return Unavailable();
   absl::StatusOr<Camera> cam = CameraFromProto(req->camera(), "camera");
   if (!cam.ok()) return ToGrpcStatus(cam.status());
-  std::optional<int> t;
-  if (req->has_time_step() && req->time_step() >= 0) t = req->time_step();
-  absl::StatusOr<RenderResult> r = host_->Render(*cam, t, req->version());
+  absl::StatusOr<std::optional<int>> t = TimeStepOf(req->has_time_step(), req->time_step());
+  if (!t.ok()) return ToGrpcStatus(t.status());
+  absl::StatusOr<RenderResult> r = host_->Render(*cam, *t, req->version(), StopWhenAbandoned(ctx));
+  if (absl::IsCancelled(r.status())) return AbandonedStatus(ctx, r.status());
   if (!r.ok()) return ToGrpcStatus(r.status());
   absl::StatusOr<std::string> bytes = EncodeRender(r->image, req->format());
   if (!bytes.ok()) return ToGrpcStatus(bytes.status());
@@ -185,7 +210,10 @@ grpc::Status ClnerfServiceImpl::Render(grpc::ServerContext*, const v1::RenderReq
 grpc::Status ClnerfServiceImpl::RenderStream(grpc::ServerContext* ctx, const v1::RenderStreamRequest* req,
                                              grpc::ServerWriter<v1::RenderChunk>* writer) {
   if (req->cameras_size() == 0) return Invalid("RenderStream needs at least one camera");
-  const int64_t chunk = req->max_chunk_bytes() > 0 ? std::min<int64_t>(req->max_chunk_bytes(), kMaxChunkBytes) : kMaxChunkBytes;
+  const int64_t chunk = req->max_chunk_bytes() > 0 ? std::min<int64_t>(req->max_chunk_bytes(), kMaxRenderChunkBytes)
+                                                    : kMaxRenderChunkBytes;
+  absl::StatusOr<std::optional<int>> t = TimeStepOf(req->has_time_step(), req->time_step());
+  if (!t.ok()) return ToGrpcStatus(t.status());
   // Check every camera before rendering anything.
   std::vector<Camera> cams;
   for (int i = 0; i < req->cameras_size(); ++i) {
@@ -198,12 +226,12 @@ grpc::Status ClnerfServiceImpl::RenderStream(grpc::ServerContext* ctx, const v1:
   int64_t version = req->version();
   if (version == 0) version = host_->deployed_version();
   if (version == 0) return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION, "no model is deployed yet: upload a scan first");
+  const std::function<bool()> stop = StopWhenAbandoned(ctx);
   for (size_t i = 0; i < cams.size(); ++i) {
     if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "render stream cancelled");
     if (host_->shutting_down()) return Unavailable();
-    std::optional<int> t;
-    if (req->has_time_step() && req->time_step() >= 0) t = req->time_step();
-    absl::StatusOr<RenderResult> r = host_->Render(cams[i], t, version);
+    absl::StatusOr<RenderResult> r = host_->Render(cams[i], *t, version, stop);
+    if (absl::IsCancelled(r.status())) return AbandonedStatus(ctx, r.status());
     if (!r.ok()) return ToGrpcStatus(r.status());
     absl::StatusOr<std::string> bytes = EncodeRender(r->image, req->format());
     if (!bytes.ok()) return ToGrpcStatus(bytes.status());
@@ -271,6 +299,7 @@ grpc::Status ClnerfServiceImpl::GetServerInfo(grpc::ServerContext*, const v1::Ge
   resp->set_uptime_seconds(int64_t(h.uptime_seconds));
   resp->set_model_bytes(h.model_bytes);
   resp->set_replay_cameras(h.replay_cameras);
+  resp->set_store_error(h.store_error);
   return grpc::Status::OK;
 }
 

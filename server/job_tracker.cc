@@ -1,8 +1,12 @@
 #include "server/job_tracker.h"
 
 #include <algorithm>
+#include <limits>
 
 #include "absl/strings/str_cat.h"
+#include "core/durable_file.h"
+#include "nlohmann/json.hpp"
+#include "spdlog/spdlog.h"
 
 namespace clnerf {
 
@@ -25,6 +29,111 @@ int64_t NowUnixMs() {
       .count();
 }
 
+namespace {
+
+nlohmann::json JobToJson(const JobStatus& j) {
+  return {{"job_id", j.job_id},
+          {"scan_id", j.scan_id},
+          {"scan_name", j.scan_name},
+          {"phase", JobPhaseName(j.phase)},
+          {"time_step", j.time_step},
+          {"iteration", j.iteration},
+          {"total_iterations", j.total_iterations},
+          {"elapsed_seconds", j.elapsed_seconds},
+          {"loss", j.loss},
+          {"psnr", j.psnr},
+          {"version", j.version},
+          {"error", j.error},
+          {"created_unix_ms", j.created_unix_ms},
+          {"finished_unix_ms", j.finished_unix_ms},
+          {"metrics", j.metrics}};
+}
+
+bool JobFromJson(const nlohmann::json& o, JobStatus* j) {
+  const std::string phase = o.at("phase");
+  bool found = false;
+  for (JobPhase p : {JobPhase::kDone, JobPhase::kFailed, JobPhase::kCancelled}) {
+    if (phase == JobPhaseName(p)) {
+      j->phase = p;
+      found = true;
+    }
+  }
+  if (!found) return false;
+  j->job_id = o.at("job_id");
+  j->scan_id = o.at("scan_id");
+  j->scan_name = o.at("scan_name");
+  j->time_step = o.at("time_step");
+  j->iteration = o.at("iteration");
+  j->total_iterations = o.at("total_iterations");
+  j->elapsed_seconds = o.at("elapsed_seconds");
+  j->loss = o.at("loss");
+  j->psnr = o.at("psnr");
+  j->version = o.at("version");
+  j->error = o.at("error");
+  j->created_unix_ms = o.at("created_unix_ms");
+  j->finished_unix_ms = o.at("finished_unix_ms");
+  j->metrics = o.at("metrics").get<std::map<std::string, double>>();
+  j->revision = 1;
+  return true;
+}
+
+}  // namespace
+
+void JobTracker::LoadHistory() {
+  if (history_path_.empty()) return;
+  absl::StatusOr<std::string> text = ReadFileToString(history_path_, "job history");
+  if (!text.ok()) {
+    if (!absl::IsNotFound(text.status())) spdlog::warn("job history not read: {}", text.status().ToString());
+    return;
+  }
+  std::lock_guard<std::mutex> lock(mu_);
+  try {
+    for (const nlohmann::json& o : nlohmann::json::parse(*text).at("jobs")) {
+      JobStatus j;
+      if (!JobFromJson(o, &j) || jobs_.count(j.job_id)) continue;
+      InsertLocked(std::move(j));
+    }
+  } catch (const std::exception& e) {
+    spdlog::warn("job history {} is corrupt and was ignored: {}", history_path_, e.what());
+  }
+}
+
+void JobTracker::InsertLocked(JobStatus job) {
+  order_.push_back(job.job_id);
+  jobs_.emplace(job.job_id, std::move(job));
+}
+
+void JobTracker::FinishedLocked() {
+  // Forget the oldest finished jobs beyond the cap.
+  size_t finished = 0;
+  for (const std::string& id : order_) finished += IsFinal(jobs_.at(id).phase);
+  for (auto it = order_.begin(); finished > kMaxHistory && it != order_.end();) {
+    if (IsFinal(jobs_.at(*it).phase)) {
+      jobs_.erase(*it);
+      it = order_.erase(it);
+      --finished;
+    } else {
+      ++it;
+    }
+  }
+  if (history_path_.empty()) return;
+  nlohmann::json arr = nlohmann::json::array();
+  for (const std::string& id : order_) {
+    const JobStatus& j = jobs_.at(id);
+    if (IsFinal(j.phase)) arr.push_back(JobToJson(j));
+  }
+  const nlohmann::json doc = {{"jobs", std::move(arr)}};
+  // error_handler::replace: names are validated, but older stores may hold
+  // anything; history must never throw.
+  const std::string text = doc.dump(0, ' ', false, nlohmann::json::error_handler_t::replace);
+  if (absl::Status s = AtomicWriteFile(history_path_, text); !s.ok()) {
+    if (!history_warned_) spdlog::warn("job history not saved: {}", s.ToString());
+    history_warned_ = true;
+  } else {
+    history_warned_ = false;
+  }
+}
+
 absl::Status JobTracker::Enqueue(JobStatus job, bool force) {
   std::lock_guard<std::mutex> lock(mu_);
   if (shutdown_) return absl::UnavailableError("server is shutting down");
@@ -32,14 +141,32 @@ absl::Status JobTracker::Enqueue(JobStatus job, bool force) {
     return absl::ResourceExhaustedError(
         absl::StrCat("update queue is full (", max_queue_, " scans wait for training); retry later"));
   }
-  if (jobs_.count(job.job_id)) return absl::AlreadyExistsError(absl::StrCat("job ", job.job_id, " exists"));
+  if (auto it = jobs_.find(job.job_id); it != jobs_.end()) {
+    if (!force || !IsFinal(it->second.phase)) {
+      return absl::AlreadyExistsError(absl::StrCat("job ", job.job_id, " exists"));
+    }
+    jobs_.erase(it);
+    order_.erase(std::find(order_.begin(), order_.end(), job.job_id));
+  }
   job.phase = JobPhase::kQueued;
   job.revision = 1;
   queue_.push_back(job.job_id);
-  order_.push_back(job.job_id);
-  jobs_.emplace(job.job_id, std::move(job));
+  InsertLocked(std::move(job));
   cv_.notify_all();
   return absl::OkStatus();
+}
+
+void JobTracker::AddFinished(JobStatus job) {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (auto it = jobs_.find(job.job_id); it != jobs_.end()) {
+    jobs_.erase(it);
+    order_.erase(std::find(order_.begin(), order_.end(), job.job_id));
+  }
+  if (job.finished_unix_ms == 0) job.finished_unix_ms = NowUnixMs();
+  job.revision = 1;
+  InsertLocked(std::move(job));
+  FinishedLocked();
+  cv_.notify_all();
 }
 
 std::optional<std::string> JobTracker::WaitNext() {
@@ -55,11 +182,13 @@ void JobTracker::Update(const std::string& id, const std::function<void(JobStatu
   std::lock_guard<std::mutex> lock(mu_);
   auto it = jobs_.find(id);
   if (it == jobs_.end()) return;
+  const bool was_final = IsFinal(it->second.phase);
   mutate(&it->second);
   ++it->second.revision;
   if (IsFinal(it->second.phase)) {
     if (it->second.finished_unix_ms == 0) it->second.finished_unix_ms = NowUnixMs();
     if (running_ == id) running_.clear();
+    if (!was_final) FinishedLocked();
   }
   cv_.notify_all();
 }
@@ -72,9 +201,15 @@ absl::StatusOr<JobStatus> JobTracker::Get(const std::string& id) const {
 }
 
 std::vector<JobStatus> JobTracker::List() const {
+  size_t total = 0;
+  return List(0, std::numeric_limits<size_t>::max(), &total);
+}
+
+std::vector<JobStatus> JobTracker::List(size_t offset, size_t limit, size_t* total) const {
   std::lock_guard<std::mutex> lock(mu_);
   std::vector<JobStatus> out;
-  for (const std::string& id : order_) out.push_back(jobs_.at(id));
+  *total = order_.size();
+  for (size_t i = offset; i < order_.size() && out.size() < limit; ++i) out.push_back(jobs_.at(order_[i]));
   return out;
 }
 
@@ -102,6 +237,7 @@ absl::StatusOr<bool> JobTracker::Cancel(const std::string& id) {
     j.phase = JobPhase::kCancelled;
     j.error = "cancelled before training started";
     j.finished_unix_ms = NowUnixMs();
+    FinishedLocked();
     cv_.notify_all();
     return true;
   }

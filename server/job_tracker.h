@@ -3,8 +3,11 @@
 // watchers.
 //
 // Every change to a job bumps its `revision` and wakes waiters, so WatchJob
-// can stream each state exactly once without polling. Jobs live in memory;
-// after a restart the server re-creates queued jobs from the durable scans.
+// can stream each state exactly once without polling. Live jobs are in
+// memory (after a restart the server re-creates queued jobs from the durable
+// scans); finished jobs are also written to a history file (the newest
+// kMaxHistory, replaced atomically on every finish) and read back on start,
+// so `jobs` still shows what happened before a restart.
 //
 // Thread-safety: all methods are thread-safe (one mutex, one condition
 // variable). Waits end on a change, a deadline, or Shutdown().
@@ -47,17 +50,31 @@ struct JobStatus {
 
 class JobTracker {
  public:
-  explicit JobTracker(int max_queue) : max_queue_(max_queue) {}
+  static constexpr size_t kMaxHistory = 1000;  // Finished jobs remembered.
+
+  // `history_path` empty = finished jobs are not persisted.
+  explicit JobTracker(int max_queue, std::string history_path = "")
+      : max_queue_(max_queue), history_path_(std::move(history_path)) {}
+
+  // Reads the history file (a missing file is an empty history; a corrupt
+  // one is logged and ignored: history is informational).
+  void LoadHistory();
 
   // Adds a queued job. RESOURCE_EXHAUSTED if `max_queue` jobs wait already
-  // (`force` skips the limit: used when re-queuing after a restart).
+  // (`force` skips the limit: used when re-queuing after a restart, where a
+  // finished record with the same id, e.g. "cancelled by shutdown", is
+  // replaced).
   absl::Status Enqueue(JobStatus job, bool force = false);
+  // Records a job that ended before it was queued (e.g. a parked scan).
+  void AddFinished(JobStatus job);
   // Blocks until a job is queued (returns its id) or Shutdown() (nullopt).
   std::optional<std::string> WaitNext();
   // Applies `mutate` to the job and notifies watchers.
   void Update(const std::string& id, const std::function<void(JobStatus*)>& mutate);
   absl::StatusOr<JobStatus> Get(const std::string& id) const;
   std::vector<JobStatus> List() const;  // In creation order.
+  // Page of List(): `limit` jobs from `offset`; *total = all jobs.
+  std::vector<JobStatus> List(size_t offset, size_t limit, size_t* total) const;
   // Waits until the job's revision exceeds `after_revision`, the deadline
   // passes, or shutdown; returns the current state. NOT_FOUND if unknown.
   absl::StatusOr<JobStatus> WaitForChange(const std::string& id, uint64_t after_revision,
@@ -72,7 +89,12 @@ class JobTracker {
   void Shutdown();
 
  private:
+  void FinishedLocked();  // Trims and persists the history; caller holds mu_.
+  void InsertLocked(JobStatus job);
+
   const int max_queue_;
+  const std::string history_path_;
+  bool history_warned_ = false;
   mutable std::mutex mu_;
   mutable std::condition_variable cv_;
   bool shutdown_ = false;

@@ -115,7 +115,14 @@ int main(int argc, char** argv) {
   int sig = 0;
   sigwait(&sigs, &sig);
   spdlog::info("received {}", sig == SIGINT ? "SIGINT" : "SIGTERM");
-  (*server)->Shutdown();
+  if (!(*server)->Shutdown()) {
+    // A stuck update (e.g. a pathological scan) must not keep the process
+    // alive: the store is crash-safe, so exit as a kill would. The scan's
+    // attempt stays recorded; after max_scan_attempts it is parked.
+    spdlog::error("exiting without waiting for the update worker");
+    spdlog::shutdown();
+    std::_Exit(3);
+  }
   (*server)->Wait();
   return 0;
 }

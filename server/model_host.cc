@@ -1,15 +1,11 @@
 #include "server/model_host.h"
 
-#include <omp.h>
-
 #include <algorithm>
 #include <filesystem>
 
 #include "absl/strings/str_cat.h"
-#include "absl/strings/str_format.h"
-#include "core/continual_update.h"
 #include "core/renderer.h"
-#include "core/deployment_gate.h"
+#include "server/log_util.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {
@@ -20,87 +16,52 @@ double SecondsSince(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
 }
 
-JobPhase ToJobPhase(UpdatePhase p) {
-  switch (p) {
-    case UpdatePhase::kPreparingReplay: return JobPhase::kPreparingReplay;
-    case UpdatePhase::kTraining: return JobPhase::kTraining;
-    case UpdatePhase::kFinalizing: return JobPhase::kTraining;
-  }
-  return JobPhase::kTraining;
-}
-
 }  // namespace
 
 ModelHost::ModelHost(const ServerOptions& options)
     : options_(options),
       started_(std::chrono::steady_clock::now()),
-      registry_([this](int64_t v) { return LoadServable(v); }, options.cached_versions),
-      jobs_(options.max_queue),
+      jobs_(options.max_queue, (std::filesystem::path(options.store_dir) / "jobs.json").string()),
       render_slots_(options.render_concurrency) {}
 
 absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& options) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;
-  std::error_code ec;
-  std::filesystem::create_directories(options.store_dir, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot create store '", options.store_dir, "': ", ec.message()));
   std::unique_ptr<ModelHost> host(new ModelHost(options));
+  PublisherOptions po;
+  po.store_dir = options.store_dir;
+  po.cached_versions = options.cached_versions;
+  po.keep_versions = options.keep_versions;
+  absl::StatusOr<std::unique_ptr<Publisher>> publisher = Publisher::Open(po);
+  if (!publisher.ok()) return publisher.status();
+  host->publisher_ = *std::move(publisher);
   absl::StatusOr<std::unique_ptr<ScanStore>> scans = ScanStore::Open(options.store_dir);
   if (!scans.ok()) return scans.status();
   host->scans_ = *std::move(scans);
-  absl::StatusOr<std::unique_ptr<VersionStore>> versions = VersionStore::Open(options.store_dir);
-  if (!versions.ok()) return versions.status();
-  host->versions_ = *std::move(versions);
-  if (absl::Status s = host->Recover(); !s.ok()) return s;
-  host->worker_ = std::thread([h = host.get()] { h->WorkerLoop(); });
+  host->jobs_.LoadHistory();
+  if (absl::Status s = host->RecoverScans(); !s.ok()) return s;
+  host->worker_ = std::make_unique<UpdateWorker>(options, host->scans_.get(), host->publisher_.get(), &host->jobs_);
+  host->worker_->Start();
   return host;
 }
 
 ModelHost::~ModelHost() { Shutdown(); }
 
-absl::StatusOr<std::shared_ptr<const Servable>> ModelHost::LoadServable(int64_t version) const {
-  absl::StatusOr<LoadedVersion> lv = versions_->Load(version);
-  if (!lv.ok()) return lv.status();
-  auto s = std::make_shared<Servable>();
-  s->info = lv->info;
-  s->model = std::make_shared<const NgpModel>(std::move(lv->model));
-  s->memory = std::make_shared<const ReplayMemory>(std::move(lv->memory));
-  return std::shared_ptr<const Servable>(std::move(s));
-}
-
 int ModelHost::PredictedTimeStep() const {
-  const std::shared_ptr<const Servable> deployed = registry_.Deployed();
+  const std::shared_ptr<const Servable> deployed = publisher_->registry().Deployed();
   return (deployed ? deployed->model->num_time_steps() : 0) + jobs_.running_or_queued();
 }
 
-absl::Status ModelHost::Recover() {
-  absl::StatusOr<Manifest> m = versions_->ReadManifest();
-  if (!m.ok()) return m.status();
-  manifest_ = *m;
-  absl::StatusOr<std::vector<VersionInfo>> all = versions_->List();
-  if (!all.ok()) return all.status();
-  // A version written after the manifest's last update passed its gate but
-  // crashed before being recorded: finish publishing it.
-  if (!all->empty() && all->back().version >= manifest_.next_version) {
-    spdlog::warn("recovery: version {} was written but not recorded; deploying it", all->back().version);
-    manifest_.deployed = all->back().version;
-    manifest_.next_version = all->back().version + 1;
-  }
-  if (manifest_.deployed != 0) {
-    absl::StatusOr<std::shared_ptr<const Servable>> s = LoadServable(manifest_.deployed);
-    if (!s.ok()) {
-      return absl::Status(s.status().code(), absl::StrCat("cannot load deployed version ", manifest_.deployed, ": ",
-                                                          s.status().message()));
-    }
-    registry_.Deploy(*s);
-  }
+absl::Status ModelHost::RecoverScans() {
   absl::StatusOr<std::vector<ScanRecord>> pending = scans_->List();
   if (!pending.ok()) return pending.status();
+  absl::StatusOr<std::vector<VersionInfo>> all = publisher_->versions().List();
+  if (!all.ok()) return all.status();
   int requeued = 0;
   for (const ScanRecord& r : *pending) {
     const bool trained = std::any_of(all->begin(), all->end(), [&](const VersionInfo& v) { return v.scan_id == r.scan_id; });
     if (trained) {
       spdlog::info("recovery: scan {} is already in a version; removing it", r.scan_id);
-      if (absl::Status s = scans_->Remove(r.scan_id); !s.ok()) return s;
+      if (absl::Status s = scans_->Remove(r.scan_id); !s.ok()) spdlog::warn("recovery: {}", s.ToString());
       continue;
     }
     JobStatus j;
@@ -109,16 +70,35 @@ absl::Status ModelHost::Recover() {
     j.scan_name = r.name;
     j.created_unix_ms = r.created_unix_ms;
     j.time_step = PredictedTimeStep();
+    const int attempts = scans_->Attempts(r.scan_id);
+    if (attempts >= options_.max_scan_attempts) {
+      // Its training ended in a crash, a kill or a hang this many times:
+      // park it instead of wedging every start.
+      const std::string why = absl::StrCat("parked after ", attempts,
+                                           " training attempts that never finished (crash, kill or hang); the scan "
+                                           "is kept in ", scans_->parked_dir(), "/", r.scan_id);
+      if (absl::Status s = scans_->Park(r.scan_id, why); !s.ok()) spdlog::warn("recovery: {}", s.ToString());
+      j.phase = JobPhase::kFailed;
+      j.error = why;
+      jobs_.AddFinished(std::move(j));
+      spdlog::error("recovery: scan {} ({}): {}", r.scan_id, EscapeForLog(r.name), why);
+      continue;
+    }
     if (absl::Status s = jobs_.Enqueue(std::move(j), /*force=*/true); !s.ok()) return s;
     ++requeued;
   }
   if (requeued > 0) spdlog::info("recovery: re-queued {} acknowledged scan(s) that were not trained yet", requeued);
-  spdlog::info("store {}: deployed version {}, {} version(s)", options_.store_dir, manifest_.deployed, all->size());
-  return versions_->WriteManifest(manifest_);
+  return absl::OkStatus();
+}
+
+absl::Status ModelHost::WritableStatus() const {
+  if (stopping_) return absl::UnavailableError("server is shutting down");
+  return publisher_->WritableStatus();
 }
 
 absl::StatusOr<UploadAck> ModelHost::AcceptScan(const ScanUpload& upload) {
-  if (stopping_) return absl::UnavailableError("server is shutting down");
+  if (absl::Status s = WritableStatus(); !s.ok()) return s;
+  // Uploads that bypass ScanAssembler (in-process callers) get the same limits.
   if (int(upload.frames.size()) > options_.max_frames) {
     return absl::InvalidArgumentError(absl::StrCat("scan has ", upload.frames.size(), " frames; the limit is ",
                                                    options_.max_frames));
@@ -127,26 +107,27 @@ absl::StatusOr<UploadAck> ModelHost::AcceptScan(const ScanUpload& upload) {
     return absl::InvalidArgumentError(absl::StrCat("scan is ", upload.num_bytes(), " bytes; the limit is ",
                                                    options_.max_scan_bytes));
   }
+  if (absl::Status s = ValidateName(upload.name, "scan name"); !s.ok()) return s;
+  for (size_t i = 0; i < upload.frames.size(); ++i) {
+    if (absl::Status s = ValidateName(upload.frames[i].name, absl::StrCat("frame ", i, " name")); !s.ok()) return s;
+  }
   if (absl::Status s = ValidateScanUpload(upload); !s.ok()) return s;
-  std::lock_guard<std::mutex> lock(manifest_mu_);
+  std::lock_guard<std::mutex> lock(upload_mu_);
   if (jobs_.queued() >= options_.max_queue) {
     return absl::ResourceExhaustedError(absl::StrCat("update queue is full (", options_.max_queue,
                                                      " scans wait for training); retry later"));
   }
-  Manifest next = manifest_;
+  absl::StatusOr<ReservedIds> ids = publisher_->ReserveIds();
+  if (!ids.ok()) return ids.status();
   ScanRecord rec;
-  rec.scan_id = absl::StrFormat("scan-%06d", next.next_scan++);
-  rec.job_id = absl::StrFormat("job-%06d", next.next_job++);
+  rec.scan_id = ids->scan_id;
+  rec.job_id = ids->job_id;
   rec.name = upload.name.empty() ? rec.scan_id : upload.name;
   rec.scene_kind = upload.scene_kind;
   rec.mask_nonzero_is_exclude = upload.mask_nonzero_is_exclude;
   rec.created_unix_ms = NowUnixMs();
   for (const ScanFrame& f : upload.frames) (f.test ? rec.num_test_frames : rec.num_frames)++;
   rec.num_bytes = upload.num_bytes();
-  // Counters first, so an id is never reused even if the save fails.
-  if (absl::Status s = versions_->WriteManifest(next); !s.ok()) return s;
-  manifest_.next_scan = next.next_scan;
-  manifest_.next_job = next.next_job;
   if (absl::Status s = scans_->Save(rec, upload); !s.ok()) return s;
   JobStatus j;
   j.job_id = rec.job_id;
@@ -160,35 +141,58 @@ absl::StatusOr<UploadAck> ModelHost::AcceptScan(const ScanUpload& upload) {
     return s;
   }
   spdlog::info("accepted scan {} '{}' ({} frames, {} test, {} bytes) as job {}, time step {}", rec.scan_id,
-               rec.name, rec.num_frames, rec.num_test_frames, rec.num_bytes, rec.job_id, time_step);
+               EscapeForLog(rec.name), rec.num_frames, rec.num_test_frames, rec.num_bytes, rec.job_id, time_step);
   return UploadAck{rec.scan_id, rec.job_id, time_step, rec.num_bytes};
 }
 
+int64_t ModelHost::max_pixels_per_render() const {
+  return std::min<int64_t>(options_.max_render_pixels,
+                           options_.render_pixel_budget / std::max(1, options_.render_concurrency));
+}
+
 absl::StatusOr<RenderResult> ModelHost::Render(const Camera& world_camera, std::optional<int> time_step,
-                                               int64_t version) {
+                                               int64_t version, const std::function<bool()>& should_stop) {
   if (absl::Status s = ValidateCamera(world_camera); !s.ok()) return s;
   const int64_t pixels = int64_t(world_camera.intrinsics.width) * world_camera.intrinsics.height;
-  if (pixels > options_.max_render_pixels) {
-    return absl::InvalidArgumentError(absl::StrCat("render of ", pixels, " pixels exceeds the limit of ",
-                                                   options_.max_render_pixels));
+  if (pixels > max_pixels_per_render()) {
+    return absl::InvalidArgumentError(absl::StrCat(
+        "render of ", pixels, " pixels exceeds the per-request limit of ", max_pixels_per_render(),
+        " (render_pixel_budget ", options_.render_pixel_budget, " / render_concurrency ",
+        options_.render_concurrency, "); render in tiles or at a smaller size"));
   }
-  absl::StatusOr<std::shared_ptr<const Servable>> snap = registry_.Get(version);
-  if (!snap.ok()) return snap.status();
+  if (time_step.has_value() && *time_step < 0) {
+    return absl::InvalidArgumentError(absl::StrCat("time step ", *time_step,
+                                                   " is negative; leave it unset for the latest time step"));
+  }
+  absl::StatusOr<std::shared_ptr<const Servable>> snap = publisher_->registry().Get(version);
+  if (!snap.ok()) {
+    if (version == 0 && absl::IsFailedPrecondition(snap.status()) && !publisher_->error().empty()) {
+      return absl::UnavailableError(absl::StrCat("no version is deployed: ", publisher_->error()));
+    }
+    return snap.status();
+  }
   const NgpModel& model = *(*snap)->model;
   const int t = time_step.value_or(model.num_time_steps() - 1);
-  if (t < 0 || t >= model.num_time_steps()) {
+  if (t >= model.num_time_steps()) {
     return absl::InvalidArgumentError(absl::StrCat("time step ", t, " is out of range: version ",
                                                    (*snap)->info.version, " has time steps 0..",
                                                    model.num_time_steps() - 1));
   }
-  const auto wait = std::chrono::duration<double>(options_.render_wait_seconds);
-  if (!render_slots_.try_acquire_for(std::chrono::duration_cast<std::chrono::milliseconds>(wait))) {
-    return absl::ResourceExhaustedError("all render slots stayed busy; retry later");
+  // Wait for a slot in short slices, so a caller that gave up stops waiting.
+  const auto give_up = std::chrono::steady_clock::now() +
+                       std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                           std::chrono::duration<double>(options_.render_wait_seconds));
+  while (!render_slots_.try_acquire_for(std::chrono::milliseconds(50))) {
+    if (should_stop && should_stop()) return absl::CancelledError("render abandoned while waiting for a slot");
+    if (std::chrono::steady_clock::now() >= give_up) {
+      return absl::ResourceExhaustedError("all render slots stayed busy; retry later");
+    }
   }
   const auto t0 = std::chrono::steady_clock::now();
   RenderOptions ro;
   ro.threads = options_.render_threads;
   ro.time_step = t;
+  ro.should_stop = should_stop;
   absl::StatusOr<RenderedView> view = RenderView(model, world_camera, ro);
   render_slots_.release();
   if (!view.ok()) return view.status();
@@ -204,29 +208,21 @@ absl::StatusOr<JobStatus> ModelHost::CancelJob(const std::string& id) {
     if (absl::Status s = scans_->Remove(before->scan_id); !s.ok()) spdlog::warn("cancel {}: {}", id, s.ToString());
     spdlog::info("job {} cancelled while queued; scan {} removed", id, before->scan_id);
   } else {
-    cancel_running_ = true;
+    worker_->CancelRunning();
     spdlog::info("job {}: cancellation requested", id);
   }
   return jobs_.Get(id);
 }
 
 absl::StatusOr<VersionInfo> ModelHost::SetDeployedVersion(int64_t v) {
-  if (v <= 0) return absl::InvalidArgumentError(absl::StrCat("version ", v, " is not a version number"));
-  absl::StatusOr<std::shared_ptr<const Servable>> s = registry_.Get(v);
-  if (!s.ok()) return s.status();
-  std::lock_guard<std::mutex> lock(manifest_mu_);
-  Manifest next = manifest_;
-  next.deployed = v;
-  if (absl::Status w = versions_->WriteManifest(next); !w.ok()) return w;
-  manifest_ = next;
-  registry_.Deploy(*s);
-  spdlog::info("deployed version {} (rollback/pin)", v);
-  return (*s)->info;
+  absl::StatusOr<VersionInfo> info = publisher_->SetDeployed(v);
+  if (info.ok()) spdlog::info("deployed version {} (rollback/pin)", v);
+  return info;
 }
 
 HostInfo ModelHost::Info() const {
   HostInfo info;
-  auto d = registry_.Deployed();
+  auto d = publisher_->registry().Deployed();
   if (d) {
     info.deployed_version = d->info.version;
     info.time_steps = d->model->num_time_steps();
@@ -235,177 +231,21 @@ HostInfo ModelHost::Info() const {
   }
   info.queued_jobs = jobs_.queued();
   info.running_job = jobs_.running();
+  info.store_error = publisher_->error();
   info.uptime_seconds = SecondsSince(started_);
   return info;
 }
 
-void ModelHost::Shutdown() {
-  if (stopping_.exchange(true)) {
-    if (worker_.joinable()) worker_.join();
-    return;
-  }
-  cancel_running_ = true;
-  jobs_.Shutdown();
-  if (worker_.joinable()) worker_.join();
-}
-
-void ModelHost::PruneVersions() {
-  if (options_.keep_versions <= 0) return;
-  absl::StatusOr<std::vector<VersionInfo>> all = versions_->List();
-  if (!all.ok()) return;
-  int excess = int(all->size()) - options_.keep_versions;
-  for (const VersionInfo& v : *all) {
-    if (excess <= 0) break;
-    if (v.version == manifest_.deployed) continue;
-    if (absl::Status s = versions_->Remove(v.version); !s.ok()) {
-      spdlog::warn("pruning version {}: {}", v.version, s.ToString());
-      continue;
+bool ModelHost::Shutdown() {
+  std::call_once(shutdown_once_, [this] {
+    stopping_ = true;
+    jobs_.Shutdown();
+    if (worker_ && !worker_->Stop(std::chrono::duration<double>(options_.shutdown_grace_seconds))) {
+      spdlog::error("the update worker did not stop within {} s", options_.shutdown_grace_seconds);
+      shutdown_clean_ = false;
     }
-    registry_.Evict(v.version);
-    spdlog::info("pruned version {} (keep_versions = {})", v.version, options_.keep_versions);
-    --excess;
-  }
-}
-
-void ModelHost::WorkerLoop() {
-  omp_set_num_threads(options_.train_threads);
-  while (true) {
-    std::optional<std::string> id = jobs_.WaitNext();
-    if (!id) return;
-    RunJob(*id);
-  }
-}
-
-void ModelHost::FinishJob(const std::string& job_id, const std::string& scan_id, JobPhase phase,
-                          const std::string& error, bool remove_scan) {
-  if (remove_scan) {
-    if (absl::Status s = scans_->Remove(scan_id); !s.ok()) spdlog::warn("job {}: {}", job_id, s.ToString());
-  }
-  jobs_.Update(job_id, [&](JobStatus* j) {
-    j->phase = phase;
-    j->error = error;
   });
-  if (phase == JobPhase::kFailed) spdlog::error("job {} failed: {}", job_id, error);
-  if (phase == JobPhase::kCancelled) spdlog::warn("job {} cancelled: {}", job_id, error);
-}
-
-void ModelHost::RunJob(const std::string& job_id) {
-  cancel_running_ = false;
-  absl::StatusOr<JobStatus> job = jobs_.Get(job_id);
-  if (!job.ok()) return;
-  const std::string scan_id = job->scan_id;
-  if (job->cancel_requested) return FinishJob(job_id, scan_id, JobPhase::kCancelled, "cancelled", true);
-  const std::shared_ptr<const Servable> prev = registry_.Deployed();
-  const int t = prev ? prev->model->num_time_steps() : 0;
-
-  // Later scans take the deployed model's background; the first, its kind's.
-  absl::StatusOr<Scene> scene =
-      scans_->Load(scan_id, t, prev ? std::optional<Eigen::Vector3f>(prev->model->background()) : std::nullopt);
-  if (!scene.ok()) {
-    return FinishJob(job_id, scan_id, JobPhase::kFailed, absl::StrCat("cannot read the stored scan: ", scene.status().message()), false);
-  }
-  if (prev) scene->kind = prev->model->kind();
-  std::vector<View> test = std::move(scene->test);
-  scene->test.clear();
-  jobs_.Update(job_id, [&](JobStatus* j) {
-    j->phase = JobPhase::kPreparingReplay;
-    j->time_step = t;
-    j->total_iterations = options_.update.train.iterations;
-  });
-  spdlog::info("job {}: training scan {} as time step {} on version {}", job_id, scan_id, t,
-               prev ? prev->info.version : 0);
-
-  UpdateOptions uo = options_.update;
-  uo.train.threads = options_.train_threads;
-  uo.train.seed = options_.update.train.seed + uint64_t(t);
-  ContinualState prev_state;
-  if (prev) {
-    prev_state.model = prev->model;
-    prev_state.memory = *prev->memory;
-  }
-  auto last_report = std::chrono::steady_clock::now() - std::chrono::seconds(1);
-  JobPhase last_phase = JobPhase::kPreparingReplay;
-  UpdateReport report;
-  const auto t0 = std::chrono::steady_clock::now();
-  absl::StatusOr<ContinualState> next = ContinualUpdate(
-      *scene, prev ? &prev_state : nullptr, uo,
-      [&](const UpdateProgress& p) {
-        const JobPhase phase = ToJobPhase(p.phase);
-        const auto now = std::chrono::steady_clock::now();
-        const bool last = p.phase == UpdatePhase::kTraining && p.iteration == p.total;
-        if (phase == last_phase && !last && now - last_report < std::chrono::milliseconds(100)) return;
-        last_report = now;
-        last_phase = phase;
-        jobs_.Update(job_id, [&](JobStatus* j) {
-          j->phase = phase;
-          j->iteration = p.iteration;
-          j->total_iterations = p.total;
-          j->elapsed_seconds = p.elapsed_seconds;
-          j->eta_seconds = p.eta_seconds;
-          j->loss = p.loss;
-          j->psnr = p.psnr;
-        });
-      },
-      &cancel_running_, &report);
-  if (!next.ok()) {
-    if (absl::IsCancelled(next.status())) {
-      if (stopping_) {
-        return FinishJob(job_id, scan_id, JobPhase::kCancelled,
-                         "server shut down during training; the scan is kept and retrained after restart", false);
-      }
-      return FinishJob(job_id, scan_id, JobPhase::kCancelled, "cancelled by request", true);
-    }
-    return FinishJob(job_id, scan_id, JobPhase::kFailed, std::string(next.status().message()), true);
-  }
-
-  jobs_.Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kValidating; });
-  scene->test = std::move(test);
-  GateReport gate = RunDeploymentGate(*next->model, *scene, prev ? prev->model.get() : nullptr,
-                                      prev ? prev->memory.get() : nullptr, options_.gate, options_.train_threads);
-  gate.metrics["train_seconds"] = report.train_seconds;
-  gate.metrics["replay_prepare_seconds"] = report.replay_prepare_seconds;
-  gate.metrics["update_seconds"] = SecondsSince(t0);
-  jobs_.Update(job_id, [&](JobStatus* j) { j->metrics = gate.metrics; });
-  if (!gate.status.ok()) return FinishJob(job_id, scan_id, JobPhase::kFailed, std::string(gate.status.message()), true);
-  if (stopping_) {
-    return FinishJob(job_id, scan_id, JobPhase::kCancelled,
-                     "server shut down before publishing; the scan is kept and retrained after restart", false);
-  }
-
-  jobs_.Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kPublishing; });
-  std::lock_guard<std::mutex> lock(manifest_mu_);
-  VersionInfo info;
-  info.version = manifest_.next_version;
-  info.parent = prev ? prev->info.version : 0;
-  info.time_steps = next->model->num_time_steps();
-  info.created_unix_ms = NowUnixMs();
-  info.scan_id = scan_id;
-  info.metrics = gate.metrics;
-  absl::StatusOr<VersionInfo> written = versions_->Write(*next->model, next->memory, info);
-  if (!written.ok()) {
-    return FinishJob(job_id, scan_id, JobPhase::kFailed, absl::StrCat("cannot write the version: ", written.status().message()), false);
-  }
-  Manifest m = manifest_;
-  m.deployed = info.version;
-  m.next_version = info.version + 1;
-  if (absl::Status s = versions_->WriteManifest(m); !s.ok()) {
-    // The version is durable; recovery deploys it on the next start.
-    return FinishJob(job_id, scan_id, JobPhase::kFailed, absl::StrCat("cannot update the manifest: ", s.message()), false);
-  }
-  manifest_ = m;
-  auto servable = std::make_shared<Servable>();
-  servable->info = *written;
-  servable->model = next->model;
-  servable->memory = std::make_shared<const ReplayMemory>(std::move(next->memory));
-  registry_.Deploy(std::move(servable));
-  if (absl::Status s = scans_->Remove(scan_id); !s.ok()) spdlog::warn("job {}: {}", job_id, s.ToString());
-  PruneVersions();
-  jobs_.Update(job_id, [&](JobStatus* j) {
-    j->phase = JobPhase::kDone;
-    j->version = info.version;
-  });
-  spdlog::info("job {} done: version {} deployed ({} time steps, {:.1f} s)", job_id, info.version, info.time_steps,
-               SecondsSince(t0));
+  return shutdown_clean_;
 }
 
 }  // namespace clnerf

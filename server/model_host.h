@@ -1,17 +1,24 @@
-// ModelHost: the service's core, without any gRPC. It owns the store (scans,
-// versions, manifest), the model registry, the job tracker and the single
-// update worker thread, and offers what the RPCs need:
+// ModelHost: the service's core, without any gRPC. It composes the parts and
+// offers what the RPCs need:
+//
+//   Publisher      versions, manifest, deployed model, sticky store error
+//   ScanStore      the durable inbox of uploaded scans
+//   JobTracker     job states, the FIFO queue, the persisted job history
+//   UpdateWorker   load -> train -> gate -> publish, one job at a time
+//   render slots   at most render_concurrency renders at once
 //
 //   AcceptScan   validate -> write durably -> queue a job -> acknowledge
-//   worker       load scan -> ContinualUpdate(S_t, θ_{t-1}, M_{t-1}) ->
-//                deployment gate -> write version -> manifest -> swap
 //   Render       snapshot (shared_ptr<const Servable>) -> bounded render slot
 //   versions, rollback, jobs, cancel, info
 //
-// Startup recovery: a version written but not yet in the manifest is
-// deployed (its gate had passed); scans already trained into a version are
-// removed; every other stored scan is re-queued in upload order with its
-// original job id. So a crash at any point loses no acknowledged scan.
+// Start-up recovery: the publisher finishes a publish that crashed between
+// the version and the manifest; scans already trained into a version are
+// removed; a scan whose training was interrupted max_scan_attempts times
+// (crash, kill or hang) is parked with a FAILED job; every other stored scan
+// is re-queued in upload order with its original job id. So a crash at any
+// point loses no acknowledged scan, and a poison scan cannot wedge the
+// server for good. A store that cannot be written starts read-only (renders
+// work, writes answer UNAVAILABLE with the reason) and recovers by itself.
 //
 // Time steps: a scan becomes time step (deployed model's steps) when its job
 // starts; the acknowledgement predicts it assuming every earlier job
@@ -20,12 +27,13 @@
 //
 // Thread-safety: all public methods are thread-safe. Shutdown() (also run by
 // the destructor) cancels a running update (its scan stays stored and is
-// retrained after restart) and joins the worker.
+// retrained after restart) and stops the worker.
 #ifndef CLNERF_SERVER_MODEL_HOST_H_
 #define CLNERF_SERVER_MODEL_HOST_H_
 
 #include <atomic>
 #include <chrono>
+#include <functional>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -39,8 +47,10 @@
 #include "core/image.h"
 #include "server/job_tracker.h"
 #include "server/model_registry.h"
+#include "server/publisher.h"
 #include "server/scan_store.h"
 #include "server/server_options.h"
+#include "server/update_worker.h"
 #include "server/version_store.h"
 
 namespace clnerf {
@@ -63,6 +73,7 @@ struct HostInfo {
   int time_steps = 0;
   int queued_jobs = 0;
   std::string running_job;
+  std::string store_error;  // The publisher's sticky error ("" = healthy).
   int64_t model_bytes = 0;
   int64_t replay_cameras = 0;
   double uptime_seconds = 0;
@@ -76,56 +87,60 @@ class ModelHost {
   ModelHost& operator=(const ModelHost&) = delete;
 
   absl::StatusOr<UploadAck> AcceptScan(const ScanUpload& upload);
+  // OK, or why uploads are refused now (shutting down, store read-only).
+  absl::Status WritableStatus() const;
 
   // `time_step` unset = the version's latest; `version` 0 = deployed.
-  absl::StatusOr<RenderResult> Render(const Camera& world_camera, std::optional<int> time_step,
-                                      int64_t version);
+  // `should_stop` (optional, thread-safe) is polled while waiting for a slot
+  // and while rendering: the caller went away or its deadline passed.
+  absl::StatusOr<RenderResult> Render(const Camera& world_camera, std::optional<int> time_step, int64_t version,
+                                      const std::function<bool()>& should_stop = {});
+  // The largest render one request may ask for.
+  int64_t max_pixels_per_render() const;
 
   absl::StatusOr<JobStatus> GetJob(const std::string& id) const { return jobs_.Get(id); }
   std::vector<JobStatus> ListJobs() const { return jobs_.List(); }
+  std::vector<JobStatus> ListJobs(size_t offset, size_t limit, size_t* total) const {
+    return jobs_.List(offset, limit, total);
+  }
   absl::StatusOr<JobStatus> WaitJob(const std::string& id, uint64_t after_revision,
                                     std::chrono::steady_clock::time_point deadline) const {
     return jobs_.WaitForChange(id, after_revision, deadline);
   }
   absl::StatusOr<JobStatus> CancelJob(const std::string& id);
 
-  absl::StatusOr<std::vector<VersionInfo>> ListVersions() const { return versions_->List(); }
-  absl::StatusOr<VersionInfo> GetVersion(int64_t v) const { return versions_->Info(v); }
+  absl::StatusOr<std::vector<VersionInfo>> ListVersions() const { return publisher_->versions().List(); }
+  absl::StatusOr<VersionInfo> GetVersion(int64_t v) const { return publisher_->versions().Info(v); }
   // Rollback / pin. NOT_FOUND for an unknown version.
   absl::StatusOr<VersionInfo> SetDeployedVersion(int64_t v);
-  int64_t deployed_version() const { return registry_.deployed_version(); }
+  int64_t deployed_version() const { return publisher_->registry().deployed_version(); }
 
   HostInfo Info() const;
   const ServerOptions& options() const { return options_; }
   bool shutting_down() const { return stopping_.load(); }
-  void Shutdown();
+  // Stops the worker (waiting up to shutdown_grace_seconds). Returns false if
+  // it did not stop in time; the process should then exit (see main.cc).
+  bool Shutdown();
+
+  Publisher& publisher_for_testing() { return *publisher_; }
 
  private:
   explicit ModelHost(const ServerOptions& options);
-  absl::Status Recover();
+  absl::Status RecoverScans();
   // The time step a scan queued now becomes if every job ahead succeeds.
   int PredictedTimeStep() const;
-  void WorkerLoop();
-  void RunJob(const std::string& job_id);
-  void FinishJob(const std::string& job_id, const std::string& scan_id, JobPhase phase, const std::string& error,
-                 bool remove_scan);
-  absl::StatusOr<std::shared_ptr<const Servable>> LoadServable(int64_t version) const;
-  void PruneVersions();  // Applies keep_versions; caller holds manifest_mu_.
 
   const ServerOptions options_;
   const std::chrono::steady_clock::time_point started_;
+  std::unique_ptr<Publisher> publisher_;
   std::unique_ptr<ScanStore> scans_;
-  std::unique_ptr<VersionStore> versions_;
-  ModelRegistry registry_;
   JobTracker jobs_;
-
-  std::mutex manifest_mu_;  // Guards manifest_ and its file; serialises uploads.
-  Manifest manifest_;
-
+  std::unique_ptr<UpdateWorker> worker_;
+  std::mutex upload_mu_;  // Serialises uploads (id reservation, save, enqueue).
   std::counting_semaphore<1024> render_slots_;
   std::atomic<bool> stopping_{false};
-  std::atomic<bool> cancel_running_{false};
-  std::thread worker_;
+  std::once_flag shutdown_once_;
+  bool shutdown_clean_ = true;
 };
 
 }  // namespace clnerf

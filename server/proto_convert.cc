@@ -42,11 +42,11 @@ absl::StatusOr<Camera> CameraFromProto(const v1::CameraSpec& spec, const std::st
   return cam;
 }
 
-absl::StatusOr<ScanUpload> ScanFromHeader(const v1::ScanHeader& h) {
-  ScanUpload up;
-  up.name = h.name();
-  up.scene_kind = h.scene_kind();
-  up.mask_nonzero_is_exclude = h.mask_nonzero_is_exclude();
+absl::StatusOr<ScanHeaderDecl> HeaderFromProto(const v1::ScanHeader& h) {
+  ScanHeaderDecl decl;
+  decl.name = h.name();
+  decl.scene_kind = h.scene_kind();
+  decl.mask_nonzero_is_exclude = h.mask_nonzero_is_exclude();
   if (h.frames_size() == 0) return absl::InvalidArgumentError("scan header lists no training frames");
   const int n = h.frames_size() + h.test_frames_size();
   for (int i = 0; i < n; ++i) {
@@ -55,15 +55,15 @@ absl::StatusOr<ScanUpload> ScanFromHeader(const v1::ScanHeader& h) {
     const std::string what = absl::StrCat(test ? "test frame " : "frame ", test ? i - h.frames_size() : i);
     absl::StatusOr<Camera> cam = CameraFromProto(f.camera(), what);
     if (!cam.ok()) return cam.status();
-    if (f.image_bytes() <= 0) return absl::InvalidArgumentError(absl::StrCat(what, ": image_bytes must be > 0"));
-    if (f.mask_bytes() < 0) return absl::InvalidArgumentError(absl::StrCat(what, ": mask_bytes must be >= 0"));
-    ScanFrame sf;
-    sf.name = f.name().empty() ? absl::StrCat(test ? "test_" : "frame_", i) : f.name();
-    sf.camera = *cam;
-    sf.test = test;
-    up.frames.push_back(std::move(sf));
+    DeclaredFrame df;
+    df.frame.name = f.name().empty() ? absl::StrCat(test ? "test_" : "frame_", i) : f.name();
+    df.frame.camera = *cam;
+    df.frame.test = test;
+    df.image_bytes = f.image_bytes();
+    df.mask_bytes = f.mask_bytes();
+    decl.frames.push_back(std::move(df));
   }
-  return up;
+  return decl;
 }
 
 v1::Job ToProto(const JobStatus& j) {

@@ -12,6 +12,7 @@
 #include "grpcpp/support/status.h"
 #include "server/job_tracker.h"
 #include "server/model_host.h"
+#include "server/scan_assembler.h"
 #include "server/scan_store.h"
 #include "server/version_store.h"
 
@@ -24,8 +25,9 @@ grpc::Status ToGrpcStatus(const absl::Status& status);
 // `what` prefixes error messages (e.g. "frame 3").
 absl::StatusOr<Camera> CameraFromProto(const v1::CameraSpec& spec, const std::string& what);
 
-// The frames of a header, without bytes (sizes are checked by the caller).
-absl::StatusOr<ScanUpload> ScanFromHeader(const v1::ScanHeader& header);
+// The frames of a header with their declared sizes, cameras converted and
+// checked; the sizes and names are checked by ScanAssembler::Begin.
+absl::StatusOr<ScanHeaderDecl> HeaderFromProto(const v1::ScanHeader& header);
 
 v1::Job ToProto(const JobStatus& job);
 v1::Version ToProto(const VersionInfo& info, int64_t deployed_version);

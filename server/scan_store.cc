@@ -7,6 +7,8 @@
 #include <set>
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/ascii.h"
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
 #include "core/durable_file.h"
 #include "core/image.h"
@@ -228,6 +230,40 @@ absl::StatusOr<Scene> ScanStore::Load(const std::string& scan_id, int time_step,
     return absl::DataLossError(absl::StrCat("corrupt scan ", scan_id, ": ", e.what()));
   }
   return scene;
+}
+
+absl::StatusOr<int> ScanStore::RecordAttempt(const std::string& scan_id) {
+  const fs::path dir = fs::path(dir_) / scan_id;
+  const int n = Attempts(scan_id) + 1;
+  if (absl::Status s = WriteFileSynced((dir / "attempts").string(), absl::StrCat(n, "\n")); !s.ok()) return s;
+  if (absl::Status s = SyncDirectory(dir.string()); !s.ok()) return s;
+  return n;
+}
+
+int ScanStore::Attempts(const std::string& scan_id) const {
+  absl::StatusOr<std::string> text = ReadFileToString((fs::path(dir_) / scan_id / "attempts").string(), "attempts");
+  int n = 0;
+  if (!text.ok() || !absl::SimpleAtoi(absl::StripAsciiWhitespace(*text), &n) || n < 0) return 0;
+  return n;
+}
+
+void ScanStore::ClearAttempts(const std::string& scan_id) {
+  std::error_code ec;
+  fs::remove(fs::path(dir_) / scan_id / "attempts", ec);
+}
+
+std::string ScanStore::parked_dir() const { return (fs::path(dir_).parent_path() / "parked").string(); }
+
+absl::Status ScanStore::Park(const std::string& scan_id, const std::string& reason) {
+  const fs::path from = fs::path(dir_) / scan_id, to = fs::path(parked_dir()) / scan_id;
+  std::error_code ec;
+  fs::create_directories(parked_dir(), ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot create '", parked_dir(), "': ", ec.message()));
+  (void)WriteFileSynced((from / "parked_reason.txt").string(), reason + "\n");
+  fs::rename(from, to, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot park scan ", scan_id, ": ", ec.message()));
+  (void)SyncDirectory(parked_dir());
+  return SyncDirectory(dir_);
 }
 
 absl::Status ScanStore::Remove(const std::string& scan_id) {

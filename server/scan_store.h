@@ -73,7 +73,20 @@ class ScanStore {
   absl::StatusOr<Scene> Load(const std::string& scan_id, int time_step,
                              const std::optional<Eigen::Vector3f>& background) const;
   absl::Status Remove(const std::string& scan_id);
+
+  // Poison-scan bookkeeping: the update worker records an attempt (durably)
+  // before it trains a scan and clears the count when it stops the scan
+  // cleanly (shutdown), so the count is the number of attempts that ended in
+  // a crash, a kill or a hang. Returns the new count.
+  absl::StatusOr<int> RecordAttempt(const std::string& scan_id);
+  int Attempts(const std::string& scan_id) const;  // 0 if none recorded.
+  void ClearAttempts(const std::string& scan_id);
+  // Moves the scan to <root>/parked/<scan_id> with `reason` beside it: kept
+  // for the operator, never listed or retried again.
+  absl::Status Park(const std::string& scan_id, const std::string& reason);
+
   const std::string& dir() const { return dir_; }
+  std::string parked_dir() const;
 
  private:
   explicit ScanStore(std::string dir) : dir_(std::move(dir)) {}

@@ -17,6 +17,13 @@ UpdateOptions ServerOptions::DefaultUpdateOptions() {
   return u;
 }
 
+UploadLimits ServerOptions::upload_limits() const {
+  UploadLimits l;
+  l.max_frames = max_frames;
+  l.max_scan_bytes = max_scan_bytes;
+  return l;
+}
+
 absl::Status ServerOptions::Validate() const {
   if (listen.empty() || listen.find(':') == std::string::npos) {
     return absl::InvalidArgumentError(absl::StrCat("listen address '", listen, "' is not HOST:PORT"));
@@ -37,6 +44,11 @@ absl::Status ServerOptions::Validate() const {
   if (max_scan_bytes < 1) return absl::InvalidArgumentError("max_scan_bytes must be >= 1");
   if (max_frames < 1 || max_frames > 65535) return absl::InvalidArgumentError("max_frames must be in [1, 65535]");
   if (max_render_pixels < 1) return absl::InvalidArgumentError("max_render_pixels must be >= 1");
+  if (render_pixel_budget < render_concurrency) {
+    return absl::InvalidArgumentError("render_pixel_budget must be >= render_concurrency");
+  }
+  if (max_scan_attempts < 1) return absl::InvalidArgumentError("max_scan_attempts must be >= 1");
+  if (!(store_retry_seconds > 0)) return absl::InvalidArgumentError("store_retry_seconds must be > 0");
   if (cached_versions < 0) return absl::InvalidArgumentError("cached_versions must be >= 0");
   if (keep_versions < 0) return absl::InvalidArgumentError("keep_versions must be >= 0");
   if (!(shutdown_grace_seconds >= 0)) return absl::InvalidArgumentError("shutdown_grace_seconds must be >= 0");
@@ -105,6 +117,9 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "max_scan_bytes") s = Get(*it, "max_scan_bytes", &o->max_scan_bytes);
     else if (k == "max_frames") s = Get(*it, "max_frames", &o->max_frames);
     else if (k == "max_render_pixels") s = Get(*it, "max_render_pixels", &o->max_render_pixels);
+    else if (k == "render_pixel_budget") s = Get(*it, "render_pixel_budget", &o->render_pixel_budget);
+    else if (k == "max_scan_attempts") s = Get(*it, "max_scan_attempts", &o->max_scan_attempts);
+    else if (k == "store_retry_seconds") s = Get(*it, "store_retry_seconds", &o->store_retry_seconds);
     else if (k == "cached_versions") s = Get(*it, "cached_versions", &o->cached_versions);
     else if (k == "keep_versions") s = Get(*it, "keep_versions", &o->keep_versions);
     else if (k == "shutdown_grace_seconds") s = Get(*it, "shutdown_grace_seconds", &o->shutdown_grace_seconds);

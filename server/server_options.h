@@ -21,6 +21,7 @@
 #include "absl/status/statusor.h"
 #include "core/continual_update.h"
 #include "core/deployment_gate.h"
+#include "server/scan_assembler.h"
 
 namespace clnerf {
 
@@ -40,7 +41,16 @@ struct ServerOptions {
   int max_message_bytes = 4 << 20;      // Per gRPC message (upload chunks are <= 1 MiB).
   int64_t max_scan_bytes = int64_t(1) << 30;  // Encoded image + mask bytes of one scan.
   int max_frames = 4000;                // Frames (train + test) per scan.
-  int64_t max_render_pixels = 4096 * 4096;  // Largest render request.
+  int64_t max_render_pixels = 4096 * 4096;  // Largest render request (absolute cap).
+  // Pixels that the running renders may hold together: one request may ask
+  // for at most render_pixel_budget / render_concurrency pixels (and
+  // max_render_pixels), so memory stays bounded however the slots are used.
+  // Default: 2 slots of 2048 x 2048 (about 180 MB of render scratch each).
+  int64_t render_pixel_budget = int64_t(2) * 2048 * 2048;
+  // Poison scans: a scan whose training was interrupted (crash, kill, hang
+  // ended by a restart) this many times is parked, not retried.
+  int max_scan_attempts = 3;
+  double store_retry_seconds = 5;       // After a store write error, how often to re-check it.
   int cached_versions = 4;              // Non-deployed versions kept in memory.
   int keep_versions = 0;                // Versions kept on disk (oldest pruned, never the deployed one); 0 = all.
   double shutdown_grace_seconds = 20;   // In-flight RPCs get this long on shutdown.
@@ -52,6 +62,8 @@ struct ServerOptions {
   // (a lego_100 task in ~35 s on 2 cores; see README).
   static UpdateOptions DefaultUpdateOptions();
   absl::Status Validate() const;
+  // The limits ScanAssembler checks for each upload.
+  UploadLimits upload_limits() const;
 };
 
 // Applies a JSON config (an object whose keys are field names above; unknown

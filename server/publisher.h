@@ -1,0 +1,93 @@
+// Publisher: the single writer of published state. It owns the version store,
+// the manifest (deployed version and id counters) and the model registry
+// that renders read from, and it is the only code that changes them:
+//
+//   Recover        at start-up: finish a publish that crashed between the
+//                  version and the manifest, load the deployed version
+//   ReserveIds     scan and job ids for an upload (counters persisted first)
+//   Publish        write versions/N -> manifest -> deploy -> prune
+//   SetDeployed    rollback / pin
+//
+// Sticky background error (as LevelDB's bg_error_): when a write of the
+// manifest or of a version fails (a full disk, a read-only mount, ...) or the
+// deployed version cannot be loaded, the publisher records the error and
+// refuses every later write with UNAVAILABLE naming it, instead of letting
+// later jobs train and fail one by one or reuse a version number. Renders of
+// stored versions keep working. Retry() re-checks the store and clears the
+// error once the manifest can be written again and the deployed version
+// loads; a successful SetDeployed also clears it.
+//
+// Thread-safety: every method is thread-safe; one mutex serialises writes
+// (readers use the registry's snapshots and never wait for it).
+#ifndef CLNERF_SERVER_PUBLISHER_H_
+#define CLNERF_SERVER_PUBLISHER_H_
+
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/continual_update.h"
+#include "server/model_registry.h"
+#include "server/version_store.h"
+
+namespace clnerf {
+
+struct PublisherOptions {
+  std::string store_dir;
+  int cached_versions = 4;  // Non-deployed versions kept in memory.
+  int keep_versions = 0;    // Versions kept on disk (0 = all; the deployed one is never pruned).
+};
+
+struct ReservedIds {
+  std::string scan_id, job_id;
+};
+
+class Publisher {
+ public:
+  // Opens the store and runs recovery. Only an unusable store directory is
+  // an error; a store that cannot be written (or whose deployed version is
+  // corrupt) opens with the sticky error set, serving what it can.
+  static absl::StatusOr<std::unique_ptr<Publisher>> Open(const PublisherOptions& options);
+
+  ModelRegistry& registry() { return registry_; }
+  const ModelRegistry& registry() const { return registry_; }
+  VersionStore& versions() { return *versions_; }
+
+  // OK, or UNAVAILABLE naming the sticky error.
+  absl::Status WritableStatus() const;
+  // The sticky error's message ("" when healthy), for info and health.
+  std::string error() const;
+
+  absl::StatusOr<ReservedIds> ReserveIds();
+  // Publishes θ_t and M_t trained from `parent` (0 = none) on `scan_id`.
+  absl::StatusOr<VersionInfo> Publish(const ContinualState& state, int64_t parent, const std::string& scan_id,
+                                      const std::map<std::string, double>& metrics);
+  // NOT_FOUND for an unknown version, DATA_LOSS for a corrupt one.
+  absl::StatusOr<VersionInfo> SetDeployed(int64_t version);
+  // Re-checks the store after a sticky error (see above). OK = healthy now.
+  absl::Status Retry();
+
+  // For tests: sets the sticky error as a failed write would.
+  void SetErrorForTesting(const absl::Status& s);
+
+ private:
+  explicit Publisher(const PublisherOptions& options);
+  absl::StatusOr<std::shared_ptr<const Servable>> LoadServable(int64_t version) const;
+  // Recovery steps; caller holds mu_.
+  absl::Status RecoverLocked();
+  void SetErrorLocked(const absl::Status& s);
+  void PruneLocked();
+
+  const PublisherOptions options_;
+  std::unique_ptr<VersionStore> versions_;
+  ModelRegistry registry_;
+  mutable std::mutex mu_;
+  Manifest manifest_;        // As last written (or read).
+  absl::Status bg_error_;    // Sticky; guarded by mu_.
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_SERVER_PUBLISHER_H_

@@ -1,0 +1,219 @@
+#include "server/update_worker.h"
+
+#include <omp.h>
+
+#include "absl/strings/str_cat.h"
+#include "core/continual_update.h"
+#include "core/deployment_gate.h"
+#include "server/log_util.h"
+#include "spdlog/spdlog.h"
+
+namespace clnerf {
+
+namespace {
+
+double SecondsSince(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+JobPhase ToJobPhase(UpdatePhase p) {
+  switch (p) {
+    case UpdatePhase::kPreparingReplay: return JobPhase::kPreparingReplay;
+    case UpdatePhase::kTraining: return JobPhase::kTraining;
+    case UpdatePhase::kFinalizing: return JobPhase::kTraining;
+  }
+  return JobPhase::kTraining;
+}
+
+}  // namespace
+
+UpdateWorker::~UpdateWorker() {
+  stopping_ = true;
+  cancel_ = true;
+  cv_.notify_all();
+  if (thread_.joinable()) thread_.join();
+}
+
+void UpdateWorker::Start() {
+  thread_ = std::thread([this] {
+    Loop();
+    std::lock_guard<std::mutex> lock(mu_);
+    exited_ = true;
+    cv_.notify_all();
+  });
+}
+
+bool UpdateWorker::Stop(std::chrono::duration<double> timeout) {
+  stopping_ = true;
+  cancel_ = true;
+  jobs_->Shutdown();
+  cv_.notify_all();
+  {
+    std::unique_lock<std::mutex> lock(mu_);
+    if (!cv_.wait_for(lock, timeout, [&] { return exited_ || !thread_.joinable(); })) return false;
+  }
+  if (thread_.joinable()) thread_.join();
+  return true;
+}
+
+void UpdateWorker::Loop() {
+  omp_set_num_threads(options_.train_threads);
+  while (!stopping_) {
+    std::optional<std::string> id = jobs_->WaitNext();
+    if (!id) return;
+    RunJob(*id);
+  }
+}
+
+bool UpdateWorker::WaitForWritableStore(const std::string& job_id) {
+  while (true) {
+    absl::Status s = publisher_->WritableStatus();
+    if (s.ok()) return true;
+    jobs_->Update(job_id, [&](JobStatus* j) { j->error = absl::StrCat("waiting for the store: ", s.message()); });
+    std::unique_lock<std::mutex> lock(mu_);
+    cv_.wait_for(lock, std::chrono::duration<double>(options_.store_retry_seconds), [&] { return stopping_.load(); });
+    lock.unlock();
+    if (stopping_) return false;
+    if (publisher_->Retry().ok()) {
+      jobs_->Update(job_id, [&](JobStatus* j) { j->error.clear(); });
+      return true;
+    }
+  }
+}
+
+void UpdateWorker::Finish(const std::string& job_id, const std::string& scan_id, JobPhase phase,
+                          const std::string& error, bool remove_scan) {
+  if (remove_scan) {
+    if (absl::Status s = scans_->Remove(scan_id); !s.ok()) spdlog::warn("job {}: {}", job_id, s.ToString());
+  } else {
+    // Stopped cleanly (shutdown): this attempt does not count as a poison
+    // attempt.
+    scans_->ClearAttempts(scan_id);
+  }
+  jobs_->Update(job_id, [&](JobStatus* j) {
+    j->phase = phase;
+    j->error = error;
+  });
+  if (phase == JobPhase::kFailed) spdlog::error("job {} failed: {}", job_id, EscapeForLog(error));
+  if (phase == JobPhase::kCancelled) spdlog::warn("job {} cancelled: {}", job_id, EscapeForLog(error));
+}
+
+void UpdateWorker::RunJob(const std::string& job_id) {
+  cancel_ = false;
+  absl::StatusOr<JobStatus> job = jobs_->Get(job_id);
+  if (!job.ok()) return;
+  const std::string scan_id = job->scan_id;
+  const std::string kept = "server shut down; the scan is kept and retrained after restart";
+  if (job->cancel_requested) return Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled", true);
+  if (!WaitForWritableStore(job_id)) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
+  if (absl::StatusOr<int> a = scans_->RecordAttempt(scan_id); !a.ok()) {
+    spdlog::warn("job {}: attempt not recorded: {}", job_id, a.status().ToString());
+  } else if (*a > 1) {
+    spdlog::warn("job {}: attempt {} of {} for scan {}", job_id, *a, options_.max_scan_attempts, scan_id);
+  }
+
+  // 1. Load the scan as the next time step of the deployed model.
+  const std::shared_ptr<const Servable> prev = publisher_->registry().Deployed();
+  const int t = prev ? prev->model->num_time_steps() : 0;
+  absl::StatusOr<Scene> scene =
+      scans_->Load(scan_id, t, prev ? std::optional<Eigen::Vector3f>(prev->model->background()) : std::nullopt);
+  if (!scene.ok()) {
+    // A stored scan that cannot be read will never train: park it.
+    const std::string why = absl::StrCat("cannot read the stored scan: ", scene.status().message());
+    if (absl::Status s = scans_->Park(scan_id, why); !s.ok()) spdlog::warn("job {}: {}", job_id, s.ToString());
+    return Finish(job_id, scan_id, JobPhase::kFailed, absl::StrCat(why, " (parked in ", scans_->parked_dir(), ")"),
+                  false);
+  }
+  if (prev) scene->kind = prev->model->kind();
+  std::vector<View> test = std::move(scene->test);
+  scene->test.clear();
+  jobs_->Update(job_id, [&](JobStatus* j) {
+    j->phase = JobPhase::kPreparingReplay;
+    j->time_step = t;
+    j->total_iterations = options_.update.train.iterations;
+  });
+  spdlog::info("job {}: training scan {} as time step {} on version {}", job_id, scan_id, t,
+               prev ? prev->info.version : 0);
+
+  // 2. Train.
+  UpdateOptions uo = options_.update;
+  uo.train.threads = options_.train_threads;
+  uo.train.seed = options_.update.train.seed + uint64_t(t);
+  ContinualState prev_state;
+  if (prev) {
+    prev_state.model = prev->model;
+    prev_state.memory = *prev->memory;
+  }
+  auto last_report = std::chrono::steady_clock::now() - std::chrono::seconds(1);
+  JobPhase last_phase = JobPhase::kPreparingReplay;
+  UpdateReport report;
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<ContinualState> next = ContinualUpdate(
+      *scene, prev ? &prev_state : nullptr, uo,
+      [&](const UpdateProgress& p) {
+        const JobPhase phase = ToJobPhase(p.phase);
+        const auto now = std::chrono::steady_clock::now();
+        const bool last = p.phase == UpdatePhase::kTraining && p.iteration == p.total;
+        if (phase == last_phase && !last && now - last_report < std::chrono::milliseconds(100)) return;
+        last_report = now;
+        last_phase = phase;
+        jobs_->Update(job_id, [&](JobStatus* j) {
+          j->phase = phase;
+          j->iteration = p.iteration;
+          j->total_iterations = p.total;
+          j->elapsed_seconds = p.elapsed_seconds;
+          j->eta_seconds = p.eta_seconds;
+          j->loss = p.loss;
+          j->psnr = p.psnr;
+        });
+      },
+      &cancel_, &report);
+  if (!next.ok()) {
+    if (absl::IsCancelled(next.status())) {
+      if (stopping_) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
+      return Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled by request", true);
+    }
+    return Finish(job_id, scan_id, JobPhase::kFailed, std::string(next.status().message()), true);
+  }
+
+  // 3. Deployment gate.
+  jobs_->Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kValidating; });
+  scene->test = std::move(test);
+  GateReport gate = RunDeploymentGate(*next->model, *scene, prev ? prev->model.get() : nullptr,
+                                      prev ? prev->memory.get() : nullptr, options_.gate, options_.train_threads);
+  gate.metrics["train_seconds"] = report.train_seconds;
+  gate.metrics["replay_prepare_seconds"] = report.replay_prepare_seconds;
+  gate.metrics["update_seconds"] = SecondsSince(t0);
+  jobs_->Update(job_id, [&](JobStatus* j) { j->metrics = gate.metrics; });
+  if (!gate.status.ok()) return Finish(job_id, scan_id, JobPhase::kFailed, std::string(gate.status.message()), true);
+  if (stopping_) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
+
+  // 4. Publish; on a store error keep the trained state and retry once the
+  // store recovers (or until shutdown: the scan is then retrained).
+  jobs_->Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kPublishing; });
+  absl::StatusOr<VersionInfo> published;
+  while (true) {
+    published = publisher_->Publish(*next, prev ? prev->info.version : 0, scan_id, gate.metrics);
+    if (published.ok()) break;
+    spdlog::error("job {}: publishing failed: {}; retrying when the store recovers", job_id,
+                  std::string(published.status().message()));
+    if (!WaitForWritableStore(job_id)) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
+    // Recovery may itself have deployed a version of this scan (a write whose
+    // error was reported after it landed): then the job is done.
+    const std::shared_ptr<const Servable> now = publisher_->registry().Deployed();
+    if (now && now->info.scan_id == scan_id) {
+      published = now->info;
+      break;
+    }
+  }
+  if (absl::Status s = scans_->Remove(scan_id); !s.ok()) spdlog::warn("job {}: {}", job_id, s.ToString());
+  jobs_->Update(job_id, [&](JobStatus* j) {
+    j->phase = JobPhase::kDone;
+    j->version = published->version;
+    j->error.clear();
+  });
+  spdlog::info("job {} done: version {} deployed ({} time steps, {:.1f} s)", job_id, published->version,
+               published->time_steps, SecondsSince(t0));
+}
+
+}  // namespace clnerf

@@ -1,0 +1,78 @@
+// UpdateWorker: the single background thread that turns queued scans into
+// published versions, one job at a time, in upload order:
+//
+//   wait until the store accepts writes -> record an attempt -> load the scan
+//   -> ContinualUpdate(S_t, θ_{t-1}, M_{t-1}) -> deployment gate -> publish
+//
+// Each step is a short method; a failed step ends the job with its reason.
+// Poison scans: an attempt is recorded durably before training and cleared
+// when the job ends cleanly, so a scan whose training crashed, was killed or
+// hung is seen at the next start (ModelHost parks it after
+// ServerOptions::max_scan_attempts). A publish that fails on the store keeps
+// the trained model and retries after the publisher recovers, so time steps
+// stay in upload order and nothing is trained twice.
+//
+// Cancellation (CancelRunning, Stop) is checked in every long loop of the
+// update: replay preparation (per block of rays), every training step, and
+// while waiting for the store.
+//
+// Thread-safety: Start/Stop from one thread; CancelRunning from any.
+#ifndef CLNERF_SERVER_UPDATE_WORKER_H_
+#define CLNERF_SERVER_UPDATE_WORKER_H_
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include "server/job_tracker.h"
+#include "server/publisher.h"
+#include "server/scan_store.h"
+#include "server/server_options.h"
+
+namespace clnerf {
+
+class UpdateWorker {
+ public:
+  UpdateWorker(const ServerOptions& options, ScanStore* scans, Publisher* publisher, JobTracker* jobs)
+      : options_(options), scans_(scans), publisher_(publisher), jobs_(jobs) {}
+  ~UpdateWorker();
+  UpdateWorker(const UpdateWorker&) = delete;
+  UpdateWorker& operator=(const UpdateWorker&) = delete;
+
+  void Start();
+  // Asks the running update to stop (it ends CANCELLED; its scan is removed).
+  void CancelRunning() { cancel_ = true; }
+  // Stops the worker: the running update is cancelled (its scan stays stored
+  // and is retrained after a restart) and the thread is joined. Returns false
+  // if it did not stop within `timeout` (the thread is then left running; the
+  // caller should exit the process).
+  bool Stop(std::chrono::duration<double> timeout);
+  bool stopping() const { return stopping_.load(); }
+
+ private:
+  void Loop();
+  void RunJob(const std::string& job_id);
+  // Blocks until the publisher accepts writes (retrying it every
+  // store_retry_seconds) or Stop(); false on Stop.
+  bool WaitForWritableStore(const std::string& job_id);
+  void Finish(const std::string& job_id, const std::string& scan_id, JobPhase phase, const std::string& error,
+              bool remove_scan);
+
+  const ServerOptions options_;
+  ScanStore* const scans_;
+  Publisher* const publisher_;
+  JobTracker* const jobs_;
+  std::atomic<bool> cancel_{false};
+  std::atomic<bool> stopping_{false};
+  std::mutex mu_;
+  std::condition_variable cv_;  // Wakes store retries on Stop; signals exit.
+  bool exited_ = false;         // Guarded by mu_.
+  std::thread thread_;
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_SERVER_UPDATE_WORKER_H_
