@@ -88,7 +88,8 @@ void JobTracker::LoadHistory() {
   }
   std::lock_guard<std::mutex> lock(mu_);
   try {
-    for (const nlohmann::json& o : nlohmann::json::parse(*text).at("jobs")) {
+    const nlohmann::json doc = nlohmann::json::parse(*text);  // Must outlive the loop.
+    for (const nlohmann::json& o : doc.at("jobs")) {
       JobStatus j;
       if (!JobFromJson(o, &j) || jobs_.count(j.job_id)) continue;
       InsertLocked(std::move(j));

@@ -31,6 +31,7 @@ absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& 
   po.store_dir = options.store_dir;
   po.cached_versions = options.cached_versions;
   po.keep_versions = options.keep_versions;
+  po.retry_seconds = options.store_retry_seconds;
   absl::StatusOr<std::unique_ptr<Publisher>> publisher = Publisher::Open(po);
   if (!publisher.ok()) return publisher.status();
   host->publisher_ = *std::move(publisher);

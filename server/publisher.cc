@@ -86,6 +86,7 @@ absl::Status Publisher::RecoverLocked() {
 }
 
 void Publisher::SetErrorLocked(const absl::Status& s) {
+  last_check_ = std::chrono::steady_clock::now();
   if (bg_error_.ok()) spdlog::error("store is read-only until it recovers: {}", std::string(s.message()));
   bg_error_ = s;
 }
@@ -95,8 +96,15 @@ void Publisher::SetErrorForTesting(const absl::Status& s) {
   SetErrorLocked(s);
 }
 
-absl::Status Publisher::WritableStatus() const {
+void Publisher::MaybeRetryLocked() {
+  if (bg_error_.ok()) return;
+  if (std::chrono::steady_clock::now() - last_check_ < std::chrono::duration<double>(options_.retry_seconds)) return;
+  (void)RetryLocked();
+}
+
+absl::Status Publisher::WritableStatus() {
   std::lock_guard<std::mutex> lock(mu_);
+  MaybeRetryLocked();
   if (bg_error_.ok()) return absl::OkStatus();
   return absl::UnavailableError(absl::StrCat("the store refuses writes after an error: ", bg_error_.message(),
                                              " (renders of stored versions still work; writes resume once the "
@@ -110,7 +118,12 @@ std::string Publisher::error() const {
 
 absl::Status Publisher::Retry() {
   std::lock_guard<std::mutex> lock(mu_);
+  return RetryLocked();
+}
+
+absl::Status Publisher::RetryLocked() {
   if (bg_error_.ok()) return absl::OkStatus();
+  last_check_ = std::chrono::steady_clock::now();
   absl::Status s = RecoverLocked();
   if (!s.ok()) {
     bg_error_ = s;
@@ -123,6 +136,7 @@ absl::Status Publisher::Retry() {
 
 absl::StatusOr<ReservedIds> Publisher::ReserveIds() {
   std::lock_guard<std::mutex> lock(mu_);
+  MaybeRetryLocked();
   if (!bg_error_.ok()) {
     return absl::UnavailableError(absl::StrCat("the store refuses writes after an error: ", bg_error_.message()));
   }

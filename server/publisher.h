@@ -22,6 +22,7 @@
 #ifndef CLNERF_SERVER_PUBLISHER_H_
 #define CLNERF_SERVER_PUBLISHER_H_
 
+#include <chrono>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -38,6 +39,7 @@ struct PublisherOptions {
   std::string store_dir;
   int cached_versions = 4;  // Non-deployed versions kept in memory.
   int keep_versions = 0;    // Versions kept on disk (0 = all; the deployed one is never pruned).
+  double retry_seconds = 5;  // While the sticky error is set, writers re-check the store this often.
 };
 
 struct ReservedIds {
@@ -55,8 +57,10 @@ class Publisher {
   const ModelRegistry& registry() const { return registry_; }
   VersionStore& versions() { return *versions_; }
 
-  // OK, or UNAVAILABLE naming the sticky error.
-  absl::Status WritableStatus() const;
+  // OK, or UNAVAILABLE naming the sticky error. While the error is set, a
+  // call at least retry_seconds after the last check runs Retry() first, so
+  // the store recovers by itself once space returns.
+  absl::Status WritableStatus();
   // The sticky error's message ("" when healthy), for info and health.
   std::string error() const;
 
@@ -77,6 +81,8 @@ class Publisher {
   absl::StatusOr<std::shared_ptr<const Servable>> LoadServable(int64_t version) const;
   // Recovery steps; caller holds mu_.
   absl::Status RecoverLocked();
+  absl::Status RetryLocked();
+  void MaybeRetryLocked();  // RetryLocked() if retry_seconds passed.
   void SetErrorLocked(const absl::Status& s);
   void PruneLocked();
 
@@ -86,6 +92,7 @@ class Publisher {
   mutable std::mutex mu_;
   Manifest manifest_;        // As last written (or read).
   absl::Status bg_error_;    // Sticky; guarded by mu_.
+  std::chrono::steady_clock::time_point last_check_;  // Of the store, while bg_error_ is set.
 };
 
 }  // namespace clnerf
