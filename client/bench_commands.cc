@@ -37,12 +37,7 @@ int RunBenchRender(const BenchRenderArgs& a) {
     const int n = std::min<int>(a.views, int(views.size()));
     for (int i = 0; i < n; ++i) {
       Camera cam = views[size_t(i) * views.size() / n].camera;
-      const float s = float(size) / cam.intrinsics.width;
-      cam.intrinsics.fx *= s;
-      cam.intrinsics.fy *= s;
-      cam.intrinsics.cx *= s;
-      cam.intrinsics.cy *= float(size) / cam.intrinsics.height;
-      cam.intrinsics.width = cam.intrinsics.height = size;
+      cam.intrinsics = cam.intrinsics.Scaled(size, size);
       std::vector<double> rep;
       for (int r = 0; r < std::max(1, a.repeats); ++r) {
         const auto t0 = std::chrono::steady_clock::now();

@@ -50,12 +50,7 @@ double Percentile(std::vector<double> v, double q) {
 }
 
 Camera Resized(Camera c, int size) {
-  const float sx = float(size) / c.intrinsics.width, sy = float(size) / c.intrinsics.height;
-  c.intrinsics.width = c.intrinsics.height = size;
-  c.intrinsics.fx *= sx;
-  c.intrinsics.cx *= sx;
-  c.intrinsics.fy *= sy;
-  c.intrinsics.cy *= sy;
+  c.intrinsics = c.intrinsics.Scaled(size, size);
   return c;
 }
 

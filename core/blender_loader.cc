@@ -22,7 +22,7 @@ namespace fs = std::filesystem;
 using nlohmann::json;
 
 absl::Status LoadSplit(const fs::path& dir, const std::string& file_name,
-                       const BlenderLoadOptions& opts, std::vector<View>* out) {
+                       const DatasetOptions& opts, std::vector<View>* out) {
   const fs::path json_path = dir / file_name;
   absl::StatusOr<json> doc = ReadJson(json_path);
   if (!doc.ok()) return doc.status();
@@ -98,18 +98,8 @@ absl::Status LoadSplit(const fs::path& dir, const std::string& file_name,
 
 }  // namespace
 
-absl::Status BlenderLoadOptions::Validate() const {
-  if (!(downscale >= 1.0f && downscale <= 64.0f)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("BlenderLoadOptions.downscale must be in [1, 64], got ", downscale));
-  }
-  if (max_images_per_split < 0) {
-    return absl::InvalidArgumentError("BlenderLoadOptions.max_images_per_split must be >= 0");
-  }
-  return absl::OkStatus();
-}
 
-absl::StatusOr<Scene> LoadBlenderScene(const std::string& dir, const BlenderLoadOptions& opts) {
+absl::StatusOr<Scene> LoadBlenderScene(const std::string& dir, const DatasetOptions& opts) {
   if (absl::Status s = opts.Validate(); !s.ok()) return s;
   const fs::path root(dir);
   std::error_code ec;

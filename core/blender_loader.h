@@ -25,27 +25,16 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "core/dataset_options.h"
 #include "core/scene.h"
 
 namespace clnerf {
 
-struct BlenderLoadOptions {
-  // Decode images and masks. When false only cameras are built; the image size
-  // comes from "w"/"h" or from the first frame's image of each split.
-  bool load_images = true;
-  // Shrink factor >= 1: images are resized to round(W / downscale) x
-  // round(H / downscale) and intrinsics scaled to match.
-  float downscale = 1.0f;
-  // Keep only the first N frames of each split (0 = all).
-  int max_images_per_split = 0;
-
-  absl::Status Validate() const;
-};
 
 // Loads `dir`. At least one of the three split files must exist (NOT_FOUND
 // otherwise); missing image files are NOT_FOUND, malformed json or fields are
 // INVALID_ARGUMENT naming the file and the field.
-absl::StatusOr<Scene> LoadBlenderScene(const std::string& dir, const BlenderLoadOptions& opts = {});
+absl::StatusOr<Scene> LoadBlenderScene(const std::string& dir, const DatasetOptions& opts = {});
 
 }  // namespace clnerf
 

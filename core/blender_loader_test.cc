@@ -128,7 +128,7 @@ TEST_F(BlenderLoaderTest, TimeStepMaskDownscaleAndLimits) {
   EXPECT_EQ(m.keep[7], 0);
   EXPECT_TRUE(full->train[1].mask.empty());
 
-  BlenderLoadOptions opts;
+  DatasetOptions opts;
   opts.downscale = 2.0f;
   opts.max_images_per_split = 1;
   absl::StatusOr<Scene> small = LoadBlenderScene(dir_.string(), opts);
@@ -156,7 +156,7 @@ TEST_F(BlenderLoaderTest, Errors) {
             absl::StatusCode::kNotFound);
   EXPECT_EQ(LoadBlenderScene(dir_.string()).status().code(), absl::StatusCode::kNotFound);
 
-  BlenderLoadOptions bad;
+  DatasetOptions bad;
   bad.downscale = 0.5f;
   EXPECT_FALSE(bad.Validate().ok());
   EXPECT_EQ(LoadBlenderScene(dir_.string(), bad).status().code(),

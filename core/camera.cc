@@ -64,6 +64,18 @@ void Camera::Ray(float px, float py, Eigen::Vector3f* origin, Eigen::Vector3f* d
   *origin = c2w.col(3);
 }
 
+Intrinsics Intrinsics::Scaled(int new_width, int new_height) const {
+  Intrinsics out = *this;
+  const float sx = float(new_width) / float(width), sy = float(new_height) / float(height);
+  out.width = new_width;
+  out.height = new_height;
+  out.fx *= sx;
+  out.cx *= sx;
+  out.fy *= sy;
+  out.cy *= sy;
+  return out;
+}
+
 absl::Status ValidateCamera(const Camera& camera, float tolerance) {
   const Intrinsics& in = camera.intrinsics;
   if (in.width <= 0 || in.height <= 0 || in.width > 16384 || in.height > 16384) {

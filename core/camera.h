@@ -22,6 +22,10 @@ struct Intrinsics {
   float fx = 0, fy = 0, cx = 0, cy = 0;
   float k1 = 0, k2 = 0, p1 = 0, p2 = 0;  // OpenCV radial-tangential.
   bool has_distortion() const { return k1 != 0 || k2 != 0 || p1 != 0 || p2 != 0; }
+  // The same camera at a new image size: fx and cx scale with the width
+  // ratio, fy and cy with the height ratio (so a non-square resize stays
+  // correct); distortion is unchanged.
+  Intrinsics Scaled(int new_width, int new_height) const;
 };
 
 // 3x4 camera-to-world matrix [R | t] in OpenCV convention.

@@ -409,20 +409,8 @@ absl::Status ReadModel(const fs::path& root, Cameras* cams, std::vector<ColmapIm
 
 }  // namespace
 
-absl::Status ColmapLoadOptions::Validate() const {
-  if (!(downscale >= 1.0f && downscale <= 64.0f)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("ColmapLoadOptions.downscale must be in [1, 64], got ", downscale));
-  }
-  if (test_every < 0)
-    return absl::InvalidArgumentError("ColmapLoadOptions.test_every must be >= 0");
-  if (max_images_per_split < 0) {
-    return absl::InvalidArgumentError("ColmapLoadOptions.max_images_per_split must be >= 0");
-  }
-  return absl::OkStatus();
-}
 
-absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const ColmapLoadOptions& opts) {
+absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const DatasetOptions& opts) {
   if (absl::Status s = opts.Validate(); !s.ok()) return s;
   const fs::path root(dir);
   std::error_code ec;

@@ -42,34 +42,17 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "core/dataset_options.h"
 #include "core/scene.h"
 
 namespace clnerf {
 
-struct ColmapLoadOptions {
-  // Decode images. When false, only cameras are built (sizes from cameras.*).
-  bool load_images = true;
-  // Shrink factor >= 1 applied to images and intrinsics, relative to the
-  // images in images/. An integer N reads images_N/ instead when it exists.
-  float downscale = 1.0f;
-  // Image folder, absolute or relative to the dataset directory (e.g.
-  // "images_4", "../images"). "" = automatic (see above). An explicit folder
-  // is taken as is: `downscale` then applies on top of its images.
-  std::string images_dir = "";
-  // Per time step, views 0, N, 2N, ... (sorted by name) are test views.
-  // 0 = no test split.
-  int test_every = 8;
-  // Keep only the first N views of each split (0 = all).
-  int max_images_per_split = 0;
-
-  absl::Status Validate() const;
-};
 
 // Loads `dir`. NOT_FOUND when no sparse model, the explicit image folder or
 // (with load_images) an image file is missing; INVALID_ARGUMENT for malformed
 // or truncated model files (naming the file), unsupported camera models, and
 // images whose aspect ratio does not match their camera.
-absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const ColmapLoadOptions& opts = {});
+absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const DatasetOptions& opts = {});
 
 }  // namespace clnerf
 

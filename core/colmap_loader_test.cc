@@ -120,8 +120,8 @@ class ColmapLoaderTest : public ::testing::Test {
     std::ofstream(dir_ / sub / "images.bin", std::ios::binary) << i;
   }
 
-  static ColmapLoadOptions NoTest() {
-    ColmapLoadOptions o;
+  static DatasetOptions NoTest() {
+    DatasetOptions o;
     o.test_every = 0;
     return o;
   }
@@ -189,7 +189,7 @@ TEST_F(ColmapLoaderTest, RadialModelsMapToIntrinsics) {
                                  MakeImg(2, "b.png", {0, 0, -4}, Eigen::Matrix3d::Identity(), 2),
                                  MakeImg(3, "c.png", {0, 0, -4}, Eigen::Matrix3d::Identity(), 3)};
   WriteBinary(cams, imgs);
-  ColmapLoadOptions opts = NoTest();
+  DatasetOptions opts = NoTest();
   opts.load_images = false;
   absl::StatusOr<Scene> scene = LoadColmapScene(dir_.string(), opts);
   ASSERT_TRUE(scene.ok()) << scene.status();
@@ -261,7 +261,7 @@ TEST_F(ColmapLoaderTest, DownscaledFoldersScaleIntrinsicsFromTheImageSize) {
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name + " downscale " + std::to_string(c.downscale));
-    ColmapLoadOptions opts = NoTest();
+    DatasetOptions opts = NoTest();
     opts.downscale = c.downscale;
     opts.images_dir = c.images_dir;
     opts.load_images = c.load_images;
@@ -291,7 +291,7 @@ TEST_F(ColmapLoaderTest, ModelInASubfolderFindsTheImagesAboveIt) {
   const std::string source = (dir_ / "source").string();
 
   // Without images and without load_images: the calibration's own size.
-  ColmapLoadOptions opts = NoTest();
+  DatasetOptions opts = NoTest();
   opts.load_images = false;
   absl::StatusOr<Scene> scene = LoadColmapScene(source, opts);
   ASSERT_TRUE(scene.ok()) << scene.status();
@@ -331,7 +331,7 @@ TEST_F(ColmapLoaderTest, ModelInASubfolderFindsTheImagesAboveIt) {
 TEST_F(ColmapLoaderTest, Points3DBecomeContentPoints) {
   const std::vector<Img> imgs = {MakeImg(1, "a.png", {0, 0, -4})};
   const std::vector<Eigen::Vector3d> pts = {{1.5, -2, 3}, {0.25, 0, -1e3}};
-  ColmapLoadOptions opts = NoTest();
+  DatasetOptions opts = NoTest();
   opts.load_images = false;
 
   WriteBinary(kCams, imgs);
@@ -381,7 +381,7 @@ TEST_F(ColmapLoaderTest, Points3DBecomeContentPoints) {
 TEST_F(ColmapLoaderTest, Errors) {
   EXPECT_EQ(LoadColmapScene((dir_ / "nope").string()).status().code(), absl::StatusCode::kNotFound);
   EXPECT_EQ(LoadColmapScene(dir_.string()).status().code(), absl::StatusCode::kNotFound);
-  ColmapLoadOptions bad;
+  DatasetOptions bad;
   bad.downscale = 0;
   EXPECT_FALSE(bad.Validate().ok());
 

@@ -74,17 +74,6 @@ absl::StatusOr<DatasetFormat> DetectDatasetFormat(const std::string& dir) {
                    "sparse/[0/]cameras.{bin,txt} (COLMAP) or poses_bounds.npy (LLFF)"));
 }
 
-absl::Status DatasetOptions::Validate() const {
-  if (!(downscale >= 1.0f && downscale <= 64.0f)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("DatasetOptions.downscale must be in [1, 64], got ", downscale));
-  }
-  if (test_every < 0) return absl::InvalidArgumentError("DatasetOptions.test_every must be >= 0");
-  if (max_images_per_split < 0) {
-    return absl::InvalidArgumentError("DatasetOptions.max_images_per_split must be >= 0");
-  }
-  return absl::OkStatus();
-}
 
 absl::StatusOr<Scene> LoadScene(const std::string& dir, const DatasetOptions& opts) {
   if (absl::Status s = opts.Validate(); !s.ok()) return s;
@@ -92,44 +81,10 @@ absl::StatusOr<Scene> LoadScene(const std::string& dir, const DatasetOptions& op
   if (!format.ok()) return format.status();
   absl::StatusOr<Scene> scene;
   switch (*format) {
-    case DatasetFormat::kBlender: {
-      BlenderLoadOptions o;
-      o.load_images = opts.load_images;
-      o.downscale = opts.downscale;
-      o.max_images_per_split = opts.max_images_per_split;
-      scene = LoadBlenderScene(dir, o);
-      break;
-    }
-    case DatasetFormat::kInstantNgp: {
-      NgpLoadOptions o;
-      o.load_images = opts.load_images;
-      o.downscale = opts.downscale;
-      o.test_every = opts.test_every;
-      o.max_images_per_split = opts.max_images_per_split;
-      o.bounded = opts.ngp_bounded;
-      scene = LoadNgpScene(dir, o);
-      break;
-    }
-    case DatasetFormat::kColmap: {
-      ColmapLoadOptions o;
-      o.load_images = opts.load_images;
-      o.downscale = opts.downscale;
-      o.test_every = opts.test_every;
-      o.max_images_per_split = opts.max_images_per_split;
-      o.images_dir = opts.images_dir;
-      scene = LoadColmapScene(dir, o);
-      break;
-    }
-    case DatasetFormat::kLlff: {
-      LlffLoadOptions o;
-      o.load_images = opts.load_images;
-      o.downscale = opts.downscale;
-      o.test_every = opts.test_every;
-      o.max_images_per_split = opts.max_images_per_split;
-      o.images_dir = opts.images_dir;
-      scene = LoadLlffScene(dir, o);
-      break;
-    }
+    case DatasetFormat::kBlender: scene = LoadBlenderScene(dir, opts); break;
+    case DatasetFormat::kInstantNgp: scene = LoadNgpScene(dir, opts); break;
+    case DatasetFormat::kColmap: scene = LoadColmapScene(dir, opts); break;
+    case DatasetFormat::kLlff: scene = LoadLlffScene(dir, opts); break;
   }
   if (!scene.ok()) return scene.status();
   const fs::path norm = fs::path(dir).lexically_normal();
@@ -145,33 +100,5 @@ absl::StatusOr<Scene> LoadScene(const std::string& dir, const DatasetOptions& op
   return scene;
 }
 
-void DownscaleView(float factor, View* view) {
-  Intrinsics& in = view->camera.intrinsics;
-  if (!(factor > 1.0f) || in.width <= 0 || in.height <= 0) return;
-  const int old_w = in.width, old_h = in.height;
-  const int w = std::max(1, int(std::lround(old_w / factor)));
-  const int h = std::max(1, int(std::lround(old_h / factor)));
-  const float sx = float(w) / old_w, sy = float(h) / old_h;
-  in.fx *= sx;
-  in.cx *= sx;
-  in.fy *= sy;
-  in.cy *= sy;
-  in.width = w;
-  in.height = h;
-  // Mismatched images/masks are left alone so ValidateScene() reports them.
-  if (view->image.width == old_w && view->image.height == old_h) {
-    view->image = ResizeImage(view->image, w, h);
-  }
-  Mask& m = view->mask;
-  if (!m.empty() && m.width == old_w && m.height == old_h) {
-    Image as_image(m.width, m.height);
-    for (size_t i = 0; i < m.keep.size(); ++i) as_image.rgb[i * 3] = m.keep[i] ? 1.0f : 0.0f;
-    const Image small = ResizeImage(as_image, w, h);
-    m.width = w;
-    m.height = h;
-    m.keep.assign(small.num_pixels(), 0);
-    for (size_t i = 0; i < m.keep.size(); ++i) m.keep[i] = small.rgb[i * 3] >= 0.5f;
-  }
-}
 
 }  // namespace clnerf

@@ -27,6 +27,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "core/dataset_options.h"
 #include "core/scene.h"
 
 namespace clnerf {
@@ -44,37 +45,9 @@ const char* DatasetFormatName(DatasetFormat format);
 // NOT_FOUND when `dir` does not exist or holds none of the known layouts.
 absl::StatusOr<DatasetFormat> DetectDatasetFormat(const std::string& dir);
 
-struct DatasetOptions {
-  // Decode images (and masks). When false only cameras are loaded; image
-  // sizes still come from the metadata or from the image headers.
-  bool load_images = true;
-  // Integer-ish factor >= 1 by which images are shrunk; intrinsics follow.
-  // COLMAP and LLFF read images_N/ for an integer N when it exists.
-  float downscale = 1.0f;
-  // COLMAP and LLFF only: the image folder, absolute or relative to the
-  // dataset directory; "" = automatic (images_N/ or images/, beside the model
-  // or one level up). See colmap_loader.h.
-  std::string images_dir = "";
-  // instant-ngp (without an explicit split), COLMAP and LLFF: every `test_every`-th
-  // view, starting with the first, goes to the test split. 0 = no test split.
-  int test_every = 8;
-  // Keep at most this many views per split (0 = all). Useful for quick runs.
-  int max_images_per_split = 0;
-  // instant-ngp only: treat the scene as a bounded object scene (kBounded,
-  // white background) instead of an unbounded capture.
-  bool ngp_bounded = false;
-
-  absl::Status Validate() const;
-};
-
 // Detects the format, loads the scene with the matching loader and validates
 // it. Scene::name is the directory's base name.
 absl::StatusOr<Scene> LoadScene(const std::string& dir, const DatasetOptions& opts = {});
-
-// Shared by the loaders: shrinks `view` by `factor` (>= 1). The new size is
-// round(size / factor) (at least 1); intrinsics are rescaled to it, and the
-// image and mask, when present, are resampled. A factor of 1 is a no-op.
-void DownscaleView(float factor, View* view);
 
 }  // namespace clnerf
 

@@ -121,6 +121,25 @@ TEST(DatasetOptionsTest, Validate) {
   EXPECT_EQ(LoadScene("/nonexistent", o).status().code(), absl::StatusCode::kInvalidArgument);
 }
 
+TEST(IntrinsicsTest, ScaledUsesTheRatioOfEachAxis) {
+  Intrinsics in;
+  in.width = 200;
+  in.height = 100;
+  in.fx = 150;
+  in.fy = 160;
+  in.cx = 100;
+  in.cy = 50;
+  in.k1 = 0.1f;
+  const Intrinsics s = in.Scaled(50, 50);  // x by 1/4, y by 1/2.
+  EXPECT_EQ(s.width, 50);
+  EXPECT_EQ(s.height, 50);
+  EXPECT_FLOAT_EQ(s.fx, 37.5f);
+  EXPECT_FLOAT_EQ(s.cx, 25.0f);
+  EXPECT_FLOAT_EQ(s.fy, 80.0f);
+  EXPECT_FLOAT_EQ(s.cy, 25.0f);
+  EXPECT_FLOAT_EQ(s.k1, 0.1f);
+}
+
 TEST(DownscaleViewTest, ScalesIntrinsicsImageAndMask) {
   View v;
   v.camera.intrinsics = {.width = 9, .height = 6, .fx = 18, .fy = 12, .cx = 4.5f, .cy = 3};
@@ -213,17 +232,17 @@ TEST(DatasetRealDataTest, Beer2LoadersAgree) {
   EXPECT_EQ(*DetectDatasetFormat(dir.string()), DatasetFormat::kInstantNgp);
   EXPECT_EQ(*DetectDatasetFormat((dir / "source").string()), DatasetFormat::kColmap);
 
-  NgpLoadOptions ngp_opts;
+  DatasetOptions ngp_opts;
   ngp_opts.load_images = false;
   ngp_opts.test_every = 0;
   absl::StatusOr<Scene> ngp = LoadNgpScene(dir.string(), ngp_opts);
   ASSERT_TRUE(ngp.ok()) << ngp.status();
-  ColmapLoadOptions colmap_opts;
+  DatasetOptions colmap_opts;
   colmap_opts.load_images = false;  // Sizes from the image headers.
   colmap_opts.test_every = 0;
   absl::StatusOr<Scene> colmap = LoadColmapScene((dir / "source").string(), colmap_opts);
   ASSERT_TRUE(colmap.ok()) << colmap.status();
-  LlffLoadOptions llff_opts;
+  DatasetOptions llff_opts;
   llff_opts.load_images = false;
   llff_opts.test_every = 0;
   absl::StatusOr<Scene> llff = LoadLlffScene((dir / "source").string(), llff_opts);

@@ -32,19 +32,8 @@ Pose ToPose(const NpyArray& a, int64_t i) {
 
 }  // namespace
 
-absl::Status LlffLoadOptions::Validate() const {
-  if (!(downscale >= 1.0f && downscale <= 64.0f)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("LlffLoadOptions.downscale must be in [1, 64], got ", downscale));
-  }
-  if (test_every < 0) return absl::InvalidArgumentError("LlffLoadOptions.test_every must be >= 0");
-  if (max_images_per_split < 0) {
-    return absl::InvalidArgumentError("LlffLoadOptions.max_images_per_split must be >= 0");
-  }
-  return absl::OkStatus();
-}
 
-absl::StatusOr<Scene> LoadLlffScene(const std::string& dir, const LlffLoadOptions& opts) {
+absl::StatusOr<Scene> LoadLlffScene(const std::string& dir, const DatasetOptions& opts) {
   if (absl::Status s = opts.Validate(); !s.ok()) return s;
   const fs::path root(dir);
   std::error_code ec;

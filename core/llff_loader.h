@@ -37,36 +37,18 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "core/dataset_options.h"
 #include "core/scene.h"
 
 namespace clnerf {
 
-struct LlffLoadOptions {
-  // Decode images. When false, only cameras are built (sizes from the image
-  // headers).
-  bool load_images = true;
-  // Shrink factor >= 1 applied to images and intrinsics, relative to the
-  // images in images/. An integer N reads images_N/ instead when it exists.
-  float downscale = 1.0f;
-  // Image folder, absolute or relative to the dataset directory (e.g.
-  // "images_4", "../images"). "" = automatic (see above). An explicit folder
-  // is taken as is: `downscale` then applies on top of its images.
-  std::string images_dir = "";
-  // Views 0, N, 2N, ... (in sorted file order) are test views. 0 = no test
-  // split.
-  int test_every = 8;
-  // Keep only the first N views of each split (0 = all).
-  int max_images_per_split = 0;
-
-  absl::Status Validate() const;
-};
 
 // Loads `dir` (which holds poses_bounds.npy). NOT_FOUND when the directory,
 // poses_bounds.npy, the image folder or an image is missing; INVALID_ARGUMENT
 // naming the file for a malformed .npy (dtype, order, shape), a count of
 // images that does not match its rows, non-positive h, w, f or bounds, and
 // images whose aspect ratio does not match h, w.
-absl::StatusOr<Scene> LoadLlffScene(const std::string& dir, const LlffLoadOptions& opts = {});
+absl::StatusOr<Scene> LoadLlffScene(const std::string& dir, const DatasetOptions& opts = {});
 
 }  // namespace clnerf
 

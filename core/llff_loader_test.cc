@@ -119,7 +119,7 @@ TEST_F(LlffLoaderTest, ConvertsDownRightBackToOpenCV) {
     values.insert(values.end(), row1.begin(), row1.end());
     std::ofstream(dir_ / "poses_bounds.npy", std::ios::binary) << NpyFile(values, 2, float32);
     WriteImages(dir_ / "images", 2, 16, 12);
-    LlffLoadOptions opts;
+    DatasetOptions opts;
     opts.test_every = 0;
     absl::StatusOr<Scene> scene = LoadLlffScene(dir_.string(), opts);
     ASSERT_TRUE(scene.ok()) << scene.status();
@@ -183,7 +183,7 @@ TEST_F(LlffLoaderTest, IntrinsicsFollowTheImagesRead) {
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.folder + " downscale " + std::to_string(c.downscale));
-    LlffLoadOptions opts;
+    DatasetOptions opts;
     opts.downscale = c.downscale;
     opts.images_dir = c.images_dir;
     opts.load_images = c.load_images;
@@ -240,7 +240,7 @@ TEST_F(LlffLoaderTest, Errors) {
   absl::Status s = LoadLlffScene(dir).status();
   EXPECT_EQ(s.code(), absl::StatusCode::kNotFound);
   EXPECT_NE(s.message().find("poses_bounds.npy"), std::string::npos) << s;
-  LlffLoadOptions bad;
+  DatasetOptions bad;
   bad.test_every = -1;
   EXPECT_FALSE(bad.Validate().ok());
 

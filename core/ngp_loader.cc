@@ -132,7 +132,7 @@ absl::Status AddMask(const fs::path& path, bool nonzero_is_exclude, Mask* mask) 
   return absl::OkStatus();
 }
 
-absl::StatusOr<View> LoadFrame(const fs::path& dir, const FrameRef& ref, const NgpLoadOptions& opts,
+absl::StatusOr<View> LoadFrame(const fs::path& dir, const FrameRef& ref, const DatasetOptions& opts,
                                const Eigen::Vector3f& background) {
   const json& f = *ref.frame;
   const std::string file_path = f["file_path"].get<std::string>();
@@ -248,19 +248,8 @@ absl::Status ReadHints(const json& doc, const std::string& file, Scene* scene) {
 
 }  // namespace
 
-absl::Status NgpLoadOptions::Validate() const {
-  if (!(downscale >= 1.0f && downscale <= 64.0f)) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("NgpLoadOptions.downscale must be in [1, 64], got ", downscale));
-  }
-  if (test_every < 0) return absl::InvalidArgumentError("NgpLoadOptions.test_every must be >= 0");
-  if (max_images_per_split < 0) {
-    return absl::InvalidArgumentError("NgpLoadOptions.max_images_per_split must be >= 0");
-  }
-  return absl::OkStatus();
-}
 
-absl::StatusOr<Scene> LoadNgpScene(const std::string& dir, const NgpLoadOptions& opts) {
+absl::StatusOr<Scene> LoadNgpScene(const std::string& dir, const DatasetOptions& opts) {
   if (absl::Status s = opts.Validate(); !s.ok()) return s;
   const fs::path root(dir);
   std::error_code ec;
@@ -271,8 +260,8 @@ absl::StatusOr<Scene> LoadNgpScene(const std::string& dir, const NgpLoadOptions&
   const fs::path norm = root.lexically_normal();
   scene.name =
       norm.has_filename() ? norm.filename().string() : norm.parent_path().filename().string();
-  scene.kind = opts.bounded ? SceneKind::kBounded : SceneKind::kUnbounded;
-  scene.background = opts.bounded ? Eigen::Vector3f::Ones() : Eigen::Vector3f::Zero();
+  scene.kind = opts.ngp_bounded ? SceneKind::kBounded : SceneKind::kUnbounded;
+  scene.background = opts.ngp_bounded ? Eigen::Vector3f::Ones() : Eigen::Vector3f::Zero();
 
   std::deque<json> docs;  // Stable addresses for FrameRef.
   std::vector<FrameRef> refs;

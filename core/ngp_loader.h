@@ -25,7 +25,7 @@
 // (offset defaults to 0.5); our model box is centred at 0, so the world point
 // that lands on the box centre is (0.5 - offset) / scale, which is what
 // world_offset_hint holds: 0 unless the file gives "offset".
-// Kind kUnbounded with a black background unless NgpLoadOptions::bounded
+// Kind kUnbounded with a black background unless DatasetOptions::bounded
 // (then kBounded with a white background, RGBA composited on it).
 // The result is not validated; call ValidateScene() (LoadScene() does).
 //
@@ -37,31 +37,16 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "core/dataset_options.h"
 #include "core/scene.h"
 
 namespace clnerf {
 
-struct NgpLoadOptions {
-  // Decode images and masks. When false, only cameras are built (images are
-  // still decoded for their size when the json gives no "w"/"h").
-  bool load_images = true;
-  // Shrink factor >= 1 applied to images, masks and intrinsics.
-  float downscale = 1.0f;
-  // Without an explicit split, every `test_every`-th frame (0, N, 2N, ...)
-  // goes to test. 0 = everything is training data.
-  int test_every = 8;
-  // Keep only the first N views of each split (0 = all).
-  int max_images_per_split = 0;
-  // Object scene: kBounded, white background.
-  bool bounded = false;
-
-  absl::Status Validate() const;
-};
 
 // Loads `dir` (which holds transforms.json or transforms_train.json). Missing
 // json or image files are NOT_FOUND; malformed json or fields are
 // INVALID_ARGUMENT naming the file, the frame and the field.
-absl::StatusOr<Scene> LoadNgpScene(const std::string& dir, const NgpLoadOptions& opts = {});
+absl::StatusOr<Scene> LoadNgpScene(const std::string& dir, const DatasetOptions& opts = {});
 
 }  // namespace clnerf
 

@@ -46,8 +46,8 @@ class NgpLoaderTest : public ::testing::Test {
     return {{"file_path", path},
             {"transform_matrix", {{1, 0, 0, x}, {0, 1, 0, 0}, {0, 0, 1, 4}, {0, 0, 0, 1}}}};
   }
-  static NgpLoadOptions NoTest() {
-    NgpLoadOptions o;
+  static DatasetOptions NoTest() {
+    DatasetOptions o;
     o.test_every = 0;
     return o;
   }
@@ -130,7 +130,7 @@ TEST_F(NgpLoaderTest, TestEverySplitSortsByPath) {
     frames.push_back(Frame("f" + std::to_string(i) + ".png", float(i)));
   }
   WriteJson("transforms.json", {{"fl_x", 10.0}, {"frames", frames}});
-  NgpLoadOptions opts;
+  DatasetOptions opts;
   opts.test_every = 2;
   absl::StatusOr<Scene> scene = LoadNgpScene(dir_.string(), opts);
   ASSERT_TRUE(scene.ok()) << scene.status();
@@ -199,8 +199,8 @@ TEST_F(NgpLoaderTest, HintsBoundedAndDownscale) {
   WriteJson(
       "transforms.json",
       {{"fl_x", 10.0}, {"scale", 0.5}, {"offset", {0.6, 0.5, 0.5}}, {"frames", {Frame("a.png")}}});
-  NgpLoadOptions opts = NoTest();
-  opts.bounded = true;
+  DatasetOptions opts = NoTest();
+  opts.ngp_bounded = true;
   opts.downscale = 2;
   absl::StatusOr<Scene> scene = LoadNgpScene(dir_.string(), opts);
   ASSERT_TRUE(scene.ok()) << scene.status();
@@ -220,7 +220,7 @@ TEST_F(NgpLoaderTest, HintsBoundedAndDownscale) {
 TEST_F(NgpLoaderTest, Errors) {
   EXPECT_EQ(LoadNgpScene((dir_ / "nope").string()).status().code(), absl::StatusCode::kNotFound);
   EXPECT_EQ(LoadNgpScene(dir_.string()).status().code(), absl::StatusCode::kNotFound);
-  NgpLoadOptions bad;
+  DatasetOptions bad;
   bad.test_every = -1;
   EXPECT_FALSE(bad.Validate().ok());
 

@@ -146,4 +146,27 @@ absl::Status ValidateScene(const Scene& scene) {
   return absl::OkStatus();
 }
 
+void DownscaleView(float factor, View* view) {
+  Intrinsics& in = view->camera.intrinsics;
+  if (!(factor > 1.0f) || in.width <= 0 || in.height <= 0) return;
+  const int old_w = in.width, old_h = in.height;
+  const int w = std::max(1, int(std::lround(old_w / factor)));
+  const int h = std::max(1, int(std::lround(old_h / factor)));
+  in = in.Scaled(w, h);
+  // Mismatched images/masks are left alone so ValidateScene() reports them.
+  if (view->image.width == old_w && view->image.height == old_h) {
+    view->image = ResizeImage(view->image, w, h);
+  }
+  Mask& m = view->mask;
+  if (!m.empty() && m.width == old_w && m.height == old_h) {
+    Image as_image(m.width, m.height);
+    for (size_t i = 0; i < m.keep.size(); ++i) as_image.rgb[i * 3] = m.keep[i] ? 1.0f : 0.0f;
+    const Image small = ResizeImage(as_image, w, h);
+    m.width = w;
+    m.height = h;
+    m.keep.assign(small.num_pixels(), 0);
+    for (size_t i = 0; i < m.keep.size(); ++i) m.keep[i] = small.rgb[i * 3] >= 0.5f;
+  }
+}
+
 }  // namespace clnerf

@@ -28,6 +28,12 @@ struct View {
   Mask mask;         // Optional; empty means "use every pixel".
 };
 
+// Shrinks `view` by `factor` (>= 1), as the loaders do. The new size is
+// round(size / factor) (at least 1); intrinsics are rescaled to it
+// (Intrinsics::Scaled), and the image and mask, when present, are
+// resampled. A factor of 1 is a no-op.
+void DownscaleView(float factor, View* view);
+
 // What kind of content the scene has; drives the box size, the step-size rule
 // and the background colour.
 enum class SceneKind {

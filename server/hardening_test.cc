@@ -208,12 +208,7 @@ TEST_F(ServerFixture, AbandonedRendersFreeTheirSlot) {
   const Scene scene = TinyScans(1);
   ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
   Camera big = scene.test[0].camera;
-  const float s = 2048.0f / big.intrinsics.width;
-  big.intrinsics.width = big.intrinsics.height = 2048;
-  big.intrinsics.fx *= s;
-  big.intrinsics.fy *= s;
-  big.intrinsics.cx *= s;
-  big.intrinsics.cy *= s;
+  big.intrinsics = big.intrinsics.Scaled(2048, 2048);
   // Two big renders whose 100 ms deadline passes long before they finish.
   std::vector<std::thread> clients;
   std::atomic<int> deadline_errors{0};
