@@ -1,8 +1,10 @@
 #include "core/replay_memory.h"
 
+#include <cmath>
 #include <cstring>
 
 #include "absl/strings/str_cat.h"
+#include "core/byte_io.h"
 #include "Eigen/Geometry"
 
 namespace clnerf {
@@ -13,40 +15,6 @@ bool SameIntrinsics(const Intrinsics& a, const Intrinsics& b) {
   return a.width == b.width && a.height == b.height && a.fx == b.fx && a.fy == b.fy && a.cx == b.cx &&
          a.cy == b.cy && a.k1 == b.k1 && a.k2 == b.k2 && a.p1 == b.p1 && a.p2 == b.p2;
 }
-
-// Minimal little-endian writer/reader for the serialized form.
-class Writer {
- public:
-  template <typename T>
-  void Put(const T& v) {
-    out_.append(reinterpret_cast<const char*>(&v), sizeof(T));
-  }
-  void PutBytes(const void* p, size_t n) { out_.append(static_cast<const char*>(p), n); }
-  std::string Take() { return std::move(out_); }
-
- private:
-  std::string out_;
-};
-
-class Reader {
- public:
-  explicit Reader(const std::string& s) : s_(s) {}
-  template <typename T>
-  bool Get(T* v) {
-    return GetBytes(v, sizeof(T));
-  }
-  bool GetBytes(void* p, size_t n) {
-    if (n > s_.size() - pos_) return false;
-    std::memcpy(p, s_.data() + pos_, n);
-    pos_ += n;
-    return true;
-  }
-  size_t remaining() const { return s_.size() - pos_; }
-
- private:
-  const std::string& s_;
-  size_t pos_ = 0;
-};
 
 constexpr char kMagic[4] = {'C', 'L', 'R', 'M'};
 constexpr uint32_t kVersion = 1;
@@ -119,9 +87,15 @@ size_t ReplayMemory::buffer_bytes() const {
   return n;
 }
 
+// The serialized form (little-endian, core/byte_io.h):
+//   "CLRM" | u32 version | i32 capacity | u64 seen
+//   u64 n | n x (i32 w, i32 h, f32 fx fy cx cy k1 k2 p1 p2)
+//   u64 m | m x (f32 rotation[3], f32 translation[3], u16 intrinsics, u16 time step)
+//   u64 k | k x (u32 camera, i32 w, i32 h, f32 rgb[w*h*3], u8 has_mask, [u8 keep[w*h]])
 std::string ReplayMemory::Serialize() const {
-  Writer w;
-  w.PutBytes(kMagic, 4);
+  std::string out;
+  ByteWriter w(&out);
+  w.Bytes(std::string_view(kMagic, 4));
   w.Put(kVersion);
   w.Put(int32_t(capacity_));
   w.Put(uint64_t(seen_));
@@ -132,27 +106,32 @@ std::string ReplayMemory::Serialize() const {
     for (float f : {in.fx, in.fy, in.cx, in.cy, in.k1, in.k2, in.p1, in.p2}) w.Put(f);
   }
   w.Put(uint64_t(cameras_.size()));
-  w.PutBytes(cameras_.data(), cameras_.size() * sizeof(CameraRecord));
+  for (const CameraRecord& c : cameras_) {
+    for (float f : c.rotation) w.Put(f);
+    for (float f : c.translation) w.Put(f);
+    w.Put(c.intrinsics);
+    w.Put(c.time_step);
+  }
   w.Put(uint64_t(buffer_.size()));
   for (const BufferedImage& b : buffer_) {
     w.Put(b.camera);
     w.Put(int32_t(b.image.width));
     w.Put(int32_t(b.image.height));
-    w.PutBytes(b.image.rgb.data(), b.image.rgb.size() * sizeof(float));
+    w.Array(b.image.rgb);
     w.Put(uint8_t(b.mask.empty() ? 0 : 1));
-    if (!b.mask.empty()) w.PutBytes(b.mask.keep.data(), b.mask.keep.size());
+    if (!b.mask.empty()) w.Array(b.mask.keep);
   }
-  return w.Take();
+  return out;
 }
 
 absl::StatusOr<ReplayMemory> ReplayMemory::Deserialize(const std::string& bytes) {
-  Reader r(bytes);
+  ByteReader r(bytes);
   const auto corrupt = [](const std::string& what) {
     return absl::DataLossError(absl::StrCat("replay memory is corrupt: ", what));
   };
-  char magic[4];
+  std::string_view magic;
   uint32_t version = 0;
-  if (!r.GetBytes(magic, 4) || std::memcmp(magic, kMagic, 4) != 0) return corrupt("bad magic");
+  if (!r.Bytes(4, &magic) || std::memcmp(magic.data(), kMagic, 4) != 0) return corrupt("bad magic");
   if (!r.Get(&version)) return corrupt("truncated header");
   if (version != kVersion) {
     return absl::FailedPreconditionError(
@@ -168,17 +147,31 @@ absl::StatusOr<ReplayMemory> ReplayMemory::Deserialize(const std::string& bytes)
     Intrinsics in;
     int32_t w = 0, h = 0;
     float f[8];
-    if (!r.Get(&w) || !r.Get(&h) || !r.GetBytes(f, sizeof(f))) return corrupt("truncated intrinsics");
+    bool ok = r.Get(&w) && r.Get(&h);
+    for (float& x : f) ok = ok && r.Get(&x);
+    if (!ok) return corrupt("truncated intrinsics");
     in.width = w;
     in.height = h;
     in.fx = f[0], in.fy = f[1], in.cx = f[2], in.cy = f[3], in.k1 = f[4], in.k2 = f[5], in.p1 = f[6], in.p2 = f[7];
+    for (float x : f) {
+      if (!std::isfinite(x)) return corrupt("non-finite intrinsics");
+    }
     m.intrinsics_.push_back(in);
   }
   if (!r.Get(&n) || n > r.remaining() / sizeof(CameraRecord)) return corrupt("bad camera count");
   m.cameras_.resize(n);
-  if (!r.GetBytes(m.cameras_.data(), n * sizeof(CameraRecord))) return corrupt("truncated cameras");
-  for (const CameraRecord& c : m.cameras_) {
+  for (CameraRecord& c : m.cameras_) {
+    bool ok = true;
+    for (float& x : c.rotation) ok = ok && r.Get(&x);
+    for (float& x : c.translation) ok = ok && r.Get(&x);
+    if (!ok || !r.Get(&c.intrinsics) || !r.Get(&c.time_step)) return corrupt("truncated cameras");
     if (c.intrinsics >= m.intrinsics_.size()) return corrupt("camera refers to missing intrinsics");
+    for (float x : c.rotation) {
+      if (!std::isfinite(x)) return corrupt("non-finite camera rotation");
+    }
+    for (float x : c.translation) {
+      if (!std::isfinite(x)) return corrupt("non-finite camera position");
+    }
   }
   if (!r.Get(&n) || n > uint64_t(std::max(capacity, 0)) || n > r.remaining()) return corrupt("bad buffer count");
   for (uint64_t i = 0; i < n; ++i) {
@@ -191,14 +184,12 @@ absl::StatusOr<ReplayMemory> ReplayMemory::Deserialize(const std::string& bytes)
       return corrupt("bad buffer image");
     }
     b.image = Image(w, h);
-    if (!r.GetBytes(b.image.rgb.data(), b.image.rgb.size() * sizeof(float)) || !r.Get(&has_mask)) {
-      return corrupt("truncated buffer image");
-    }
+    if (!r.Array(uint64_t(w) * h * 3, &b.image.rgb) || !r.Get(&has_mask)) return corrupt("truncated buffer image");
+    if (has_mask > 1) return corrupt("bad mask flag");
     if (has_mask) {
       b.mask.width = w;
       b.mask.height = h;
-      b.mask.keep.resize(size_t(w) * h);
-      if (!r.GetBytes(b.mask.keep.data(), b.mask.keep.size())) return corrupt("truncated mask");
+      if (!r.Array(uint64_t(w) * h, &b.mask.keep)) return corrupt("truncated mask");
     }
     m.buffer_.push_back(std::move(b));
   }
