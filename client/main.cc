@@ -1,5 +1,7 @@
 // clnerf: command-line entry point. Flags are parsed here and only here.
 #include <cstdio>
+#include <utility>
+#include <vector>
 
 #include "CLI/CLI.hpp"
 #include "client/commands.h"
@@ -36,8 +38,12 @@ int main(int argc, char** argv) {
                 "Real captures: train on random background colours");
     c->add_flag("--no-embed", m->no_embed, "Disable per-time-step embeddings");
   };
-  // Flags of every verb that talks to a server.
-  auto add_remote_flags = [](CLI::App* c, RemoteOptions* o) {
+  // Flags of every verb that talks to a server. They are also accepted before
+  // the verb (`clnerf --server H:P upload DIR`); a flag given after the verb
+  // wins.
+  std::vector<std::pair<CLI::App*, RemoteOptions*>> remote_verbs;
+  auto add_remote_flags = [&remote_verbs](CLI::App* c, RemoteOptions* o) {
+    remote_verbs.emplace_back(c, o);
     o->server = DefaultServer();
     o->token = DefaultToken();
     c->add_option("--server", o->server, "Server HOST:PORT (env CLNERF_SERVER)")->capture_default_str();
@@ -165,6 +171,8 @@ int main(int argc, char** argv) {
   bs->add_option("--clients", bench_serve.clients, "Comma-separated concurrent client counts")->capture_default_str();
   bs->add_option("--renders", bench_serve.renders_per_client, "Requests per client per configuration")
       ->capture_default_str();
+  bs->add_option("--store", bench_serve.store,
+                 "The server's store directory: also time the same renders in-process (the 100x100 target)");
   bs->add_option("--json-out", bench_serve.json, "Write JSON here ('-' = stdout)");
   add_remote_flags(bs, &bench_serve.remote);
 
@@ -244,7 +252,20 @@ int main(int argc, char** argv) {
   bstab->add_option("--json", bst.json, "Write JSON here ('-' = stdout)");
   bstab->add_option("--markdown", bst.markdown, "Also write the markdown table here");
 
+  RemoteOptions global_remote;
+  add_remote_flags(&app, &global_remote);
+  remote_verbs.pop_back();  // The app itself is not a verb.
+
   CLI11_PARSE(app, argc, argv);
+  for (auto& [verb, opts] : remote_verbs) {
+    if (!*verb) continue;
+    const auto given = [&](const char* flag) { return app.count(flag) > 0 && verb->count(flag) == 0; };
+    if (given("--server")) opts->server = global_remote.server;
+    if (given("--token")) opts->token = global_remote.token;
+    if (given("--timeout")) opts->timeout_seconds = global_remote.timeout_seconds;
+    if (given("--tls-ca")) opts->tls_ca = global_remote.tls_ca;
+    if (given("--json")) opts->json = true;
+  }
   // Logs go to stderr so stdout carries only results (lines and JSON).
   spdlog::set_default_logger(spdlog::stderr_color_mt("clnerf"));
   spdlog::set_level(spdlog::level::from_str(log_level));

@@ -58,8 +58,9 @@ struct BenchServeArgs {
   RemoteOptions remote;
   std::string data = "../shared/data/lego_100";  // Dataset cut into tasks, or "procedural".
   int tasks = 10;                  // Tasks for a static dataset (scans 0 and 1 are used).
-  std::string sizes = "100,200";   // Square render sizes.
-  std::string clients = "1,8";     // Concurrent clients.
+  std::string sizes = "32,100,200";  // Square render sizes.
+  std::string clients = "1,4";       // Concurrent clients.
+  std::string store;                 // The server's store (optional): in-process reference renders.
   int renders_per_client = 6;      // Requests per client per configuration.
   std::string json;
 };

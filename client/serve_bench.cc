@@ -19,7 +19,9 @@
 #include "client/remote_commands.h"
 #include "client/remote_format.h"
 #include "client/scan_upload.h"
+#include "core/checkpoint.h"
 #include "core/dataset.h"
+#include "core/renderer.h"
 #include "core/procedural_scene.h"
 #include "core/scan_sequence.h"
 #include "nlohmann/json.hpp"
@@ -179,6 +181,23 @@ nlohmann::json ToJson(const UploadFigures& f) {
           {"job_id", f.job_id}};
 }
 
+// The same renders in-process (the deployed version read from the server's
+// store, all cores): the reference for the service's overhead.
+absl::StatusOr<double> InProcessP50(const std::string& store, int64_t version, const std::vector<Camera>& cams,
+                                    int size, int renders) {
+  const std::string path = absl::StrFormat("%s/versions/%06d/model.ckpt", store, version);
+  absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(path);
+  if (!ck.ok()) return ck.status();
+  std::vector<double> ms;
+  for (int i = 0; i < renders; ++i) {
+    const auto t0 = Clock::now();
+    absl::StatusOr<RenderedView> r = RenderView(ck->model, Resized(cams[size_t(i) % cams.size()], size), RenderOptions{});
+    if (!r.ok()) return r.status();
+    ms.push_back(Ms(Clock::now() - t0));
+  }
+  return Percentile(ms, 0.5);
+}
+
 absl::StatusOr<std::vector<int>> ParseInts(const std::string& csv) {
   std::vector<int> out;
   for (absl::string_view p : absl::StrSplit(csv, ',', absl::SkipEmpty())) {
@@ -239,6 +258,54 @@ int RunBenchServe(const BenchServeArgs& a) {
                    idle.back().p99_ms, idle.back().failures);
     }
   }
+  // 2b. Targets on the idle figures (issue 11): a lone 32x32 render p50 <=
+  // 10 ms; a lone 100x100 render p50 <= 1.5x the in-process time; with 4
+  // clients, p99 <= 4x p50.
+  nlohmann::json targets = nlohmann::json::array();
+  std::string target_line;
+  {
+    int64_t deployed = 0;
+    {
+      clnerf::v1::ServerInfo info;
+      auto ctx = (*client)->Context(kUnaryTimeoutSeconds);
+      if ((*client)->service().GetServerInfo(ctx.get(), clnerf::v1::GetServerInfoRequest(), &info).ok()) {
+        deployed = info.deployed_version();
+      }
+    }
+    for (const Latency& l : idle) {
+      nlohmann::json t = {{"size", l.size}, {"clients", l.clients}, {"p50_ms", l.p50_ms}, {"p99_ms", l.p99_ms}};
+      if (l.clients == 1 && l.size <= 32) {
+        t["target"] = "p50 <= 10 ms";
+        t["met"] = l.p50_ms <= 10.0;
+        target_line += absl::StrFormat(" %dpx p50 %.1f ms (<= 10: %s);", l.size, l.p50_ms, l.p50_ms <= 10 ? "met" : "NOT met");
+      }
+      if (l.clients == 1 && l.size == 100 && !a.store.empty() && deployed > 0) {
+        absl::StatusOr<double> ref = InProcessP50(a.store, deployed, cams, l.size, std::max(6, a.renders_per_client));
+        if (ref.ok()) {
+          const double ratio = l.p50_ms / std::max(1e-9, *ref);
+          t["inprocess_p50_ms"] = *ref;
+          t["ratio_to_inprocess"] = ratio;
+          t["target"] = "p50 <= 1.5x in-process";
+          t["met"] = ratio <= 1.5;
+          target_line += absl::StrFormat(" %dpx p50 %.1f ms vs %.1f ms in-process = %.2fx (<= 1.5: %s);", l.size,
+                                         l.p50_ms, *ref, ratio, ratio <= 1.5 ? "met" : "NOT met");
+        } else {
+          spdlog::warn("in-process reference not measured: {}", ref.status().ToString());
+        }
+      }
+      if (l.clients >= 4) {
+        const double spread = l.p50_ms > 0 ? l.p99_ms / l.p50_ms : 0;
+        t["p99_over_p50"] = spread;
+        t["target"] = "p99 <= 4x p50";
+        t["met"] = spread <= 4.0;
+        target_line += absl::StrFormat(" %dpx x%d p99/p50 %.2f (<= 4: %s);", l.size, l.clients, spread,
+                                       spread <= 4 ? "met" : "NOT met");
+      }
+      if (t.contains("target")) targets.push_back(t);
+    }
+  }
+  j["idle_targets"] = targets;
+
   // 3. The same while the second scan trains.
   absl::StatusOr<UploadFigures> up1 = Upload(**client, scan1, "bench-scan-1");
   if (!up1.ok()) return FailRemote(kVerb, up1.status());
@@ -299,9 +366,9 @@ int RunBenchServe(const BenchServeArgs& a) {
     cells += absl::StrFormat(" %dpx x%d: %.0f/%.0f ms idle, %.0f/%.0f ms training;", idle[i].size, idle[i].clients,
                              idle[i].p50_ms, idle[i].p99_ms, busy[i].p50_ms, busy[i].p99_ms);
   }
-  std::printf("bench serve (%s): render p50/p99%s worst p99 ratio %.2f (target <= 3), %d failures | upload %.2f MB/s (%.1f MB) | "
-              "upload end -> served %.1f s (scan 0), %.1f s (scan 1)\n",
-              a.data.c_str(), cells.c_str(), worst_ratio, failures, big->mb_per_s, big->bytes / 1e6,
+  std::printf("bench serve (%s): render p50/p99%s worst p99 ratio %.2f (target <= 3), %d failures | idle targets:%s | "
+              "upload %.2f MB/s (%.1f MB) | upload end -> served %.1f s (scan 0), %.1f s (scan 1)\n",
+              a.data.c_str(), cells.c_str(), worst_ratio, failures, target_line.c_str(), big->mb_per_s, big->bytes / 1e6,
               up0->upload_end_to_served_seconds,
               up1->upload_end_to_served_seconds);
   if (!a.json.empty()) {

@@ -4,6 +4,7 @@
 #include <cstring>
 #include <functional>
 #include <optional>
+#include <thread>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
@@ -290,7 +291,9 @@ grpc::Status ClnerfServiceImpl::GetServerInfo(grpc::ServerContext*, const v1::Ge
   resp->set_time_steps(h.time_steps);
   resp->set_queued_jobs(h.queued_jobs);
   resp->set_running_job(h.running_job);
-  resp->set_render_threads(o.render_threads * o.render_concurrency);
+  // Adaptive (0): a lone render may use every core.
+  resp->set_render_threads(o.render_threads > 0 ? o.render_threads * o.render_concurrency
+                                                : int(std::max(1u, std::thread::hardware_concurrency())));
   resp->set_train_threads(o.train_threads);
   resp->set_max_queue(o.max_queue);
   resp->set_method(ContinualMethodName(o.update.method));

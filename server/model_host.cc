@@ -22,7 +22,8 @@ ModelHost::ModelHost(const ServerOptions& options)
     : options_(options),
       started_(std::chrono::steady_clock::now()),
       jobs_(options.max_queue, (std::filesystem::path(options.store_dir) / "jobs.json").string()),
-      render_slots_(options.render_concurrency) {}
+      render_slots_(options.render_concurrency),
+      cores_(std::max(1, int(std::thread::hardware_concurrency()))) {}
 
 absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& options) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;
@@ -179,23 +180,29 @@ absl::StatusOr<RenderResult> ModelHost::Render(const Camera& world_camera, std::
                                                    (*snap)->info.version, " has time steps 0..",
                                                    model.num_time_steps() - 1));
   }
-  // Wait for a slot in short slices, so a caller that gave up stops waiting.
-  const auto give_up = std::chrono::steady_clock::now() +
-                       std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                           std::chrono::duration<double>(options_.render_wait_seconds));
-  while (!render_slots_.try_acquire_for(std::chrono::milliseconds(50))) {
-    if (should_stop && should_stop()) return absl::CancelledError("render abandoned while waiting for a slot");
-    if (std::chrono::steady_clock::now() >= give_up) {
-      return absl::ResourceExhaustedError("all render slots stayed busy; retry later");
+  // Big renders wait for a slot (in short slices, so a caller that gave up
+  // stops waiting); small ones never queue behind them.
+  const bool small = pixels <= options_.small_render_pixels;
+  if (!small) {
+    const auto give_up = std::chrono::steady_clock::now() +
+                         std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                             std::chrono::duration<double>(options_.render_wait_seconds));
+    while (!render_slots_.try_acquire_for(std::chrono::milliseconds(50))) {
+      if (should_stop && should_stop()) return absl::CancelledError("render abandoned while waiting for a slot");
+      if (std::chrono::steady_clock::now() >= give_up) {
+        return absl::ResourceExhaustedError("all render slots stayed busy; retry later");
+      }
     }
   }
+  const int running = active_renders_.fetch_add(1) + 1;
   const auto t0 = std::chrono::steady_clock::now();
   RenderOptions ro;
-  ro.threads = options_.render_threads;
+  ro.threads = options_.render_threads > 0 ? options_.render_threads : std::max(1, cores_ / running);
   ro.time_step = t;
   ro.should_stop = should_stop;
   absl::StatusOr<RenderedView> view = RenderView(model, world_camera, ro);
-  render_slots_.release();
+  active_renders_.fetch_sub(1);
+  if (!small) render_slots_.release();
   if (!view.ok()) return view.status();
   return RenderResult{(*snap)->info.version, t, std::move(view->rgb), SecondsSince(t0)};
 }

@@ -5,7 +5,8 @@
 //   ScanStore      the durable inbox of uploaded scans
 //   JobTracker     job states, the FIFO queue, the persisted job history
 //   UpdateWorker   load -> train -> gate -> publish, one job at a time
-//   render slots   at most render_concurrency renders at once
+//   render slots   at most render_concurrency big renders at once (small
+//                  ones skip the queue); adaptive threads per render
 //
 //   AcceptScan   validate -> write durably -> queue a job -> acknowledge
 //   Render       snapshot (shared_ptr<const Servable>) -> bounded render slot
@@ -138,6 +139,8 @@ class ModelHost {
   std::unique_ptr<UpdateWorker> worker_;
   std::mutex upload_mu_;  // Serialises uploads (id reservation, save, enqueue).
   std::counting_semaphore<1024> render_slots_;
+  const int cores_;                     // For adaptive render threads.
+  std::atomic<int> active_renders_{0};  // Renders running now (small ones included).
   std::atomic<bool> stopping_{false};
   std::once_flag shutdown_once_;
   bool shutdown_clean_ = true;

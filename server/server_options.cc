@@ -34,7 +34,8 @@ absl::Status ServerOptions::Validate() const {
   }
   if (max_queue < 1) return absl::InvalidArgumentError("max_queue must be >= 1");
   if (render_concurrency < 1) return absl::InvalidArgumentError("render_concurrency must be >= 1");
-  if (render_threads < 1) return absl::InvalidArgumentError("render_threads must be >= 1");
+  if (render_threads < 0) return absl::InvalidArgumentError("render_threads must be >= 0 (0 = adaptive)");
+  if (small_render_pixels < 0) return absl::InvalidArgumentError("small_render_pixels must be >= 0");
   if (!(render_wait_seconds > 0)) return absl::InvalidArgumentError("render_wait_seconds must be > 0");
   if (train_threads < 1) return absl::InvalidArgumentError("train_threads must be >= 1");
   if (grpc_threads < 2) return absl::InvalidArgumentError("grpc_threads must be >= 2");
@@ -110,6 +111,7 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "max_queue") s = Get(*it, "max_queue", &o->max_queue);
     else if (k == "render_concurrency") s = Get(*it, "render_concurrency", &o->render_concurrency);
     else if (k == "render_threads") s = Get(*it, "render_threads", &o->render_threads);
+    else if (k == "small_render_pixels") s = Get(*it, "small_render_pixels", &o->small_render_pixels);
     else if (k == "render_wait_seconds") s = Get(*it, "render_wait_seconds", &o->render_wait_seconds);
     else if (k == "train_threads") s = Get(*it, "train_threads", &o->train_threads);
     else if (k == "grpc_threads") s = Get(*it, "grpc_threads", &o->grpc_threads);

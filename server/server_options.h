@@ -34,7 +34,13 @@ struct ServerOptions {
 
   int max_queue = 8;                    // Scans waiting for training; more -> RESOURCE_EXHAUSTED.
   int render_concurrency = 2;           // Renders running at once.
-  int render_threads = 1;               // OpenMP threads per render.
+  // OpenMP threads per render; 0 = adaptive: the cores divided by the
+  // renders running at that moment (at least 1), so a lone render uses every
+  // core and concurrent ones share them.
+  int render_threads = 0;
+  // Renders of at most this many pixels skip the render-slot queue: they take
+  // milliseconds and little memory, so they never wait behind a big one.
+  int64_t small_render_pixels = 128 * 128;
   double render_wait_seconds = 30;      // Longest wait for a render slot.
   int train_threads = 2;                // OpenMP threads of the update worker.
   int grpc_threads = 16;                // Upper bound on gRPC's sync-server threads.

@@ -1,0 +1,36 @@
+#!/usr/bin/env bash
+# AddressSanitizer + UndefinedBehaviorSanitizer and libFuzzer, with clang, in
+# one build (build-san/): every core unit test runs under ASan+UBSan, then
+# each fuzz target runs for FUZZ_SECONDS (default 30) from its committed seed
+# corpus (tests/fuzz/corpus/<target>/; new inputs go to build-san/corpus/,
+# crashes to build-san/fuzz-artifacts/). Any report fails the script.
+# Usage: scripts/sanitize.sh            (what CI runs)
+#        FUZZ_SECONDS=600 scripts/sanitize.sh fuzz   (the 10-minute benchmark)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+WHAT=${1:-all}
+FUZZ_SECONDS=${FUZZ_SECONDS:-30}
+cmake -S . -B build-san -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
+  -DCLNERF_SANITIZE=ON -DCLNERF_FUZZ=ON > build-san.configure.log 2>&1 || { cat build-san.configure.log; exit 1; }
+TARGETS="fuzz_checkpoint fuzz_scan_assembler"
+[ "$WHAT" = fuzz ] || TARGETS="core_tests $TARGETS"
+# shellcheck disable=SC2086  # A list of targets.
+cmake --build build-san -j "${JOBS:-$(nproc)}" --target $TARGETS
+export ASAN_OPTIONS="detect_leaks=1:abort_on_error=1:strict_string_checks=1"
+export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
+if [ "$WHAT" != fuzz ]; then
+  # The unit tests under ASan+UBSan (the slow training tests are ~3x slower).
+  ./build-san/tests/core_tests --gtest_brief=1
+fi
+mkdir -p build-san/fuzz-artifacts
+for t in fuzz_checkpoint fuzz_scan_assembler; do
+  mkdir -p "build-san/corpus/$t"
+  echo "== $t: ${FUZZ_SECONDS} s =="
+  ./build-san/tests/fuzz/$t -max_total_time="$FUZZ_SECONDS" -rss_limit_mb=2048 -timeout=20 -print_final_stats=1 \
+    -artifact_prefix=build-san/fuzz-artifacts/ "build-san/corpus/$t" "tests/fuzz/corpus/$t" 2>&1 |
+    tee "build-san/$t.log" | grep -E "^#[0-9]+ +DONE|stat::number_of_executed_units|ERROR|SUMMARY|Done [0-9]+ runs" || true
+  if grep -qE "ERROR: (AddressSanitizer|libFuzzer|UndefinedBehaviorSanitizer)|runtime error:|==[0-9]+==ERROR" "build-san/$t.log"; then
+    echo "$t found a crash; see build-san/$t.log and build-san/fuzz-artifacts/" >&2
+    exit 1
+  fi
+done
