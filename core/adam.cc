@@ -40,7 +40,9 @@ inline void AdamOne(float& p, float g, float& m, float& v, float b1, float b2, f
 
 void Adam::UpdateDense(int block, float lr, int step, float* params, const float* grad, size_t n) {
   const float b1 = options_.beta1, b2 = options_.beta2;
-  const auto [step_size, eps_hat] = Correct(options_, lr, step);
+  // Plain locals: OpenMP (and clang) cannot capture structured bindings.
+  const auto corrected = Correct(options_, lr, step);
+  const float step_size = corrected.step_size, eps_hat = corrected.eps_hat;
   float* m = m_[block].data();
   float* v = v_[block].data();
 #pragma omp simd
@@ -50,7 +52,9 @@ void Adam::UpdateDense(int block, float lr, int step, float* params, const float
 void Adam::UpdateSparse(int block, float lr, int step, float* params, const float* grad,
                         const std::vector<uint32_t>& entries, int stride) {
   const float b1 = options_.beta1, b2 = options_.beta2;
-  const auto [step_size, eps_hat] = Correct(options_, lr, step);
+  // Plain locals: OpenMP (and clang) cannot capture structured bindings.
+  const auto corrected = Correct(options_, lr, step);
+  const float step_size = corrected.step_size, eps_hat = corrected.eps_hat;
   float* m = m_[block].data();
   float* v = v_[block].data();
   for (uint32_t e : entries) {

@@ -195,6 +195,7 @@ void BackwardLevelImpl(float* gtable, float scale, uint32_t stride, uint32_t mas
 }  // namespace
 
 void HashGrid::Encode(const float* params, const float* pos, int n, float* out) const {
+  if (n == 0) return;  // `out` may be null for an empty batch.
   const int D = output_dim();
   for (int l = 0; l < options_.levels; ++l) {
     const float* table = params + offsets_[l] * kFeatures;
@@ -209,6 +210,7 @@ void HashGrid::Encode(const float* params, const float* pos, int n, float* out) 
 
 void HashGrid::BackwardLevel(int l, const float* pos, const float* dout, int n, float* grad,
                              uint8_t* touched, std::vector<uint32_t>* touched_list) const {
+  if (n == 0) return;  // `dout` may be null for an empty batch.
   const int D = output_dim();
   float* gtable = grad + offsets_[l] * kFeatures;
   const uint32_t mask = uint32_t(sizes_[l]) - 1u;

@@ -21,7 +21,7 @@ extern "C" int LLVMFuzzerInitialize(int*, char***) {
   if (path == nullptr) return 0;
   clnerf::ModelOptions o;
   o.grid.levels = 2;
-  o.grid.log2_table_size = 4;
+  o.grid.log2_table_size = 10;
   o.grid.base_resolution = 4;
   o.grid.finest_resolution = 8;
   o.network.density_hidden = 8;
