@@ -10,6 +10,7 @@ PKGS=(
   libabsl-dev libeigen3-dev libopenimageio-dev openimageio-tools libspdlog-dev libfmt-dev
   libgtest-dev libgmock-dev nlohmann-json3-dev libcli11-dev zlib1g-dev
   python3 python3-matplotlib linux-perf valgrind
+  clang libclang-rt-dev libomp-dev
 )
 
 missing=()
