@@ -25,6 +25,7 @@
 #include "client/remote_commands.h"
 #include "clnerf/v1/clnerf.grpc.pb.h"
 #include "grpc/health/v1/health.grpc.pb.h"
+#include "proto/wire/wire.h"
 #include "grpcpp/grpcpp.h"
 
 namespace clnerf {
@@ -57,7 +58,7 @@ class RemoteClient {
 };
 
 // "OK", "CANCELLED", ..., "UNAUTHENTICATED" (the canonical names).
-const char* StatusCodeName(grpc::StatusCode code);
+// StatusCodeName is in proto/wire/wire.h.
 
 // Prints "clnerf <verb>: <CODE>: <message>" (one line) to stderr and returns
 // exit code 1. The gRPC form names the server when it cannot be reached.

@@ -8,27 +8,6 @@
 
 namespace clnerf {
 
-clnerf::v1::CameraSpec ToCameraSpec(const Camera& camera) {
-  clnerf::v1::CameraSpec spec;
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 4; ++c) spec.add_pose(camera.c2w(r, c));
-  for (float x : {0.0f, 0.0f, 0.0f, 1.0f}) spec.add_pose(x);
-  spec.set_convention(clnerf::v1::POSE_CONVENTION_OPENCV);
-  const Intrinsics& in = camera.intrinsics;
-  clnerf::v1::Intrinsics* out = spec.mutable_intrinsics();
-  out->set_width(in.width);
-  out->set_height(in.height);
-  out->set_fx(in.fx);
-  out->set_fy(in.fy);
-  out->set_cx(in.cx);
-  out->set_cy(in.cy);
-  out->set_k1(in.k1);
-  out->set_k2(in.k2);
-  out->set_p1(in.p1);
-  out->set_p2(in.p2);
-  return spec;
-}
-
 std::string PhaseName(clnerf::v1::JobPhase phase) {
   std::string name = clnerf::v1::JobPhase_Name(phase);
   constexpr absl::string_view kPrefix = "JOB_PHASE_";

@@ -480,6 +480,129 @@ absl::Status ReadOccupancyV1(Reader* r, std::string_view payload, uint64_t cells
   return absl::OkStatus();
 }
 
+// ---------------------------------------------------------------------------
+// Per-section readers of DeserializeCheckpoint (steps 6-10).
+
+// The header fields: everything a model's layout is built from.
+struct CheckpointHeader {
+  ModelOptions options;
+  Normalization norm;
+  SceneKind kind = SceneKind::kBounded;
+  Eigen::Vector3f background = Eigen::Vector3f::Zero();
+  uint32_t steps = 0;
+};
+
+// MODL: kind, normalisation, background, time steps.
+absl::Status ReadModelSection(const std::vector<RawSection>& sections, uint32_t version, const std::string& source,
+                              CheckpointHeader* h) {
+  auto payload = Single(sections, kTagModel, source);
+  if (!payload.ok()) return payload.status();
+  constexpr size_t kSize = 4 + 3 * 4 + 4 + 4 + 3 * 4 + 4;
+  if (payload->size() != kSize) return WrongSize(source, kTagModel, payload->size(), kSize);
+  Reader r(*payload);
+  uint32_t kind_code = 0;
+  r.Get(&kind_code);
+  for (int i = 0; i < 3; ++i) r.Get(&h->norm.center[i]);
+  r.Get(&h->norm.scale);
+  r.Get(&h->norm.bound);
+  for (int i = 0; i < 3; ++i) r.Get(&h->background[i]);
+  r.Get(&h->steps);
+  if (!DecodeKind(kind_code, &h->kind)) return Corrupt(source, absl::StrCat("unknown scene kind ", kind_code));
+  if (version < 2 && h->kind == SceneKind::kUnbounded) {
+    return absl::FailedPreconditionError(absl::StrCat(
+        "checkpoint '", source, "' predates format version 2 and holds an unbounded scene; format 2 represents "
+        "unbounded scenes in contracted space, so this model cannot be loaded: re-train it with this clnerf"));
+  }
+  return absl::OkStatus();
+}
+
+// HGOP, NTOP, OGOP, MROP: the option structs.
+absl::Status ReadOptionSections(const std::vector<RawSection>& sections, const std::string& source,
+                                ModelOptions* options) {
+  {
+    auto payload = Single(sections, kTagGridOptions, source);
+    if (!payload.ok()) return payload.status();
+    if (payload->size() != 5 * 4) return WrongSize(source, kTagGridOptions, payload->size(), 5 * 4);
+    Reader r(*payload);
+    r.I32(&options->grid.levels);
+    r.I32(&options->grid.features_per_level);
+    r.I32(&options->grid.log2_table_size);
+    r.I32(&options->grid.base_resolution);
+    r.I32(&options->grid.finest_resolution);
+  }
+  {
+    auto payload = Single(sections, kTagNetworkOptions, source);
+    if (!payload.ok()) return payload.status();
+    if (payload->size() != 7 * 4 + 1) return WrongSize(source, kTagNetworkOptions, payload->size(), 7 * 4 + 1);
+    Reader r(*payload);
+    r.I32(&options->network.density_hidden);
+    r.I32(&options->network.density_hidden_layers);
+    r.I32(&options->network.density_out);
+    r.I32(&options->network.colour_hidden);
+    r.I32(&options->network.colour_hidden_layers);
+    r.I32(&options->network.appearance_dim);
+    r.I32(&options->network.geometry_dim);
+    uint8_t use = 0;
+    r.Get(&use);
+    if (use > 1) return Corrupt(source, absl::StrCat("invalid use_embeddings flag ", int(use)));
+    options->network.use_embeddings = use == 1;
+  }
+  {
+    auto payload = Single(sections, kTagOccupancyOptions, source);
+    if (!payload.ok()) return payload.status();
+    if (payload->size() != 5 * 4) return WrongSize(source, kTagOccupancyOptions, payload->size(), 5 * 4);
+    Reader r(*payload);
+    r.I32(&options->occupancy.resolution);
+    r.I32(&options->occupancy.update_interval);
+    r.I32(&options->occupancy.warmup_iterations);
+    r.Get(&options->occupancy.decay);
+    r.Get(&options->occupancy.density_threshold);
+  }
+  {
+    auto payload = Single(sections, kTagMarchOptions, source);
+    if (!payload.ok()) return payload.status();
+    if (payload->size() != 4 * 4) return WrongSize(source, kTagMarchOptions, payload->size(), 4 * 4);
+    Reader r(*payload);
+    r.I32(&options->march.max_samples);
+    r.Get(&options->march.steps_per_diagonal);
+    r.Get(&options->march.cone_angle);
+    r.Get(&options->march.near);
+  }
+  return absl::OkStatus();
+}
+
+// Step 7: the header must describe a sane model before any layout is built.
+absl::Status ValidateHeader(const CheckpointHeader& h, const std::string& source) {
+  const ModelOptions& options = h.options;
+  const Normalization& norm = h.norm;
+  const Eigen::Vector3f& background = h.background;
+  const uint32_t steps = h.steps;
+  if (absl::Status s = options.Validate(); !s.ok()) {
+    return Corrupt(source, absl::StrCat("invalid model options: ", s.message()));
+  }
+  const NetworkOptions& no = options.network;
+  if (options.grid.finest_resolution > kMaxGridResolution || no.density_hidden > kMaxWidth ||
+      no.colour_hidden > kMaxWidth || no.density_out > kMaxWidth || no.appearance_dim > kMaxWidth ||
+      no.geometry_dim > kMaxWidth || no.density_hidden_layers > kMaxLayers || no.colour_hidden_layers > kMaxLayers) {
+    return Corrupt(source, "model options exceed the sanity limits for checkpoints");
+  }
+  if (steps < 1 || steps > uint32_t(kMaxTimeSteps)) {
+    return Corrupt(source, absl::StrFormat("%d time steps (must be in [1, %d])", steps, kMaxTimeSteps));
+  }
+  if (!(norm.bound > 0 && norm.bound <= kMaxBound) || !(norm.scale > 0) || !std::isfinite(norm.scale)) {
+    return Corrupt(source, absl::StrFormat("invalid normalisation (scale %g, bound %g)", norm.scale, norm.bound));
+  }
+  if (!norm.center.allFinite() || norm.center.cwiseAbs().maxCoeff() > kMaxCameraCoordinate) {
+    return Corrupt(source, absl::StrFormat("invalid scene centre (%g, %g, %g)", norm.center.x(), norm.center.y(),
+                                           norm.center.z()));
+  }
+  if (!background.allFinite() || background.minCoeff() < 0.0f || background.maxCoeff() > 1.0f) {
+    return Corrupt(source, absl::StrFormat("invalid background colour (%g, %g, %g)", background.x(), background.y(),
+                                           background.z()));
+  }
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 const std::string* CheckpointExtras::FindSection(std::string_view name) const {
@@ -709,106 +832,16 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
     }
   }
 
-  // 6. Fixed-size sections.
-  ModelOptions options;
-  Normalization norm;
-  SceneKind kind = SceneKind::kBounded;
-  Eigen::Vector3f background;
-  uint32_t steps = 0;
-  {
-    auto payload = Single(sections, kTagModel, source);
-    if (!payload.ok()) return payload.status();
-    constexpr size_t kSize = 4 + 3 * 4 + 4 + 4 + 3 * 4 + 4;
-    if (payload->size() != kSize) return WrongSize(source, kTagModel, payload->size(), kSize);
-    Reader r(*payload);
-    uint32_t kind_code = 0;
-    r.Get(&kind_code);
-    for (int i = 0; i < 3; ++i) r.Get(&norm.center[i]);
-    r.Get(&norm.scale);
-    r.Get(&norm.bound);
-    for (int i = 0; i < 3; ++i) r.Get(&background[i]);
-    r.Get(&steps);
-    if (!DecodeKind(kind_code, &kind)) return Corrupt(source, absl::StrCat("unknown scene kind ", kind_code));
-    if (version < 2 && kind == SceneKind::kUnbounded) {
-      return absl::FailedPreconditionError(absl::StrCat(
-          "checkpoint '", source, "' predates format version 2 and holds an unbounded scene; format 2 represents "
-          "unbounded scenes in contracted space, so this model cannot be loaded: re-train it with this clnerf"));
-    }
-  }
-  {
-    auto payload = Single(sections, kTagGridOptions, source);
-    if (!payload.ok()) return payload.status();
-    if (payload->size() != 5 * 4) return WrongSize(source, kTagGridOptions, payload->size(), 5 * 4);
-    Reader r(*payload);
-    r.I32(&options.grid.levels);
-    r.I32(&options.grid.features_per_level);
-    r.I32(&options.grid.log2_table_size);
-    r.I32(&options.grid.base_resolution);
-    r.I32(&options.grid.finest_resolution);
-  }
-  {
-    auto payload = Single(sections, kTagNetworkOptions, source);
-    if (!payload.ok()) return payload.status();
-    if (payload->size() != 7 * 4 + 1) return WrongSize(source, kTagNetworkOptions, payload->size(), 7 * 4 + 1);
-    Reader r(*payload);
-    r.I32(&options.network.density_hidden);
-    r.I32(&options.network.density_hidden_layers);
-    r.I32(&options.network.density_out);
-    r.I32(&options.network.colour_hidden);
-    r.I32(&options.network.colour_hidden_layers);
-    r.I32(&options.network.appearance_dim);
-    r.I32(&options.network.geometry_dim);
-    uint8_t use = 0;
-    r.Get(&use);
-    if (use > 1) return Corrupt(source, absl::StrCat("invalid use_embeddings flag ", int(use)));
-    options.network.use_embeddings = use == 1;
-  }
-  {
-    auto payload = Single(sections, kTagOccupancyOptions, source);
-    if (!payload.ok()) return payload.status();
-    if (payload->size() != 5 * 4) return WrongSize(source, kTagOccupancyOptions, payload->size(), 5 * 4);
-    Reader r(*payload);
-    r.I32(&options.occupancy.resolution);
-    r.I32(&options.occupancy.update_interval);
-    r.I32(&options.occupancy.warmup_iterations);
-    r.Get(&options.occupancy.decay);
-    r.Get(&options.occupancy.density_threshold);
-  }
-  {
-    auto payload = Single(sections, kTagMarchOptions, source);
-    if (!payload.ok()) return payload.status();
-    if (payload->size() != 4 * 4) return WrongSize(source, kTagMarchOptions, payload->size(), 4 * 4);
-    Reader r(*payload);
-    r.I32(&options.march.max_samples);
-    r.Get(&options.march.steps_per_diagonal);
-    r.Get(&options.march.cone_angle);
-    r.Get(&options.march.near);
-  }
-
-  // 7. Validate what the layouts are built from, before building them.
-  if (absl::Status s = options.Validate(); !s.ok()) {
-    return Corrupt(source, absl::StrCat("invalid model options: ", s.message()));
-  }
-  const NetworkOptions& no = options.network;
-  if (options.grid.finest_resolution > kMaxGridResolution || no.density_hidden > kMaxWidth ||
-      no.colour_hidden > kMaxWidth || no.density_out > kMaxWidth || no.appearance_dim > kMaxWidth ||
-      no.geometry_dim > kMaxWidth || no.density_hidden_layers > kMaxLayers || no.colour_hidden_layers > kMaxLayers) {
-    return Corrupt(source, "model options exceed the sanity limits for checkpoints");
-  }
-  if (steps < 1 || steps > uint32_t(kMaxTimeSteps)) {
-    return Corrupt(source, absl::StrFormat("%d time steps (must be in [1, %d])", steps, kMaxTimeSteps));
-  }
-  if (!(norm.bound > 0 && norm.bound <= kMaxBound) || !(norm.scale > 0) || !std::isfinite(norm.scale)) {
-    return Corrupt(source, absl::StrFormat("invalid normalisation (scale %g, bound %g)", norm.scale, norm.bound));
-  }
-  if (!norm.center.allFinite() || norm.center.cwiseAbs().maxCoeff() > kMaxCameraCoordinate) {
-    return Corrupt(source, absl::StrFormat("invalid scene centre (%g, %g, %g)", norm.center.x(), norm.center.y(),
-                                           norm.center.z()));
-  }
-  if (!background.allFinite() || background.minCoeff() < 0.0f || background.maxCoeff() > 1.0f) {
-    return Corrupt(source, absl::StrFormat("invalid background colour (%g, %g, %g)", background.x(), background.y(),
-                                           background.z()));
-  }
+  // 6-7. Header sections, validated before any layout is built from them.
+  CheckpointHeader head;
+  if (absl::Status s = ReadModelSection(sections, version, source, &head); !s.ok()) return s;
+  if (absl::Status s = ReadOptionSections(sections, source, &head.options); !s.ok()) return s;
+  if (absl::Status s = ValidateHeader(head, source); !s.ok()) return s;
+  const ModelOptions& options = head.options;
+  const Normalization& norm = head.norm;
+  const SceneKind kind = head.kind;
+  const Eigen::Vector3f& background = head.background;
+  const uint32_t steps = head.steps;
   const HashGrid grid(options.grid);
   const Network network(options.network, grid.output_dim());
 

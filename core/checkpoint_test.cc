@@ -628,6 +628,9 @@ TEST(CheckpointTest, InconsistentContentIsRejected) {
        [](std::vector<Section>* s) {
          StoreLE<float>(&Find(s, "PEMB")->payload, 0, std::numeric_limits<float>::infinity());
        }},
+      {"steps per diagonal 1.9e22 (found by fuzzing: marching never ends)",
+       [](std::vector<Section>* s) { StoreLE<float>(&Find(s, "MROP")->payload, 4, 1.888946593147858e22f); }},
+      {"max samples 2^30", [](std::vector<Section>* s) { StoreLE<int32_t>(&Find(s, "MROP")->payload, 0, 1 << 30); }},
       {"larger bound (more cascades)",
        [](std::vector<Section>* s) { StoreLE<float>(&Find(s, "MODL")->payload, 20, 4.0f); }},
       {"unknown scene kind", [](std::vector<Section>* s) { StoreLE<uint32_t>(&Find(s, "MODL")->payload, 0, 9); }},

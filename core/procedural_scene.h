@@ -1,6 +1,6 @@
 // ProceduralScene: an analytic scene generator for tests and continual-
-// learning benchmarks, plus writers that store any Scene in the NeRF-synthetic
-// ("Blender") format.
+// learning benchmarks (core/blender_writer.h stores any Scene, these
+// included, in the NeRF-synthetic "Blender" format).
 //
 // The world is a set of spheres and axis-aligned boxes standing on a finite,
 // thin, checkerboard floor slab ([-1.2, 1.2]^2, top face at z = -0.5), lit by
@@ -44,6 +44,7 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
+#include "core/blender_writer.h"
 #include "core/camera.h"
 #include "core/image.h"
 #include "core/scene.h"
@@ -174,12 +175,6 @@ ProceduralRender RenderProceduralView(const ProceduralWorld& world, const Camera
 
 // --- Datasets -----------------------------------------------------------------
 
-// Per-view alpha channels parallel to scene.train / val / test (each inner
-// vector has width * height entries).
-struct ViewAlphas {
-  std::vector<std::vector<float>> train, val, test;
-};
-
 struct ProceduralDataset {
   Scene scene;
   ViewAlphas alpha;
@@ -196,31 +191,9 @@ absl::StatusOr<ProceduralDataset> GenerateProceduralDataset(const ProceduralScen
 // As above, without the alpha channels.
 absl::StatusOr<Scene> GenerateProceduralScene(const ProceduralSceneOptions& options);
 
-// Writes `scene` in the NeRF-synthetic (Blender) format under `dir` (created
-// if needed): transforms_{train,val,test}.json with "camera_angle_x" and
-// frames {"file_path": "./<split>/r_<i>", "rotation", "time_step",
-// "transform_matrix" (4x4, OpenGL convention via ExportPose)}, and RGBA PNGs
-// <dir>/<split>/r_<i>.png. If scene.val is empty, transforms_val.json lists
-// the test frames (pointing at the test images). PNG colours are straight
-// (unassociated) alpha, un-composited from scene.background with `alpha`, so
-// compositing the PNG again reproduces the image to 8-bit precision; without
-// `alpha`, alpha = 1. Empty splits get a json with no frames. All views of a
-// split must share one pinhole camera model (same size, fx == fy, centred
-// principal point, no distortion) and have images; otherwise INVALID_ARGUMENT.
-// I/O failures give INTERNAL. Existing files in `dir` are overwritten. The
-// format has no scene kind: a backdrop (kUnbounded) scene written here loads
-// back as a bounded object scene.
-absl::Status WriteBlenderDataset(const Scene& scene, const std::string& dir,
-                                 const ViewAlphas* alpha = nullptr);
+// The NeRF-synthetic writers (core/blender_writer.h) for a generated dataset,
+// with its alpha channels.
 absl::Status WriteBlenderDataset(const ProceduralDataset& dataset, const std::string& dir);
-
-// Writes one Blender-format folder per time step, <dir>/scan_000,
-// <dir>/scan_001, ..., each holding the views with that time step (indices
-// restart at 0 per folder; frames keep their original "time_step"). This is
-// the "directory of scan folders" input of continual learning. Every time
-// step in [0, scene.num_time_steps()) must have at least one train view.
-absl::Status WriteScanFolders(const Scene& scene, const std::string& dir,
-                              const ViewAlphas* alpha = nullptr);
 absl::Status WriteScanFolders(const ProceduralDataset& dataset, const std::string& dir);
 
 }  // namespace clnerf

@@ -3,11 +3,19 @@
 #include <algorithm>
 #include <cmath>
 
+#include "absl/strings/str_cat.h"
+
 namespace clnerf {
 
 absl::Status MarchOptions::Validate() const {
   if (max_samples < 1) return absl::InvalidArgumentError("march: max_samples must be >= 1");
-  if (!(steps_per_diagonal >= 16)) return absl::InvalidArgumentError("march: steps_per_diagonal must be >= 16");
+  if (max_samples > kMaxMarchSamples) {
+    return absl::InvalidArgumentError(absl::StrCat("march: max_samples must be <= ", kMaxMarchSamples));
+  }
+  if (!(steps_per_diagonal >= 16 && steps_per_diagonal <= kMaxStepsPerDiagonal)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("march: steps_per_diagonal must be in [16, ", kMaxStepsPerDiagonal, "]"));
+  }
   if (!(cone_angle >= 0 && cone_angle < 1)) return absl::InvalidArgumentError("march: cone_angle must be in [0, 1)");
   if (!(near >= 0)) return absl::InvalidArgumentError("march: near must be >= 0");
   return absl::OkStatus();

@@ -75,6 +75,10 @@ inline constexpr float kContractedShellSteps = 64.0f;
 
 // Upper bound on loop iterations per MarchRay* call.
 inline constexpr int kMaxMarchIterations = 1 << 16;
+// Sanity limits of MarchOptions (real models use 128-1024 steps per diagonal
+// and at most a few thousand samples per ray).
+inline constexpr float kMaxStepsPerDiagonal = 65536.0f;
+inline constexpr int kMaxMarchSamples = 1 << 16;
 
 }  // namespace clnerf
 

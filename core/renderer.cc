@@ -8,6 +8,7 @@
 
 #include "absl/strings/str_format.h"
 #include "core/field.h"
+#include "core/ray_marcher.h"
 #include "core/volume_rendering.h"
 
 namespace clnerf {
@@ -22,6 +23,7 @@ namespace {
 
 struct RayState {
   float t, t_end, T;
+  int samples;  // Marched so far (at most kMaxMarchSamples).
   float rgb[3];
   float depth;
   bool alive;
@@ -44,11 +46,13 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
     s.T = 1.0f;
     s.rgb[0] = s.rgb[1] = s.rgb[2] = 0.0f;
     s.depth = 0.0f;
+    s.samples = 0;
     s.alive = model.RayInterval(o, d, &s.t, &s.t_end);
   }
 
   long long evaluated = 0;
   int alive = n;
+  const int max_samples = kMaxMarchSamples;  // A safety bound no real model reaches.
   for (;;) {
     // Samples per live ray this wave: the wave's total stays near kWaveBudget
     // so activations stay in cache; few live rays march further per wave.
@@ -62,11 +66,17 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
       if (!s.alive) continue;
       const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
       const size_t before = samples.size();
-      s.t = model.March(o, d, s.t, s.t_end, wave, &samples);
+      const float t_before = s.t;
+      s.t = model.March(o, d, s.t, s.t_end, std::min(wave, max_samples - s.samples), &samples);
       if (samples.size() == before) {
         s.alive = false;
         continue;
       }
+      // A ray ends after kMaxMarchSamples samples and when its march stops
+      // advancing (steps below float spacing): both bound the work of any
+      // model, even a pathological one.
+      s.samples += int(samples.size() - before);
+      if (s.samples >= max_samples || !(s.t > t_before)) s.alive = false;
       seg.push_back(int(samples.size()));
       seg_ray.push_back(r);
     }

@@ -128,7 +128,7 @@ grpc::Status ClnerfServiceImpl::ListJobs(grpc::ServerContext*, const v1::ListJob
   }
   size_t total = 0;
   for (const JobStatus& j : host_->ListJobs(offset, limit, &total)) *resp->add_jobs() = ToProto(j);
-  if (offset + limit < total) resp->set_next_page_token(absl::StrCat(offset + limit));
+  if (offset < total && limit < total - offset) resp->set_next_page_token(absl::StrCat(offset + limit));
   resp->set_total_jobs(int(total));
   return grpc::Status::OK;
 }

@@ -50,7 +50,7 @@ ModelHost::~ModelHost() { Shutdown(); }
 
 int ModelHost::PredictedTimeStep() const {
   const std::shared_ptr<const Servable> deployed = publisher_->registry().Deployed();
-  return (deployed ? deployed->model->num_time_steps() : 0) + jobs_.running_or_queued();
+  return (deployed ? deployed->model().num_time_steps() : 0) + jobs_.running_or_queued();
 }
 
 absl::Status ModelHost::RecoverScans() {
@@ -173,7 +173,7 @@ absl::StatusOr<RenderResult> ModelHost::Render(const Camera& world_camera, std::
     }
     return snap.status();
   }
-  const NgpModel& model = *(*snap)->model;
+  const NgpModel& model = (*snap)->model();
   const int t = time_step.value_or(model.num_time_steps() - 1);
   if (t >= model.num_time_steps()) {
     return absl::InvalidArgumentError(absl::StrCat("time step ", t, " is out of range: version ",
@@ -233,9 +233,9 @@ HostInfo ModelHost::Info() const {
   auto d = publisher_->registry().Deployed();
   if (d) {
     info.deployed_version = d->info.version;
-    info.time_steps = d->model->num_time_steps();
-    info.model_bytes = int64_t(d->model->num_bytes());
-    info.replay_cameras = int64_t(d->memory->num_cameras());
+    info.time_steps = d->model().num_time_steps();
+    info.model_bytes = int64_t(d->model().num_bytes());
+    info.replay_cameras = int64_t(d->memory().num_cameras());
   }
   info.queued_jobs = jobs_.queued();
   info.running_job = jobs_.running();

@@ -19,17 +19,20 @@
 #include <mutex>
 
 #include "absl/status/statusor.h"
+#include "core/continual_update.h"
 #include "core/ngp_model.h"
 #include "core/replay_memory.h"
 #include "server/version_store.h"
 
 namespace clnerf {
 
-// One immutable published version.
+// One immutable published version: its metadata and the continual state
+// (θ and M) that renders read and the next update trains from.
 struct Servable {
   VersionInfo info;
-  std::shared_ptr<const NgpModel> model;
-  std::shared_ptr<const ReplayMemory> memory;
+  ContinualState state;
+  const NgpModel& model() const { return *state.model; }
+  const ReplayMemory& memory() const { return state.memory; }
 };
 
 class ModelRegistry {

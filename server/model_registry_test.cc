@@ -18,9 +18,8 @@ std::shared_ptr<const Servable> MakeServable(int64_t v) {
   mo.grid.log2_table_size = 10;
   mo.grid.finest_resolution = 16;
   mo.occupancy.resolution = 16;
-  s->model = std::make_shared<const NgpModel>(
+  s->state.model = std::make_shared<const NgpModel>(
       *NgpModel::Create(mo, Normalization{}, SceneKind::kBounded, Eigen::Vector3f::Ones(), 1, uint64_t(v)));
-  s->memory = std::make_shared<const ReplayMemory>();
   return s;
 }
 
@@ -59,16 +58,16 @@ TEST(ModelRegistryTest, ReadersSeeMonotonicCompleteSnapshotsWhileAWriterSwaps) {
       int64_t last = 0;
       while (!done.load()) {
         auto s = reg.Get(0);
-        if (!s.ok() || *s == nullptr || (*s)->model == nullptr || (*s)->info.version < last ||
-            (*s)->model->num_time_steps() != 1) {
+        if (!s.ok() || *s == nullptr || (*s)->state.model == nullptr || (*s)->info.version < last ||
+            (*s)->model().num_time_steps() != 1) {
           failures++;
           continue;
         }
         last = (*s)->info.version;
         // Read the snapshot's weights after it may have been swapped out.
         double sum = 0;
-        for (float w : (*s)->model->params().mlp) sum += w;
-        if (!std::isfinite(sum) || (*s)->model->params().mlp.empty()) failures++;
+        for (float w : (*s)->model().params().mlp) sum += w;
+        if (!std::isfinite(sum) || (*s)->model().params().mlp.empty()) failures++;
         reads++;
       }
     });

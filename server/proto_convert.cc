@@ -6,42 +6,6 @@
 
 namespace clnerf {
 
-grpc::Status ToGrpcStatus(const absl::Status& s) {
-  if (s.ok()) return grpc::Status::OK;
-  // absl and gRPC share the canonical code numbering.
-  return grpc::Status(static_cast<grpc::StatusCode>(static_cast<int>(s.code())), std::string(s.message()));
-}
-
-absl::StatusOr<Camera> CameraFromProto(const v1::CameraSpec& spec, const std::string& what) {
-  auto bad = [&](const std::string& why) { return absl::InvalidArgumentError(absl::StrCat(what, ": ", why)); };
-  if (spec.pose_size() != 16) return bad(absl::StrCat("pose must have 16 numbers (4x4 row-major), got ", spec.pose_size()));
-  for (float v : spec.pose()) {
-    if (!std::isfinite(v)) return bad("pose has NaN/Inf entries");
-  }
-  if (std::abs(spec.pose(12)) > 1e-4f || std::abs(spec.pose(13)) > 1e-4f || std::abs(spec.pose(14)) > 1e-4f ||
-      std::abs(spec.pose(15) - 1.0f) > 1e-4f) {
-    return bad("pose bottom row must be 0 0 0 1");
-  }
-  Pose p;
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 4; ++c) p(r, c) = spec.pose(r * 4 + c);
-  PoseConvention conv;
-  switch (spec.convention()) {
-    case v1::POSE_CONVENTION_UNSPECIFIED:
-    case v1::POSE_CONVENTION_OPENGL: conv = PoseConvention::kOpenGL; break;
-    case v1::POSE_CONVENTION_OPENCV: conv = PoseConvention::kOpenCV; break;
-    default: return bad(absl::StrCat("unknown pose convention ", int(spec.convention())));
-  }
-  if (!spec.has_intrinsics()) return bad("intrinsics are missing");
-  const v1::Intrinsics& in = spec.intrinsics();
-  Camera cam;
-  cam.intrinsics = Intrinsics{in.width(), in.height(), in.fx(), in.fy(), in.cx(), in.cy(),
-                              in.k1(),    in.k2(),     in.p1(), in.p2()};
-  cam.c2w = ConvertPose(p, conv);
-  if (absl::Status s = ValidateCamera(cam); !s.ok()) return bad(std::string(s.message()));
-  return cam;
-}
-
 absl::StatusOr<ScanHeaderDecl> HeaderFromProto(const v1::ScanHeader& h) {
   ScanHeaderDecl decl;
   decl.name = h.name();

@@ -1,6 +1,7 @@
-// proto_convert: the one place where clnerf.v1 protobuf messages and core /
-// host types meet, plus ToGrpcStatus, the single absl::Status -> grpc::Status
-// conversion at the RPC boundary (as TF Serving's ToGRPCStatus).
+// proto_convert: where clnerf.v1 protobuf messages and the server's own types
+// (jobs, versions, scan headers) meet. Cameras and statuses, which the client
+// converts too, are in proto/wire/wire.h; ToGrpcStatus there is the single
+// absl::Status -> grpc::Status conversion at the RPC boundary.
 //
 // Thread-safety: pure functions.
 #ifndef CLNERF_SERVER_PROTO_CONVERT_H_
@@ -9,6 +10,7 @@
 #include "absl/status/statusor.h"
 #include "clnerf/v1/clnerf.pb.h"
 #include "core/camera.h"
+#include "proto/wire/wire.h"
 #include "grpcpp/support/status.h"
 #include "server/job_tracker.h"
 #include "server/model_host.h"
@@ -18,12 +20,8 @@
 
 namespace clnerf {
 
-grpc::Status ToGrpcStatus(const absl::Status& status);
+// Cameras and statuses both ways: proto/wire/wire.h (shared with the client).
 
-// Checks the pose (16 finite numbers, bottom row 0 0 0 1), the convention
-// and the intrinsics; returns the camera in the internal OpenCV convention.
-// `what` prefixes error messages (e.g. "frame 3").
-absl::StatusOr<Camera> CameraFromProto(const v1::CameraSpec& spec, const std::string& what);
 
 // The frames of a header with their declared sizes, cameras converted and
 // checked; the sizes and names are checked by ScanAssembler::Begin.

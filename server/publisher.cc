@@ -41,8 +41,8 @@ absl::StatusOr<std::shared_ptr<const Servable>> Publisher::LoadServable(int64_t 
   if (!lv.ok()) return lv.status();
   auto s = std::make_shared<Servable>();
   s->info = lv->info;
-  s->model = std::make_shared<const NgpModel>(std::move(lv->model));
-  s->memory = std::make_shared<const ReplayMemory>(std::move(lv->memory));
+  s->state.model = std::make_shared<const NgpModel>(std::move(lv->model));
+  s->state.memory = std::move(lv->memory);
   return std::shared_ptr<const Servable>(std::move(s));
 }
 
@@ -177,8 +177,8 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
   manifest_.next_version = info.version + 1;
   auto servable = std::make_shared<Servable>();
   servable->info = *written;
-  servable->model = state.model;
-  servable->memory = std::make_shared<const ReplayMemory>(state.memory);
+  servable->state.model = state.model;
+  servable->state.memory = state.memory;
   registry_.Deploy(std::move(servable));
   Manifest m = manifest_;
   m.deployed = info.version;

@@ -114,9 +114,9 @@ void UpdateWorker::RunJob(const std::string& job_id) {
 
   // 1. Load the scan as the next time step of the deployed model.
   const std::shared_ptr<const Servable> prev = publisher_->registry().Deployed();
-  const int t = prev ? prev->model->num_time_steps() : 0;
+  const int t = prev ? prev->model().num_time_steps() : 0;
   absl::StatusOr<Scene> scene =
-      scans_->Load(scan_id, t, prev ? std::optional<Eigen::Vector3f>(prev->model->background()) : std::nullopt);
+      scans_->Load(scan_id, t, prev ? std::optional<Eigen::Vector3f>(prev->model().background()) : std::nullopt);
   if (!scene.ok()) {
     // A stored scan that cannot be read will never train: park it.
     const std::string why = absl::StrCat("cannot read the stored scan: ", scene.status().message());
@@ -124,7 +124,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
     return Finish(job_id, scan_id, JobPhase::kFailed, absl::StrCat(why, " (parked in ", scans_->parked_dir(), ")"),
                   false);
   }
-  if (prev) scene->kind = prev->model->kind();
+  if (prev) scene->kind = prev->model().kind();
   std::vector<View> test = std::move(scene->test);
   scene->test.clear();
   jobs_->Update(job_id, [&](JobStatus* j) {
@@ -139,17 +139,12 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   UpdateOptions uo = options_.update;
   uo.train.threads = options_.train_threads;
   uo.train.seed = options_.update.train.seed + uint64_t(t);
-  ContinualState prev_state;
-  if (prev) {
-    prev_state.model = prev->model;
-    prev_state.memory = *prev->memory;
-  }
   auto last_report = std::chrono::steady_clock::now() - std::chrono::seconds(1);
   JobPhase last_phase = JobPhase::kPreparingReplay;
   UpdateReport report;
   const auto t0 = std::chrono::steady_clock::now();
   absl::StatusOr<ContinualState> next = ContinualUpdate(
-      *scene, prev ? &prev_state : nullptr, uo,
+      *scene, prev ? &prev->state : nullptr, uo,
       [&](const UpdateProgress& p) {
         const JobPhase phase = ToJobPhase(p.phase);
         const auto now = std::chrono::steady_clock::now();
@@ -179,8 +174,8 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   // 3. Deployment gate.
   jobs_->Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kValidating; });
   scene->test = std::move(test);
-  GateReport gate = RunDeploymentGate(*next->model, *scene, prev ? prev->model.get() : nullptr,
-                                      prev ? prev->memory.get() : nullptr, options_.gate, options_.train_threads);
+  GateReport gate = RunDeploymentGate(*next->model, *scene, prev ? &prev->model() : nullptr,
+                                      prev ? &prev->memory() : nullptr, options_.gate, options_.train_threads);
   gate.metrics["train_seconds"] = report.train_seconds;
   gate.metrics["replay_prepare_seconds"] = report.replay_prepare_seconds;
   gate.metrics["update_seconds"] = SecondsSince(t0);
