@@ -9,12 +9,9 @@
 
 #include "clnerf/v1/clnerf.pb.h"
 #include "core/camera.h"
-#include "proto/wire/wire.h"
 
 namespace clnerf {
 
-// The camera as a wire spec (proto/wire/wire.h).
-inline clnerf::v1::CameraSpec ToCameraSpec(const Camera& camera) { return CameraToProto(camera); }
 
 // "QUEUED", "TRAINING", ..., "DONE" (the enum name without its prefix).
 std::string PhaseName(clnerf::v1::JobPhase phase);

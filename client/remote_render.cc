@@ -10,6 +10,7 @@
 
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_format.h"
+#include "proto/wire/wire.h"
 #include "client/camera_path.h"
 #include "client/commands.h"
 #include "client/progress_bar.h"
@@ -187,7 +188,7 @@ int RunRemoteRender(const RenderArgs& a) {
   int time_step = 0;
   if (n == 1) {
     clnerf::v1::RenderRequest request;
-    *request.mutable_camera() = ToCameraSpec(shots->cameras[0]);
+    *request.mutable_camera() = CameraToProto(shots->cameras[0]);
     if (a.time_step >= 0) request.set_time_step(a.time_step);
     request.set_version(a.version);
     request.set_format(clnerf::v1::IMAGE_FORMAT_PNG);
@@ -199,7 +200,7 @@ int RunRemoteRender(const RenderArgs& a) {
     time_step = response.time_step();
   } else {
     clnerf::v1::RenderStreamRequest request;
-    for (const Camera& cam : shots->cameras) *request.add_cameras() = ToCameraSpec(cam);
+    for (const Camera& cam : shots->cameras) *request.add_cameras() = CameraToProto(cam);
     if (a.time_step >= 0) request.set_time_step(a.time_step);
     request.set_version(a.version);
     request.set_format(clnerf::v1::IMAGE_FORMAT_PNG);

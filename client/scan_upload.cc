@@ -1,3 +1,4 @@
+#include "proto/wire/wire.h"
 #include "client/scan_upload.h"
 
 #include <chrono>
@@ -32,7 +33,7 @@ absl::StatusOr<EncodedScan> EncodeScan(const std::string& name, SceneKind kind, 
       }
       clnerf::v1::Frame* frame = views == &train ? header->add_frames() : header->add_test_frames();
       frame->set_name(view.name);
-      *frame->mutable_camera() = ToCameraSpec(view.camera);
+      *frame->mutable_camera() = CameraToProto(view.camera);
       frame->set_image_bytes(int64_t(png->size()));
       frame->set_mask_bytes(int64_t(mask.size()));
       out.total_bytes += int64_t(png->size() + mask.size());

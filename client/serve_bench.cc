@@ -14,6 +14,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
+#include "proto/wire/wire.h"
 #include "client/commands.h"
 #include "client/remote_client.h"
 #include "client/remote_commands.h"
@@ -68,7 +69,7 @@ Latency MeasureRenders(RemoteClient& client, const std::vector<Camera>& cams, in
     threads.emplace_back([&, c] {
       for (int i = 0; i < per_client; ++i) {
         clnerf::v1::RenderRequest req;
-        *req.mutable_camera() = ToCameraSpec(Resized(cams[size_t(c * per_client + i) % cams.size()], size));
+        *req.mutable_camera() = CameraToProto(Resized(cams[size_t(c * per_client + i) % cams.size()], size));
         clnerf::v1::RenderResponse resp;
         auto ctx = client.Context(kRenderTimeoutSeconds);
         const auto t0 = Clock::now();
@@ -157,7 +158,7 @@ absl::Status WaitServed(RemoteClient& client, const Camera& cam, UploadFigures* 
   }
   while (true) {
     clnerf::v1::RenderRequest req;
-    *req.mutable_camera() = ToCameraSpec(Resized(cam, 8));
+    *req.mutable_camera() = CameraToProto(Resized(cam, 8));
     clnerf::v1::RenderResponse resp;
     auto ctx = client.Context(kUnaryTimeoutSeconds);
     grpc::Status s = client.service().Render(ctx.get(), req, &resp);

@@ -175,14 +175,8 @@ grpc::Status AbandonedStatus(grpc::ServerContext* ctx, const absl::Status& s) {
   return grpc::Status(grpc::StatusCode::CANCELLED, std::string(s.message()));
 }
 
-absl::StatusOr<std::optional<int>> TimeStepOf(bool has, int value) {
-  if (!has) return std::optional<int>();
-  if (value < 0) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("time_step ", value, " is negative; leave it unset for the latest time step"));
-  }
-  return std::optional<int>(value);
-}
+// Unset = the latest; ModelHost::Render refuses a negative value.
+std::optional<int> TimeStepOf(bool has, int value) { return has ? std::optional<int>(value) : std::nullopt; }
 
 }  // namespace
 
@@ -191,9 +185,8 @@ grpc::Status ClnerfServiceImpl::Render(grpc::ServerContext* ctx, const v1::Rende
   if (host_->shutting_down()) return Unavailable();
   absl::StatusOr<Camera> cam = CameraFromProto(req->camera(), "camera");
   if (!cam.ok()) return ToGrpcStatus(cam.status());
-  absl::StatusOr<std::optional<int>> t = TimeStepOf(req->has_time_step(), req->time_step());
-  if (!t.ok()) return ToGrpcStatus(t.status());
-  absl::StatusOr<RenderResult> r = host_->Render(*cam, *t, req->version(), StopWhenAbandoned(ctx));
+  absl::StatusOr<RenderResult> r =
+      host_->Render(*cam, TimeStepOf(req->has_time_step(), req->time_step()), req->version(), StopWhenAbandoned(ctx));
   if (absl::IsCancelled(r.status())) return AbandonedStatus(ctx, r.status());
   if (!r.ok()) return ToGrpcStatus(r.status());
   absl::StatusOr<std::string> bytes = EncodeRender(r->image, req->format());
@@ -213,8 +206,7 @@ grpc::Status ClnerfServiceImpl::RenderStream(grpc::ServerContext* ctx, const v1:
   if (req->cameras_size() == 0) return Invalid("RenderStream needs at least one camera");
   const int64_t chunk = req->max_chunk_bytes() > 0 ? std::min<int64_t>(req->max_chunk_bytes(), kMaxRenderChunkBytes)
                                                     : kMaxRenderChunkBytes;
-  absl::StatusOr<std::optional<int>> t = TimeStepOf(req->has_time_step(), req->time_step());
-  if (!t.ok()) return ToGrpcStatus(t.status());
+  const std::optional<int> t = TimeStepOf(req->has_time_step(), req->time_step());
   // Check every camera before rendering anything.
   std::vector<Camera> cams;
   for (int i = 0; i < req->cameras_size(); ++i) {
@@ -231,7 +223,7 @@ grpc::Status ClnerfServiceImpl::RenderStream(grpc::ServerContext* ctx, const v1:
   for (size_t i = 0; i < cams.size(); ++i) {
     if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "render stream cancelled");
     if (host_->shutting_down()) return Unavailable();
-    absl::StatusOr<RenderResult> r = host_->Render(cams[i], *t, version, stop);
+    absl::StatusOr<RenderResult> r = host_->Render(cams[i], t, version, stop);
     if (absl::IsCancelled(r.status())) return AbandonedStatus(ctx, r.status());
     if (!r.ok()) return ToGrpcStatus(r.status());
     absl::StatusOr<std::string> bytes = EncodeRender(r->image, req->format());

@@ -12,6 +12,7 @@
 #include <limits>
 #include <thread>
 
+#include "absl/strings/str_format.h"
 #include "core/durable_file.h"
 #include "grpcpp/generic/generic_stub.h"
 #include "gtest/gtest.h"
@@ -129,15 +130,23 @@ void ForgeNanCentre(const std::string& path) {
   ASSERT_TRUE(AtomicWriteFile(path, bytes).ok());
 }
 
-TEST_F(ServerFixture, ForgedCheckpointIsDataLossWhileOtherVersionsServe) {
-  const std::string store = TempDir("srv_forged");
-  StartServer(TinyServerOptions(store));
+// A store with versions 1 and 2 (time steps 0 and 1 of `scene`), version
+// `forged` forged with a NaN scene centre, and the server restarted on it.
+class ForgedStoreTest : public ServerFixture {
+ protected:
+  void PublishTwoVersionsAndForge(const std::string& store, const Scene& scene, int forged) {
+    StartServer(TinyServerOptions(store));
+    ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
+    ASSERT_EQ(UploadAndWait(scene, 1).phase(), v1::JOB_PHASE_DONE);
+    StopServer();
+    ForgeNanCentre(absl::StrFormat("%s/versions/%06d/model.ckpt", store, forged));
+    StartServer(TinyServerOptions(store));
+  }
+};
+
+TEST_F(ForgedStoreTest, ForgedCheckpointIsDataLossWhileOtherVersionsServe) {
   const Scene scene = TinyScans(2);
-  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
-  ASSERT_EQ(UploadAndWait(scene, 1).phase(), v1::JOB_PHASE_DONE);
-  StopServer();
-  ForgeNanCentre(store + "/versions/000001/model.ckpt");
-  StartServer(TinyServerOptions(store));
+  PublishTwoVersionsAndForge(TempDir("srv_forged"), scene, 1);
   v1::RenderResponse r;
   grpc::Status s = Render(scene.test[0].camera, -1, 1, &r);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::DATA_LOSS) << s.error_message();
@@ -153,15 +162,9 @@ TEST_F(ServerFixture, ForgedCheckpointIsDataLossWhileOtherVersionsServe) {
   EXPECT_EQ(Info(stub_.get()).deployed_version(), 2);
 }
 
-TEST_F(ServerFixture, CorruptDeployedVersionStartsReadOnlyUntilAnotherIsPinned) {
-  const std::string store = TempDir("srv_forged_deployed");
-  StartServer(TinyServerOptions(store));
+TEST_F(ForgedStoreTest, CorruptDeployedVersionStartsReadOnlyUntilAnotherIsPinned) {
   const Scene scene = TinyScans(2);
-  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
-  ASSERT_EQ(UploadAndWait(scene, 1).phase(), v1::JOB_PHASE_DONE);
-  StopServer();
-  ForgeNanCentre(store + "/versions/000002/model.ckpt");
-  StartServer(TinyServerOptions(store));
+  PublishTwoVersionsAndForge(TempDir("srv_forged_deployed"), scene, 2);
   EXPECT_TRUE(Contains(Info(stub_.get()).store_error(), "deployed version 2 cannot be loaded"));
   v1::RenderResponse r;
   EXPECT_EQ(Render(scene.test[0].camera, -1, 0, &r).error_code(), grpc::StatusCode::UNAVAILABLE);

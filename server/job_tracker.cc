@@ -81,6 +81,7 @@ bool JobFromJson(const nlohmann::json& o, JobStatus* j) {
 
 void JobTracker::LoadHistory() {
   if (history_path_.empty()) return;
+  RemoveAtomicWriteTemps(history_path_);  // Left by a crash during a save.
   absl::StatusOr<std::string> text = ReadFileToString(history_path_, "job history");
   if (!text.ok()) {
     if (!absl::IsNotFound(text.status())) spdlog::warn("job history not read: {}", text.status().ToString());

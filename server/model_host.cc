@@ -100,19 +100,9 @@ absl::Status ModelHost::WritableStatus() const {
 
 absl::StatusOr<UploadAck> ModelHost::AcceptScan(const ScanUpload& upload) {
   if (absl::Status s = WritableStatus(); !s.ok()) return s;
-  // Uploads that bypass ScanAssembler (in-process callers) get the same limits.
-  if (int(upload.frames.size()) > options_.max_frames) {
-    return absl::InvalidArgumentError(absl::StrCat("scan has ", upload.frames.size(), " frames; the limit is ",
-                                                   options_.max_frames));
-  }
-  if (upload.num_bytes() > options_.max_scan_bytes) {
-    return absl::InvalidArgumentError(absl::StrCat("scan is ", upload.num_bytes(), " bytes; the limit is ",
-                                                   options_.max_scan_bytes));
-  }
-  if (absl::Status s = ValidateName(upload.name, "scan name"); !s.ok()) return s;
-  for (size_t i = 0; i < upload.frames.size(); ++i) {
-    if (absl::Status s = ValidateName(upload.frames[i].name, absl::StrCat("frame ", i, " name")); !s.ok()) return s;
-  }
+  // Uploads handed over in one piece (in-process callers) get the limits that
+  // ScanAssembler applies to streamed ones.
+  if (absl::Status s = CheckUploadLimits(upload, options_.upload_limits()); !s.ok()) return s;
   if (absl::Status s = ValidateScanUpload(upload); !s.ok()) return s;
   std::lock_guard<std::mutex> lock(upload_mu_);
   if (jobs_.queued() >= options_.max_queue) {

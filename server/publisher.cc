@@ -105,6 +105,10 @@ void Publisher::MaybeRetryLocked() {
 absl::Status Publisher::WritableStatus() {
   std::lock_guard<std::mutex> lock(mu_);
   MaybeRetryLocked();
+  return RefusalLocked();
+}
+
+absl::Status Publisher::RefusalLocked() const {
   if (bg_error_.ok()) return absl::OkStatus();
   return absl::UnavailableError(absl::StrCat("the store refuses writes after an error: ", bg_error_.message(),
                                              " (renders of stored versions still work; writes resume once the "
@@ -137,9 +141,7 @@ absl::Status Publisher::RetryLocked() {
 absl::StatusOr<ReservedIds> Publisher::ReserveIds() {
   std::lock_guard<std::mutex> lock(mu_);
   MaybeRetryLocked();
-  if (!bg_error_.ok()) {
-    return absl::UnavailableError(absl::StrCat("the store refuses writes after an error: ", bg_error_.message()));
-  }
+  if (absl::Status s = RefusalLocked(); !s.ok()) return s;
   Manifest next = manifest_;
   ReservedIds ids{absl::StrFormat("scan-%06d", next.next_scan++), absl::StrFormat("job-%06d", next.next_job++)};
   // Counters first, so an id is never reused even if saving the scan fails.
@@ -155,9 +157,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
                                                const std::string& scan_id,
                                                const std::map<std::string, double>& metrics) {
   std::lock_guard<std::mutex> lock(mu_);
-  if (!bg_error_.ok()) {
-    return absl::UnavailableError(absl::StrCat("the store refuses writes after an error: ", bg_error_.message()));
-  }
+  if (absl::Status s = RefusalLocked(); !s.ok()) return s;
   VersionInfo info;
   info.version = manifest_.next_version;
   info.parent = parent;

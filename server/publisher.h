@@ -84,6 +84,8 @@ class Publisher {
   absl::Status RetryLocked();
   void MaybeRetryLocked();  // RetryLocked() if retry_seconds passed.
   void SetErrorLocked(const absl::Status& s);
+  // OK, or UNAVAILABLE naming the sticky error; caller holds mu_.
+  absl::Status RefusalLocked() const;
   void PruneLocked();
 
   const PublisherOptions options_;

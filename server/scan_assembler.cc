@@ -21,6 +21,22 @@ absl::Status ValidateName(std::string_view name, const std::string& what) {
   return absl::OkStatus();
 }
 
+absl::Status CheckUploadLimits(const ScanUpload& upload, const UploadLimits& limits) {
+  if (int64_t(upload.frames.size()) > limits.max_frames) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("scan has ", upload.frames.size(), " frames; the limit is ", limits.max_frames));
+  }
+  if (upload.num_bytes() > limits.max_scan_bytes) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("scan is ", upload.num_bytes(), " bytes; the limit is ", limits.max_scan_bytes));
+  }
+  if (absl::Status s = ValidateName(upload.name, "scan name"); !s.ok()) return s;
+  for (size_t i = 0; i < upload.frames.size(); ++i) {
+    if (absl::Status s = ValidateName(upload.frames[i].name, absl::StrCat("frame ", i, " name")); !s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
 absl::Status ScanAssembler::Begin(ScanHeaderDecl header) {
   if (begun_) return absl::InvalidArgumentError("only one scan header is allowed per upload");
   const int64_t n = int64_t(header.frames.size());

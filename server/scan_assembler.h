@@ -55,6 +55,11 @@ struct ScanHeaderDecl {
 // names the field in the message ("scan name", "frame 3 name").
 absl::Status ValidateName(std::string_view name, const std::string& what);
 
+// The limits on a whole upload (frame count, bytes, names), for an upload
+// handed to the host in one piece. ScanAssembler checks the same limits on
+// the declared header, before any byte is buffered.
+absl::Status CheckUploadLimits(const ScanUpload& upload, const UploadLimits& limits);
+
 class ScanAssembler {
  public:
   explicit ScanAssembler(const UploadLimits& limits) : limits_(limits) {}

@@ -12,6 +12,7 @@
 #include "clnerf/v1/clnerf.grpc.pb.h"
 #include "core/image.h"
 #include "core/procedural_scene.h"
+#include "proto/wire/wire.h"
 #include "gtest/gtest.h"
 #include "server/scan_store.h"
 #include "server/server_options.h"
@@ -85,19 +86,7 @@ inline ServerOptions TinyServerOptions(const std::string& store, int iterations 
 
 // --- gRPC side ---------------------------------------------------------------
 
-inline void FillCamera(const Camera& c, v1::CameraSpec* spec) {
-  for (int r = 0; r < 3; ++r)
-    for (int k = 0; k < 4; ++k) spec->add_pose(c.c2w(r, k));
-  for (float v : {0.f, 0.f, 0.f, 1.f}) spec->add_pose(v);
-  spec->set_convention(v1::POSE_CONVENTION_OPENCV);
-  auto* in = spec->mutable_intrinsics();
-  in->set_width(c.intrinsics.width);
-  in->set_height(c.intrinsics.height);
-  in->set_fx(c.intrinsics.fx);
-  in->set_fy(c.intrinsics.fy);
-  in->set_cx(c.intrinsics.cx);
-  in->set_cy(c.intrinsics.cy);
-}
+inline void FillCamera(const Camera& c, v1::CameraSpec* spec) { *spec = CameraToProto(c); }
 
 // The header and chunks (<= chunk_bytes) of an upload, in order.
 inline std::vector<v1::UploadScanRequest> UploadMessages(const ScanUpload& up, size_t chunk_bytes = 1 << 20) {
