@@ -18,12 +18,6 @@ namespace clnerf {
 
 namespace fs = std::filesystem;
 
-int64_t ScanUpload::num_bytes() const {
-  int64_t n = 0;
-  for (const ScanFrame& f : frames) n += int64_t(f.image.size() + f.mask.size());
-  return n;
-}
-
 namespace {
 
 constexpr char kTmpPrefix[] = ".tmp-";

@@ -41,7 +41,13 @@ struct ScanUpload {
   std::string scene_kind;  // "bounded", "unbounded" or "" (inherit / bounded).
   bool mask_nonzero_is_exclude = false;
   std::vector<ScanFrame> frames;
-  int64_t num_bytes() const;
+  // Encoded image + mask bytes. Inline, so header-only users (the upload
+  // fuzz target) need not link the store.
+  int64_t num_bytes() const {
+    int64_t n = 0;
+    for (const ScanFrame& f : frames) n += int64_t(f.image.size() + f.mask.size());
+    return n;
+  }
 };
 
 // What the store records about a scan besides its frames.
