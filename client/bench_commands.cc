@@ -11,9 +11,9 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "client/commands.h"
-#include "core/checkpoint.h"
-#include "core/dataset.h"
-#include "core/renderer.h"
+#include "core/io/checkpoint.h"
+#include "core/data/dataset.h"
+#include "core/render/renderer.h"
 #include "nlohmann/json.hpp"
 
 namespace clnerf {

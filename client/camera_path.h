@@ -22,7 +22,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "core/camera.h"
+#include "core/data/camera.h"
 
 namespace clnerf {
 

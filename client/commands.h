@@ -15,9 +15,9 @@
 
 namespace clnerf {
 
-struct FitOptions;  // core/fit.h
-struct FitResult;   // core/fit.h
-struct Scene;       // core/scene.h
+struct FitOptions;  // core/train/fit.h
+struct FitResult;   // core/train/fit.h
+struct Scene;       // core/data/scene.h
 
 // Overrides of model capacity (0 / negative = derive from the scene).
 struct ModelArgs {

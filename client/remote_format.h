@@ -8,7 +8,7 @@
 #include <string>
 
 #include "clnerf/v1/clnerf.pb.h"
-#include "core/camera.h"
+#include "core/data/camera.h"
 
 namespace clnerf {
 

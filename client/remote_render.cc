@@ -16,8 +16,8 @@
 #include "client/progress_bar.h"
 #include "client/remote_client.h"
 #include "client/remote_format.h"
-#include "core/dataset.h"
-#include "core/metrics.h"
+#include "core/data/dataset.h"
+#include "core/render/metrics.h"
 #include "nlohmann/json.hpp"
 #include "spdlog/spdlog.h"
 

@@ -6,7 +6,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/remote_format.h"
-#include "core/image.h"
+#include "core/data/image.h"
 
 namespace clnerf {
 

@@ -14,7 +14,7 @@
 #include "absl/status/statusor.h"
 #include "client/progress_bar.h"
 #include "client/remote_client.h"
-#include "core/scene.h"
+#include "core/data/scene.h"
 
 namespace clnerf {
 

@@ -6,7 +6,7 @@
 
 #include "absl/strings/str_format.h"
 #include "client/commands.h"
-#include "core/procedural_scene.h"
+#include "core/data/procedural_scene.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {

@@ -1,4 +1,4 @@
-// `clnerf bench stability`: the stability matrix (core/stability.h): every
+// `clnerf bench stability`: the stability matrix (core/continual/stability.h): every
 // method against every stressor on a small procedural changing scene. Prints
 // one line per cell as it finishes, then a markdown table (rows: methods,
 // columns: stressors) and JSON. Exits 4 if any cell broke an invariant (a
@@ -10,7 +10,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "client/commands.h"
-#include "core/stability.h"
+#include "core/continual/stability.h"
 #include "nlohmann/json.hpp"
 
 namespace clnerf {

@@ -11,7 +11,7 @@
 #include "client/remote_commands.h"
 #include "client/remote_format.h"
 #include "client/scan_upload.h"
-#include "core/dataset.h"
+#include "core/data/dataset.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {

@@ -13,7 +13,8 @@ FUZZ_SECONDS=${FUZZ_SECONDS:-30}
 cmake -S . -B build-san -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
   -DCLNERF_SANITIZE=ON -DCLNERF_FUZZ=ON > build-san.configure.log 2>&1 || { cat build-san.configure.log; exit 1; }
 TARGETS="fuzz_checkpoint fuzz_scan_assembler"
-[ "$WHAT" = fuzz ] || TARGETS="core_tests $TARGETS"
+CORE_TESTS="core_data_tests core_field_tests core_io_tests core_render_tests core_train_tests core_continual_tests"
+[ "$WHAT" = fuzz ] || TARGETS="$CORE_TESTS $TARGETS"
 # shellcheck disable=SC2086  # A list of targets.
 cmake --build build-san -j "${JOBS:-$(nproc)}" --target $TARGETS
 export ASAN_OPTIONS="detect_leaks=1:abort_on_error=1:strict_string_checks=1"
@@ -26,7 +27,10 @@ export LSAN_OPTIONS="suppressions=$PWD/scripts/lsan.supp"
 # sections (FUZZING_BUILD_MODE_UNSAFE_FOR_PRODUCTION, as OSS-Fuzz builds do).
 SAN_FILTER=${SAN_FILTER:-'-ContinualUpdateTest*:ContinualUpdateTest/*:StabilityTest*:CheckpointTest.FlippedByteIsDataLoss'}
 if [ "$WHAT" != fuzz ]; then
-  ./build-san/tests/core_tests --gtest_brief=1 --gtest_filter="$SAN_FILTER"
+  for t in $CORE_TESTS; do
+    echo "== $t (ASan+UBSan) =="
+    "./build-san/core/$t" --gtest_brief=1 --gtest_filter="$SAN_FILTER"
+  done
 fi
 mkdir -p build-san/fuzz-artifacts
 for t in fuzz_checkpoint fuzz_scan_assembler; do

@@ -9,8 +9,8 @@
 #include <filesystem>
 #include <thread>
 
-#include "core/durable_file.h"
-#include "core/image.h"
+#include "core/io/durable_file.h"
+#include "core/data/image.h"
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "grpcpp/create_channel.h"
 #include "gtest/gtest.h"
@@ -350,7 +350,7 @@ TEST_F(ServerFixture, DeploymentGateRefusesAndKeepsThePreviousVersion) {
 }
 
 // The stability matrix's stressors through the real service (see
-// core/stability.h): each stressed scan's job ends DONE or FAILED with a
+// core/continual/stability.h): each stressed scan's job ends DONE or FAILED with a
 // reason; a FAILED job leaves the deployed version as it was; renders of
 // every time step stay finite; every stored version loads with finite
 // parameters. A diverging update (learning rate 1e30) must be refused, and a

@@ -8,7 +8,7 @@
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
-#include "core/image.h"
+#include "core/data/image.h"
 #include "server/log_util.h"
 #include "server/proto_convert.h"
 #include "server/scan_assembler.h"

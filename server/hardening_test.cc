@@ -13,7 +13,7 @@
 #include <thread>
 
 #include "absl/strings/str_format.h"
-#include "core/durable_file.h"
+#include "core/io/durable_file.h"
 #include "grpcpp/generic/generic_stub.h"
 #include "gtest/gtest.h"
 #include "server/server_fixture.h"

@@ -4,7 +4,7 @@
 #include <limits>
 
 #include "absl/strings/str_cat.h"
-#include "core/durable_file.h"
+#include "core/io/durable_file.h"
 #include "nlohmann/json.hpp"
 #include "spdlog/spdlog.h"
 

@@ -4,7 +4,7 @@
 #include <filesystem>
 
 #include "absl/strings/str_cat.h"
-#include "core/renderer.h"
+#include "core/render/renderer.h"
 #include "server/log_util.h"
 #include "spdlog/spdlog.h"
 

@@ -44,8 +44,8 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "core/camera.h"
-#include "core/image.h"
+#include "core/data/camera.h"
+#include "core/data/image.h"
 #include "server/job_tracker.h"
 #include "server/model_registry.h"
 #include "server/publisher.h"

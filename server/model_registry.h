@@ -19,9 +19,9 @@
 #include <mutex>
 
 #include "absl/status/statusor.h"
-#include "core/continual_update.h"
-#include "core/ngp_model.h"
-#include "core/replay_memory.h"
+#include "core/continual/continual_update.h"
+#include "core/field/ngp_model.h"
+#include "core/continual/replay_memory.h"
 #include "server/version_store.h"
 
 namespace clnerf {

@@ -9,7 +9,7 @@
 
 #include "absl/status/statusor.h"
 #include "clnerf/v1/clnerf.pb.h"
-#include "core/camera.h"
+#include "core/data/camera.h"
 #include "proto/wire/wire.h"
 #include "grpcpp/support/status.h"
 #include "server/job_tracker.h"

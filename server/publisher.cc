@@ -5,7 +5,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "core/durable_file.h"
+#include "core/io/durable_file.h"
 #include "server/job_tracker.h"
 #include "spdlog/spdlog.h"
 

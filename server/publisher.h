@@ -29,7 +29,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "core/continual_update.h"
+#include "core/continual/continual_update.h"
 #include "server/model_registry.h"
 #include "server/version_store.h"
 

@@ -10,8 +10,8 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
-#include "core/durable_file.h"
-#include "core/image.h"
+#include "core/io/durable_file.h"
+#include "core/data/image.h"
 #include "nlohmann/json.hpp"
 
 namespace clnerf {

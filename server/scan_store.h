@@ -21,8 +21,8 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "core/camera.h"
-#include "core/scene.h"
+#include "core/data/camera.h"
+#include "core/data/scene.h"
 
 namespace clnerf {
 

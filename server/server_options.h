@@ -19,8 +19,8 @@
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
-#include "core/continual_update.h"
-#include "core/deployment_gate.h"
+#include "core/continual/continual_update.h"
+#include "core/continual/deployment_gate.h"
 #include "server/scan_assembler.h"
 
 namespace clnerf {
@@ -62,7 +62,7 @@ struct ServerOptions {
   double shutdown_grace_seconds = 20;   // In-flight RPCs get this long on shutdown.
 
   UpdateOptions update = DefaultUpdateOptions();
-  GateOptions gate;  // The deployment gate (core/deployment_gate.h).
+  GateOptions gate;  // The deployment gate (core/continual/deployment_gate.h).
 
   // CLNeRF with warm start, offline replay, 300 iterations per update
   // (a lego_100 task in ~35 s on 2 cores; see README).

@@ -10,8 +10,8 @@
 
 #include "absl/strings/str_cat.h"
 #include "clnerf/v1/clnerf.grpc.pb.h"
-#include "core/image.h"
-#include "core/procedural_scene.h"
+#include "core/data/image.h"
+#include "core/data/procedural_scene.h"
 #include "proto/wire/wire.h"
 #include "gtest/gtest.h"
 #include "server/scan_store.h"

@@ -3,8 +3,8 @@
 #include <omp.h>
 
 #include "absl/strings/str_cat.h"
-#include "core/continual_update.h"
-#include "core/deployment_gate.h"
+#include "core/continual/continual_update.h"
+#include "core/continual/deployment_gate.h"
 #include "server/log_util.h"
 #include "spdlog/spdlog.h"
 

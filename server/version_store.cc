@@ -6,8 +6,8 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "core/checkpoint.h"
-#include "core/durable_file.h"
+#include "core/io/checkpoint.h"
+#include "core/io/durable_file.h"
 #include "nlohmann/json.hpp"
 
 namespace clnerf {

@@ -22,8 +22,8 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "core/ngp_model.h"
-#include "core/replay_memory.h"
+#include "core/field/ngp_model.h"
+#include "core/continual/replay_memory.h"
 
 namespace clnerf {
 

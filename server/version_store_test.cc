@@ -2,7 +2,7 @@
 
 #include <filesystem>
 
-#include "core/durable_file.h"
+#include "core/io/durable_file.h"
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "server/server_test_util.h"

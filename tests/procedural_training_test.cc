@@ -23,11 +23,11 @@
 #include <cmath>
 #include <string>
 
-#include "core/evaluate.h"
-#include "core/fit.h"
-#include "core/metrics.h"
-#include "core/procedural_scene.h"
-#include "core/renderer.h"
+#include "core/render/evaluate.h"
+#include "core/train/fit.h"
+#include "core/render/metrics.h"
+#include "core/data/procedural_scene.h"
+#include "core/render/renderer.h"
 #include "gtest/gtest.h"
 
 namespace clnerf {

@@ -3,10 +3,10 @@
 // finite, and a run must be reproducible with a fixed seed.
 #include <cmath>
 
-#include "core/evaluate.h"
-#include "core/fit.h"
-#include "core/metrics.h"
-#include "core/procedural_scene.h"
+#include "core/render/evaluate.h"
+#include "core/train/fit.h"
+#include "core/render/metrics.h"
+#include "core/data/procedural_scene.h"
 #include "gtest/gtest.h"
 
 namespace clnerf {

@@ -14,7 +14,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "clnerf/v1/clnerf.pb.h"
-#include "core/camera.h"
+#include "core/data/camera.h"
 #include "grpcpp/support/status.h"
 
 namespace clnerf {

@@ -10,8 +10,8 @@
 #include <cstdlib>
 #include <string>
 
-#include "core/checkpoint.h"
-#include "core/renderer.h"
+#include "core/io/checkpoint.h"
+#include "core/render/renderer.h"
 
 // With CLNERF_FUZZ_WRITE_SEED=PATH the binary writes a tiny valid checkpoint
 // (2 time steps, fp16) to PATH and exits: the committed seed corpus

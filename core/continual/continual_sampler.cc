@@ -1,0 +1,99 @@
+#include "core/continual/continual_sampler.h"
+
+#include <cmath>
+
+#include "core/render/renderer.h"
+
+namespace clnerf {
+
+ContinualRaySampler::ContinualRaySampler(std::vector<SamplerView> views, const NgpModel& model,
+                                         const NgpModel* frozen, float meil_new_fraction, float new_share)
+    : views_(std::move(views)), frozen_(frozen), meil_new_fraction_(meil_new_fraction), new_share_(new_share) {
+  for (size_t v = 0; v < views_.size(); ++v) {
+    model_cameras_.push_back(model.ToModelCamera(views_[v].camera));
+    std::vector<uint32_t> valid;
+    if (views_[v].mask != nullptr && !views_[v].mask->empty()) {
+      for (uint32_t i = 0; i < views_[v].mask->keep.size(); ++i) {
+        if (views_[v].mask->keep[i]) valid.push_back(i);
+      }
+    }
+    valid_.push_back(std::move(valid));
+    (views_[v].replay ? replay_views_ : new_views_).push_back(int(v));
+    (views_[v].past ? past_views_ : current_views_).push_back(int(v));
+  }
+}
+
+void ContinualRaySampler::FillRay(int v, std::mt19937_64& r, RayBatch* out, int i, std::vector<int>* online) {
+  const SamplerView& view = views_[v];
+  const Intrinsics& in = view.camera.intrinsics;
+  const std::vector<uint32_t>& valid = valid_[v];
+  const uint32_t pixel =
+      valid.empty() ? uint32_t(r() % (uint64_t(in.width) * in.height)) : valid[r() % valid.size()];
+  PixelRay(model_cameras_[v], pixel, &out->origin[3 * size_t(i)], &out->dir[3 * size_t(i)]);
+  out->time_step[i] = view.camera.time_step;
+  out->weight[i] = 1.0f;
+  out->robust[i] = 0;
+  if (view.image != nullptr) {
+    const float* px = view.image->rgb.data() + size_t(pixel) * 3;
+    for (int c = 0; c < 3; ++c) out->target[3 * size_t(i) + c] = px[c];
+  } else {
+    online->push_back(i);
+  }
+}
+
+void ContinualRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
+  out->Resize(n);
+  std::vector<int> online;
+  const bool meil = meil_new_fraction_ > 0 && !replay_views_.empty() && !new_views_.empty();
+  const bool shared = !meil && new_share_ > 0 && !past_views_.empty() && !current_views_.empty();
+  const int n_new = meil ? int(std::lround(n * meil_new_fraction_)) : shared ? int(std::lround(n * new_share_)) : n;
+  // MEIL-NeRF's replay weight rises from 0 to 1 with progress r.
+  const float meil_weight = 0.5f * (std::cos(float(M_PI) * (1.0f + progress_)) + 1.0f);
+  std::mt19937_64& r = *rng;
+  for (int i = 0; i < n; ++i) {
+    int v;
+    if (shared) {
+      v = i < n_new ? current_views_[r() % current_views_.size()] : past_views_[r() % past_views_.size()];
+    } else if (!meil) {
+      v = int(r() % views_.size());
+    } else if (i < n_new) {
+      v = new_views_[r() % new_views_.size()];
+    } else {
+      v = replay_views_[r() % replay_views_.size()];
+    }
+    FillRay(v, r, out, i, &online);
+    if (meil && views_[v].replay) {
+      out->robust[i] = 1;
+      out->weight[i] = meil_weight;
+    }
+  }
+  if (online.empty() || frozen_ == nullptr) return;
+  // Online generative replay: the frozen θ_{t-1} renders the replay rays,
+  // grouped by time step (each with its own embeddings). Rays are in this
+  // model's space; both models share the normalisation.
+  std::vector<int> steps;
+  for (int i : online) steps.push_back(out->time_step[i]);
+  std::vector<float> o, d, rgb;
+  for (int t = 0; t < frozen_->num_time_steps(); ++t) {
+    std::vector<int> idx;
+    for (size_t k = 0; k < online.size(); ++k) {
+      if (steps[k] == t) idx.push_back(online[k]);
+    }
+    if (idx.empty()) continue;
+    o.resize(3 * idx.size());
+    d.resize(3 * idx.size());
+    rgb.resize(3 * idx.size());
+    for (size_t k = 0; k < idx.size(); ++k) {
+      for (int c = 0; c < 3; ++c) {
+        o[3 * k + c] = out->origin[3 * size_t(idx[k]) + c];
+        d[3 * k + c] = out->dir[3 * size_t(idx[k]) + c];
+      }
+    }
+    RenderRays(*frozen_, o.data(), d.data(), int(idx.size()), t, RenderOptions{}, rgb.data(), nullptr, nullptr);
+    for (size_t k = 0; k < idx.size(); ++k) {
+      for (int c = 0; c < 3; ++c) out->target[3 * size_t(idx[k]) + c] = rgb[3 * k + c];
+    }
+  }
+}
+
+}  // namespace clnerf

@@ -1,0 +1,59 @@
+// ContinualRaySampler: training rays for a continual update, drawn from
+// views of three kinds: the new scan (ground truth), buffered past images
+// (experience replay, ground truth) and generative-replay views whose labels
+// are θ_{t-1}'s renders. Uniform mode picks a view uniformly over all of them
+// (CLNeRF); MEIL mode draws a fixed fraction of rays from new views and the
+// rest from replay views, with a Charbonnier loss whose weight rises with
+// training progress. Generative-replay labels come either from a float cache
+// rendered once (offline) or from the frozen model per batch (online).
+//
+// Views and images are referenced, not copied: they must outlive the sampler.
+// Sample() is called by one thread at a time (it parallelises internally).
+#ifndef CLNERF_CORE_CONTINUAL_CONTINUAL_SAMPLER_H_
+#define CLNERF_CORE_CONTINUAL_CONTINUAL_SAMPLER_H_
+
+#include <vector>
+
+#include "core/field/ngp_model.h"
+#include "core/train/ray_sampler.h"
+
+namespace clnerf {
+
+struct SamplerView {
+  Camera camera;                 // World space.
+  const Image* image = nullptr;  // GT or cached replay label; null = online replay.
+  const Mask* mask = nullptr;
+  bool replay = false;           // Generative replay (label from θ_{t-1}).
+  bool past = false;             // From an earlier scan (buffered image or replay).
+};
+
+class ContinualRaySampler : public RaySampler {
+ public:
+  // `model` defines model space; `frozen` renders online replay labels (may
+  // be null if no view needs it). meil_new_fraction <= 0 means uniform.
+  // Uniform mode with new_share > 0: that fraction of each batch comes from
+  // the new scan's views (uniform among them), the rest uniformly from past
+  // views; new_share <= 0 is uniform over all views (the paper).
+  ContinualRaySampler(std::vector<SamplerView> views, const NgpModel& model, const NgpModel* frozen,
+                      float meil_new_fraction, float new_share = 0.0f);
+  void Sample(int n, std::mt19937_64* rng, RayBatch* out) override;
+  std::vector<Camera> Cameras() const override { return model_cameras_; }
+  void SetProgress(float progress) override { progress_ = progress; }
+
+ private:
+  void FillRay(int view, std::mt19937_64& r, RayBatch* out, int i, std::vector<int>* online);
+
+  std::vector<SamplerView> views_;
+  std::vector<Camera> model_cameras_;
+  std::vector<std::vector<uint32_t>> valid_;
+  std::vector<int> new_views_, replay_views_;  // By `replay` (MEIL).
+  std::vector<int> current_views_, past_views_;  // By `past` (new_share).
+  const NgpModel* frozen_;
+  float meil_new_fraction_;
+  float new_share_;
+  float progress_ = 0;
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_CONTINUAL_CONTINUAL_SAMPLER_H_

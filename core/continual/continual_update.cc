@@ -1,0 +1,284 @@
+#include "core/continual/continual_update.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "absl/strings/str_format.h"
+#include "core/continual/continual_sampler.h"
+#include "core/render/metrics.h"
+#include "core/render/renderer.h"
+#include "spdlog/spdlog.h"
+
+namespace clnerf {
+
+namespace {
+constexpr std::pair<ContinualMethod, const char*> kMethods[] = {
+    {ContinualMethod::kNT, "nt"},         {ContinualMethod::kEWC, "ewc"},
+    {ContinualMethod::kER, "er"},         {ContinualMethod::kMEIL, "meil"},
+    {ContinualMethod::kCLNeRF, "clnerf"}, {ContinualMethod::kCLNeRFNoER, "clnerf-noer"},
+};
+
+double Since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+}  // namespace
+
+absl::StatusOr<ContinualMethod> ParseContinualMethod(const std::string& name) {
+  for (const auto& [m, n] : kMethods) {
+    if (name == n) return m;
+  }
+  return absl::InvalidArgumentError(
+      absl::StrFormat("unknown method '%s' (nt, ewc, er, meil, clnerf, clnerf-noer)", name));
+}
+
+const char* ContinualMethodName(ContinualMethod m) {
+  for (const auto& [mm, n] : kMethods) {
+    if (mm == m) return n;
+  }
+  return "?";
+}
+
+const char* UpdatePhaseName(UpdatePhase p) {
+  switch (p) {
+    case UpdatePhase::kPreparingReplay: return "preparing replay";
+    case UpdatePhase::kTraining: return "training";
+    case UpdatePhase::kFinalizing: return "finalizing";
+  }
+  return "?";
+}
+
+absl::Status UpdateOptions::Validate() const {
+  if (buffer_size < 0) return absl::InvalidArgumentError("buffer size must be >= 0");
+  if (!(ewc_lambda >= 0) || ewc_batches < 1) return absl::InvalidArgumentError("bad EWC options");
+  if (!(warm_lr_scale > 0 && warm_lr_scale <= 1)) return absl::InvalidArgumentError("warm_lr_scale must be in (0, 1]");
+  if (!(new_scan_share >= 0 && new_scan_share < 1)) return absl::InvalidArgumentError("new_scan_share must be in [0, 1)");
+  if (!(meil_new_fraction > 0 && meil_new_fraction < 1)) {
+    return absl::InvalidArgumentError("meil_new_fraction must be in (0, 1)");
+  }
+  for (const absl::Status& s : {train.Validate(), model.Validate(), capacity.Validate()}) {
+    if (!s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const ContinualState* prev,
+                                               const UpdateOptions& options, const UpdateProgressFn& progress,
+                                               const std::atomic<bool>* cancel, UpdateReport* report) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  if (scan.train.empty()) return absl::InvalidArgumentError("the new scan has no training views");
+  if (absl::Status s = ValidateScene(scan); !s.ok()) return s;
+  if (prev != nullptr && (prev->model == nullptr || !prev->model->AllFinite())) {
+    return absl::FailedPreconditionError("the previous model is missing or has non-finite parameters");
+  }
+  const int t = prev != nullptr ? prev->model->num_time_steps() : 0;
+  for (const View& v : scan.train) {
+    if (v.camera.time_step != t) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("view '%s' has time step %d but the new scan is step %d", v.name, v.camera.time_step, t));
+    }
+  }
+  if (prev != nullptr) {
+    // M_{t-1} must be the memory of θ_{t-1}'s version: its cameras cover time
+    // steps 0..t-1. A memory from an older (or newer) version would silently
+    // drop (or invent) scans from the replay.
+    int max_step = -1;
+    for (const CameraRecord& c : prev->memory.cameras()) max_step = std::max(max_step, int(c.time_step));
+    if (max_step != t - 1) {
+      return absl::FailedPreconditionError(absl::StrFormat(
+          "the replay memory does not belong to the previous model: its cameras reach time step %d, the model has "
+          "%d time steps (a memory from another version?)",
+          max_step, t));
+    }
+  }
+  const auto start = std::chrono::steady_clock::now();
+  UpdateReport rep;
+  rep.time_step = t;
+  const ContinualMethod method = options.method;
+  const uint64_t seed = options.train.seed * 1000003ull + uint64_t(t);
+
+  // θ_t's initialisation.
+  std::unique_ptr<NgpModel> model;
+  if (prev == nullptr) {
+    const Normalization norm = ComputeNormalization(scan);
+    ModelOptions mo = options.model;
+    if (options.derive_capacity) mo = DeriveModelOptions(scan, norm, options.capacity, mo);
+    absl::StatusOr<NgpModel> m = NgpModel::Create(mo, norm, scan.kind, scan.background, 1, seed);
+    if (!m.ok()) return m.status();
+    model = std::make_unique<NgpModel>(std::move(*m));
+  } else if (options.init == InitMode::kWarm) {
+    model = std::make_unique<NgpModel>(*prev->model);  // Copy: θ_{t-1} stays untouched.
+    if (options.copy_embedding) {
+      model->AddTimeStepCopyingLast();
+    } else {
+      model->AddTimeStep(seed);
+    }
+  } else {
+    const NgpModel& p = *prev->model;
+    absl::StatusOr<NgpModel> m = NgpModel::Create(p.options(), p.normalization(), p.kind(), p.background(), t + 1, seed);
+    if (!m.ok()) return m.status();
+    model = std::make_unique<NgpModel>(std::move(*m));
+  }
+
+  // Views for this step: new scan + (ER) buffer + (GR) every other past view.
+  const bool use_buffer = method == ContinualMethod::kER || method == ContinualMethod::kCLNeRF;
+  const bool use_gr = method == ContinualMethod::kCLNeRF || method == ContinualMethod::kCLNeRFNoER ||
+                      method == ContinualMethod::kMEIL;
+  std::vector<SamplerView> views;
+  for (const View& v : scan.train) views.push_back({v.camera, &v.image, v.mask.empty() ? nullptr : &v.mask, false});
+  rep.new_views = int(scan.train.size());
+  std::vector<Image> cache;  // Offline replay labels.
+  if (prev != nullptr) {
+    const ReplayMemory& mem = prev->memory;
+    if (use_buffer) {
+      for (const BufferedImage& b : mem.buffer()) {
+        views.push_back({mem.GetCamera(b.camera), &b.image, b.mask.empty() ? nullptr : &b.mask, false, true});
+        ++rep.buffer_views;
+      }
+    }
+    if (use_gr) {
+      std::vector<uint32_t> gr;
+      for (uint32_t i = 0; i < mem.num_cameras(); ++i) {
+        if (!(use_buffer && mem.InBuffer(i))) gr.push_back(i);
+      }
+      rep.replay_views = int(gr.size());
+      const auto t0 = std::chrono::steady_clock::now();
+      if (options.replay == ReplayMode::kOffline) {
+        cache.reserve(gr.size());
+        for (size_t k = 0; k < gr.size(); ++k) {
+          if (cancel != nullptr && cancel->load()) return absl::CancelledError("update cancelled while preparing replay");
+          const Camera cam = mem.GetCamera(gr[k]);
+          RenderOptions ro;
+          ro.time_step = cam.time_step;
+          if (cancel != nullptr) ro.should_stop = [cancel] { return cancel->load(std::memory_order_relaxed); };
+          absl::StatusOr<RenderedView> r = RenderView(*prev->model, cam, ro);
+          if (absl::IsCancelled(r.status())) return absl::CancelledError("update cancelled while preparing replay");
+          if (!r.ok()) return r.status();
+          cache.push_back(std::move(r->rgb));
+          rep.replay_cache_bytes += cache.back().rgb.size() * sizeof(float);
+          if (progress) {
+            UpdateProgress p;
+            p.phase = UpdatePhase::kPreparingReplay;
+            p.iteration = int(k + 1);
+            p.total = int(gr.size());
+            p.elapsed_seconds = Since(start);
+            progress(p);
+          }
+        }
+        for (size_t k = 0; k < gr.size(); ++k) views.push_back({mem.GetCamera(gr[k]), &cache[k], nullptr, true, true});
+      } else {
+        for (uint32_t i : gr) views.push_back({mem.GetCamera(i), nullptr, nullptr, true, true});
+      }
+      rep.replay_prepare_seconds = Since(t0);
+    }
+  }
+  const float meil = method == ContinualMethod::kMEIL ? options.meil_new_fraction : 0.0f;
+  ContinualRaySampler sampler(std::move(views), *model, prev != nullptr ? prev->model.get() : nullptr, meil,
+                              method == ContinualMethod::kMEIL ? 0.0f : options.new_scan_share);
+
+  TrainOptions to = options.train;
+  to.seed = seed;
+  if (prev != nullptr && options.init == InitMode::kWarm) to.learning_rate *= options.warm_lr_scale;
+  if (method == ContinualMethod::kEWC && prev != nullptr && prev->ewc != nullptr) to.ewc = prev->ewc.get();
+  Trainer trainer(model.get(), &sampler, to);
+  absl::Status st = trainer.Run(
+      [&](const StepStats& s) {
+        if (!progress) return;
+        UpdateProgress p;
+        p.phase = UpdatePhase::kTraining;
+        p.iteration = s.step;
+        p.total = to.iterations;
+        p.elapsed_seconds = Since(start);
+        p.eta_seconds = trainer.total_seconds() / std::max(1, s.step) * (to.iterations - s.step);
+        p.loss = s.loss;
+        p.psnr = s.psnr;
+        progress(p);
+      },
+      cancel);
+  if (!st.ok()) return st;
+  cache.clear();
+  cache.shrink_to_fit();
+  rep.train_seconds = trainer.total_seconds();
+  rep.samples = trainer.total_samples();
+  rep.skipped_batches = trainer.skipped_batches();
+  if (progress) {
+    UpdateProgress p;
+    p.phase = UpdatePhase::kFinalizing;
+    p.iteration = p.total = to.iterations;
+    p.elapsed_seconds = Since(start);
+    progress(p);
+  }
+
+  // M_t: every new camera, then the buffer policy.
+  ContinualState next;
+  // Only methods that replay real images keep any (clnerf-noer, nt, ewc and
+  // meil store cameras only).
+  const int k_buffer = use_buffer ? options.buffer_size : 0;
+  next.memory = prev != nullptr ? prev->memory : ReplayMemory(k_buffer);
+  std::mt19937_64 rng(seed ^ 0x5eed);
+  std::vector<uint32_t> new_ids;
+  for (const View& v : scan.train) new_ids.push_back(next.memory.AddCamera(v.camera));
+  if (options.prioritized_buffer && k_buffer > 0) {
+    // Keep the K images (old buffer ∪ new scan) with the lowest PSNR under θ_t.
+    std::vector<std::pair<double, BufferedImage>> cand;
+    for (const BufferedImage& b : next.memory.buffer()) cand.push_back({0.0, b});
+    for (size_t i = 0; i < scan.train.size(); ++i) cand.push_back({0.0, {new_ids[i], scan.train[i].image, scan.train[i].mask}});
+    for (auto& [score, b] : cand) {
+      const Camera cam = next.memory.GetCamera(b.camera);
+      RenderOptions ro;
+      ro.time_step = cam.time_step;
+      absl::StatusOr<RenderedView> r = RenderView(*model, cam, ro);
+      if (!r.ok()) return r.status();
+      score = Psnr(r->rgb, b.image);
+    }
+    std::sort(cand.begin(), cand.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    std::vector<BufferedImage> keep;
+    for (size_t i = 0; i < cand.size() && int(i) < k_buffer; ++i) keep.push_back(std::move(cand[i].second));
+    next.memory.SetBuffer(std::move(keep));
+  } else {
+    for (size_t i = 0; i < scan.train.size(); ++i) {
+      next.memory.OfferReservoir(new_ids[i], scan.train[i].image, scan.train[i].mask, &rng);
+    }
+  }
+
+  // EWC: diagonal Fisher of θ_t on this step's data, for the next step.
+  if (method == ContinualMethod::kEWC) {
+    std::vector<const View*> vs;
+    for (const View& v : scan.train) vs.push_back(&v);
+    absl::StatusOr<std::unique_ptr<ImageRaySampler>> s = ImageRaySampler::Create(vs, *model);
+    if (!s.ok()) return s.status();
+    TrainOptions fo = options.train;
+    fo.seed = seed + 17;
+    Trainer fisher_trainer(model.get(), s->get(), fo);
+    auto pen = std::make_shared<EwcPenalty>();
+    pen->lambda = options.ewc_lambda;
+    pen->anchor = model->params();
+    pen->fisher.grid.assign(model->params().grid.size(), 0.0f);
+    pen->fisher.mlp.assign(model->params().mlp.size(), 0.0f);
+    pen->fisher.emb.assign(model->params().emb.size(), 0.0f);
+    std::mt19937_64 frng(fo.seed);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    for (int b = 0; b < options.ewc_batches; ++b) {
+      RayBatch batch;
+      (*s)->Sample(options.train.batch_rays, &frng, &batch);
+      std::vector<float> jitter(batch.size());
+      for (float& j : jitter) j = u(frng);
+      Trainer::Gradients g;
+      fisher_trainer.ComputeLossAndGradients(batch, jitter, &g);
+      const float inv = 1.0f / options.ewc_batches;
+      for (size_t i = 0; i < g.grid.size(); ++i) pen->fisher.grid[i] += g.grid[i] * g.grid[i] * inv;
+      for (size_t i = 0; i < g.mlp.size(); ++i) pen->fisher.mlp[i] += g.mlp[i] * g.mlp[i] * inv;
+      for (size_t i = 0; i < g.emb.size(); ++i) pen->fisher.emb[i] += g.emb[i] * g.emb[i] * inv;
+    }
+    next.ewc = pen;
+  }
+  if (!model->AllFinite()) return absl::InternalError("update produced non-finite parameters");
+  next.model = std::move(model);
+  if (report != nullptr) *report = rep;
+  spdlog::debug("update step {}: {} new, {} buffer, {} replay views; replay prep {:.1f}s ({} bytes); train {:.1f}s",
+                t, rep.new_views, rep.buffer_views, rep.replay_views, rep.replay_prepare_seconds,
+                rep.replay_cache_bytes, rep.train_seconds);
+  return next;
+}
+
+}  // namespace clnerf

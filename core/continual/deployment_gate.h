@@ -1,0 +1,62 @@
+// DeploymentGate: the checks a freshly trained θ_t must pass before the
+// server publishes it. This is where "stability where methods fail" meets the
+// product: a diverged or forgetful update is refused with a reason and
+// θ_{t-1} stays deployed.
+//
+// Checks, in order (the first failure is reported, metrics are filled as far
+// as they were computed):
+//  1. every parameter of θ_t is finite;
+//  2. PSNR on the new scan's held-out test frames (or, without any, on an
+//     evenly spaced subset of its training frames) >= min_new_psnr;
+//  3. on the real images buffered from earlier scans, θ_t's PSNR is at most
+//     max_replay_drop_db below θ_{t-1}'s;
+//  4. on other past views (cameras only), θ_t's render matches θ_{t-1}'s to
+//     at least min_replay_consistency_psnr.
+//
+// The server runs it before every publish; `clnerf bench stability` runs it
+// after every update to decide what would have been deployed.
+//
+// Thread-safety: a pure function of const inputs.
+#ifndef CLNERF_CORE_CONTINUAL_DEPLOYMENT_GATE_H_
+#define CLNERF_CORE_CONTINUAL_DEPLOYMENT_GATE_H_
+
+#include <map>
+#include <string>
+
+#include "absl/status/status.h"
+#include "core/field/ngp_model.h"
+#include "core/continual/replay_memory.h"
+#include "core/data/scene.h"
+
+namespace clnerf {
+
+// Thresholds of the gate (defaults suit the server's updates; the server's
+// config file can override each).
+struct GateOptions {
+  // Minimum PSNR (dB) of θ_t on the new scan's held-out test frames (on up to
+  // `validation_views` of its training frames when the upload has none).
+  float min_new_psnr = 15.0f;
+  // Past views: the largest PSNR drop (dB) of θ_t against θ_{t-1} allowed on
+  // the buffered real images of earlier scans.
+  float max_replay_drop_db = 2.0f;
+  // Past views without a real image: minimum PSNR of θ_t against θ_{t-1}'s
+  // own render (generative-replay consistency).
+  float min_replay_consistency_psnr = 18.0f;
+  // Views rendered per check (evenly spaced), to bound validation time.
+  int validation_views = 8;
+  absl::Status Validate() const;
+};
+
+struct GateReport {
+  absl::Status status;  // OK = publish; FAILED_PRECONDITION with the reason otherwise.
+  std::map<std::string, double> metrics;
+};
+
+// `scan` holds the new scan (time steps already assigned). `prev` and
+// `prev_memory` are null for the first version.
+GateReport RunDeploymentGate(const NgpModel& next, const Scene& scan, const NgpModel* prev,
+                             const ReplayMemory* prev_memory, const GateOptions& options, int threads);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_CONTINUAL_DEPLOYMENT_GATE_H_

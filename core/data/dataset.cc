@@ -1,0 +1,104 @@
+#include "core/data/dataset.h"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include <nlohmann/json.hpp>
+
+#include "absl/strings/str_cat.h"
+#include "core/data/blender_loader.h"
+#include "core/data/colmap_loader.h"
+#include "core/data/image.h"
+#include "core/data/llff_loader.h"
+#include "core/data/ngp_loader.h"
+
+namespace clnerf {
+namespace {
+
+namespace fs = std::filesystem;
+
+bool IsFile(const fs::path& p) {
+  std::error_code ec;
+  return fs::is_regular_file(p, ec);
+}
+
+// A transforms_train.json written by instant-ngp / nerfstudio tools carries
+// "fl_x" instead of Blender's "camera_angle_x".
+bool LooksLikeNgp(const fs::path& json_path) {
+  std::ifstream in(json_path);
+  const nlohmann::json doc = nlohmann::json::parse(in, nullptr, /*allow_exceptions=*/false);
+  return doc.is_object() && doc.contains("fl_x") && !doc.contains("camera_angle_x");
+}
+
+bool HasColmapModel(const fs::path& dir) {
+  for (const fs::path& sub : {dir / "sparse" / "0", dir / "sparse"}) {
+    if (IsFile(sub / "cameras.bin") || IsFile(sub / "cameras.txt")) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+const char* DatasetFormatName(DatasetFormat format) {
+  switch (format) {
+    case DatasetFormat::kBlender:
+      return "blender";
+    case DatasetFormat::kInstantNgp:
+      return "instant-ngp";
+    case DatasetFormat::kColmap:
+      return "colmap";
+    case DatasetFormat::kLlff:
+      return "llff";
+  }
+  return "unknown";
+}
+
+absl::StatusOr<DatasetFormat> DetectDatasetFormat(const std::string& dir) {
+  const fs::path root(dir);
+  std::error_code ec;
+  if (!fs::is_directory(root, ec)) {
+    return absl::NotFoundError(absl::StrCat("dataset directory not found: ", dir));
+  }
+  if (IsFile(root / "transforms_train.json")) {
+    return LooksLikeNgp(root / "transforms_train.json") ? DatasetFormat::kInstantNgp
+                                                        : DatasetFormat::kBlender;
+  }
+  if (IsFile(root / "transforms.json")) return DatasetFormat::kInstantNgp;
+  if (HasColmapModel(root)) return DatasetFormat::kColmap;
+  if (IsFile(root / "poses_bounds.npy")) return DatasetFormat::kLlff;
+  return absl::NotFoundError(
+      absl::StrCat("no dataset found in ", dir,
+                   ": expected transforms_train.json (Blender), transforms.json (instant-ngp), "
+                   "sparse/[0/]cameras.{bin,txt} (COLMAP) or poses_bounds.npy (LLFF)"));
+}
+
+
+absl::StatusOr<Scene> LoadScene(const std::string& dir, const DatasetOptions& opts) {
+  if (absl::Status s = opts.Validate(); !s.ok()) return s;
+  absl::StatusOr<DatasetFormat> format = DetectDatasetFormat(dir);
+  if (!format.ok()) return format.status();
+  absl::StatusOr<Scene> scene;
+  switch (*format) {
+    case DatasetFormat::kBlender: scene = LoadBlenderScene(dir, opts); break;
+    case DatasetFormat::kInstantNgp: scene = LoadNgpScene(dir, opts); break;
+    case DatasetFormat::kColmap: scene = LoadColmapScene(dir, opts); break;
+    case DatasetFormat::kLlff: scene = LoadLlffScene(dir, opts); break;
+  }
+  if (!scene.ok()) return scene.status();
+  const fs::path norm = fs::path(dir).lexically_normal();
+  scene->name =
+      norm.has_filename() ? norm.filename().string() : norm.parent_path().filename().string();
+  if (scene->train.empty() && scene->test.empty() && scene->val.empty()) {
+    return absl::InvalidArgumentError(absl::StrCat("dataset ", dir, " has no views"));
+  }
+  if (absl::Status s = ValidateScene(*scene); !s.ok()) {
+    return absl::InvalidArgumentError(
+        absl::StrCat(dir, " (", DatasetFormatName(*format), "): ", s.message()));
+  }
+  return scene;
+}
+
+
+}  // namespace clnerf

@@ -1,0 +1,19 @@
+#include "core/data/dataset_options.h"
+
+#include "absl/strings/str_cat.h"
+
+namespace clnerf {
+
+absl::Status DatasetOptions::Validate() const {
+  if (!(downscale >= 1.0f && downscale <= 64.0f)) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("DatasetOptions.downscale must be in [1, 64], got ", downscale));
+  }
+  if (test_every < 0) return absl::InvalidArgumentError("DatasetOptions.test_every must be >= 0");
+  if (max_images_per_split < 0) {
+    return absl::InvalidArgumentError("DatasetOptions.max_images_per_split must be >= 0");
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace clnerf

@@ -1,0 +1,39 @@
+// DatasetOptions: how a dataset folder is read, shared by every loader
+// (Blender, instant-ngp, COLMAP, LLFF) and by LoadScene, which detects the
+// format. Fields a format does not use are ignored by its loader. A plain
+// value type with a Validate(); not synchronised.
+#ifndef CLNERF_CORE_DATA_DATASET_OPTIONS_H_
+#define CLNERF_CORE_DATA_DATASET_OPTIONS_H_
+
+#include <string>
+
+#include "absl/status/status.h"
+
+namespace clnerf {
+
+struct DatasetOptions {
+  // Decode images (and masks). When false only cameras are loaded; image
+  // sizes still come from the metadata or from the image headers.
+  bool load_images = true;
+  // Integer-ish factor >= 1 by which images are shrunk; intrinsics follow.
+  // COLMAP and LLFF read images_N/ for an integer N when it exists.
+  float downscale = 1.0f;
+  // COLMAP and LLFF only: the image folder, absolute or relative to the
+  // dataset directory; "" = automatic (images_N/ or images/, beside the model
+  // or one level up). See colmap_loader.h.
+  std::string images_dir = "";
+  // instant-ngp (without an explicit split), COLMAP and LLFF: every `test_every`-th
+  // view, starting with the first, goes to the test split. 0 = no test split.
+  int test_every = 8;
+  // Keep at most this many views per split (0 = all). Useful for quick runs.
+  int max_images_per_split = 0;
+  // instant-ngp only: treat the scene as a bounded object scene (kBounded,
+  // white background) instead of an unbounded capture.
+  bool ngp_bounded = false;
+
+  absl::Status Validate() const;
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_DATA_DATASET_OPTIONS_H_

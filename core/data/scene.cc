@@ -1,0 +1,172 @@
+#include "core/data/scene.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+#include "core/data/contraction.h"
+#include "Eigen/Eigenvalues"
+#include "Eigen/Dense"
+
+namespace clnerf {
+
+int Scene::num_time_steps() const {
+  int n = 0;
+  for (const auto* split : {&train, &val, &test}) {
+    for (const View& v : *split) n = std::max(n, v.camera.time_step + 1);
+  }
+  return n;
+}
+
+namespace {
+
+// Least-squares point closest to all camera optical axes (the look-at point).
+Eigen::Vector3f LookAtCenter(const std::vector<View>& views) {
+  Eigen::Matrix3f a = Eigen::Matrix3f::Zero();
+  Eigen::Vector3f b = Eigen::Vector3f::Zero();
+  for (const View& v : views) {
+    const Eigen::Vector3f d = v.camera.c2w.col(2).normalized();
+    const Eigen::Vector3f o = v.camera.c2w.col(3);
+    const Eigen::Matrix3f p = Eigen::Matrix3f::Identity() - d * d.transpose();
+    a += p;
+    b += p * o;
+  }
+  if (std::abs(a.determinant()) < 1e-6f) {
+    Eigen::Vector3f mean = Eigen::Vector3f::Zero();
+    for (const View& v : views) mean += v.camera.c2w.col(3);
+    return views.empty() ? mean : Eigen::Vector3f(mean / float(views.size()));
+  }
+  return a.ldlt().solve(b);
+}
+
+// Where the cameras look: the look-at point when their optical axes
+// converge (inward-facing captures) in front of most of them; else the median
+// content point (forward-facing captures with sparse points or depth
+// bounds); else the mean camera position.
+Eigen::Vector3f FocusPoint(const std::vector<View>& views, const std::vector<Eigen::Vector3f>& points) {
+  Eigen::Matrix3f a = Eigen::Matrix3f::Zero();
+  for (const View& v : views) {
+    const Eigen::Vector3f d = v.camera.c2w.col(2).normalized();
+    a += Eigen::Matrix3f::Identity() - d * d.transpose();
+  }
+  // The smallest eigenvalue of mean(I - d d^T) is ~ the spread of viewing
+  // directions (sin^2 of the angle); 0.01 is about 6 degrees.
+  const float spread = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f>(a / float(views.size())).eigenvalues()(0);
+  if (spread > 0.01f) {
+    const Eigen::Vector3f c = LookAtCenter(views);
+    int in_front = 0;
+    for (const View& v : views) in_front += (c - v.camera.position()).dot(v.camera.c2w.col(2)) > 0;
+    if (c.allFinite() && 2 * in_front > int(views.size())) return c;
+  }
+  std::vector<Eigen::Vector3f> pts;
+  for (const Eigen::Vector3f& p : points) {
+    if (p.allFinite()) pts.push_back(p);
+  }
+  if (!pts.empty()) {
+    Eigen::Vector3f median;
+    for (int k = 0; k < 3; ++k) {
+      std::vector<float> c(pts.size());
+      for (size_t i = 0; i < pts.size(); ++i) c[i] = pts[i][k];
+      std::nth_element(c.begin(), c.begin() + c.size() / 2, c.end());
+      median[k] = c[c.size() / 2];
+    }
+    return median;
+  }
+  Eigen::Vector3f mean = Eigen::Vector3f::Zero();
+  for (const View& v : views) mean += v.camera.position();
+  return mean / float(views.size());
+}
+
+}  // namespace
+
+Normalization ComputeNormalization(const Scene& scene) {
+  Normalization n;
+  const std::vector<View>& views = scene.train.empty() ? scene.test : scene.train;
+  if (scene.kind == SceneKind::kBounded) {
+    n.bound = 0.5f;
+    if (scene.world_scale_hint > 0) {
+      n.center = scene.world_offset_hint;
+      n.scale = scene.world_scale_hint;
+    } else {
+      n.center = LookAtCenter(views);
+      float mean_dist = 0;
+      for (const View& v : views) mean_dist += (v.camera.position() - n.center).norm();
+      mean_dist = views.empty() ? 1.0f : mean_dist / views.size();
+      n.scale = mean_dist > 0 ? (4.0f / 3.0f) / mean_dist : 1.0f;
+    }
+    return n;
+  }
+  // Unbounded / real captures: the model box is the contracted cube
+  // (-2, 2)^3 and the inner cube [-1, 1]^3 (metric, full resolution) must
+  // hold the cameras and the subject.
+  n.bound = kContractedBound;
+  if (views.empty()) return n;
+  n.center = FocusPoint(views, scene.content_points);
+  float radius = 0;
+  for (const View& v : views) radius = std::max(radius, InfNorm(v.camera.position() - n.center));
+  if (!scene.content_points.empty()) {
+    // The median content point, so a far backdrop in the sparse points does
+    // not shrink the subject; farther content lives in the contracted shell.
+    std::vector<float> r;
+    r.reserve(scene.content_points.size());
+    for (const Eigen::Vector3f& p : scene.content_points) {
+      if (p.allFinite()) r.push_back(InfNorm(p - n.center));
+    }
+    if (!r.empty()) {
+      std::nth_element(r.begin(), r.begin() + r.size() / 2, r.end());
+      radius = std::max(radius, r[r.size() / 2]);
+    }
+  }
+  // A 10 % margin keeps the cameras off the contraction's kink.
+  n.scale = radius > 1e-6f && std::isfinite(radius) ? 1.0f / (1.1f * radius) : 1.0f;
+  return n;
+}
+
+absl::Status ValidateScene(const Scene& scene) {
+  for (const auto* split : {&scene.train, &scene.val, &scene.test}) {
+    for (const View& v : *split) {
+      absl::Status s = ValidateCamera(v.camera);
+      if (!s.ok()) return absl::InvalidArgumentError(absl::StrCat("view '", v.name, "': ", s.message()));
+      const Intrinsics& in = v.camera.intrinsics;
+      if (!v.image.empty() && (v.image.width != in.width || v.image.height != in.height)) {
+        return absl::InvalidArgumentError(absl::StrCat(
+            "view '", v.name, "': image is ", v.image.width, "x", v.image.height,
+            " but the camera says ", in.width, "x", in.height));
+      }
+      for (float x : v.image.rgb) {
+        if (!std::isfinite(x)) {
+          return absl::InvalidArgumentError(absl::StrCat("view '", v.name, "': image has non-finite pixel values"));
+        }
+      }
+      if (!v.mask.empty() && (v.mask.width != in.width || v.mask.height != in.height)) {
+        return absl::InvalidArgumentError(absl::StrCat("view '", v.name, "': mask size mismatch"));
+      }
+    }
+  }
+  return absl::OkStatus();
+}
+
+void DownscaleView(float factor, View* view) {
+  Intrinsics& in = view->camera.intrinsics;
+  if (!(factor > 1.0f) || in.width <= 0 || in.height <= 0) return;
+  const int old_w = in.width, old_h = in.height;
+  const int w = std::max(1, int(std::lround(old_w / factor)));
+  const int h = std::max(1, int(std::lround(old_h / factor)));
+  in = in.Scaled(w, h);
+  // Mismatched images/masks are left alone so ValidateScene() reports them.
+  if (view->image.width == old_w && view->image.height == old_h) {
+    view->image = ResizeImage(view->image, w, h);
+  }
+  Mask& m = view->mask;
+  if (!m.empty() && m.width == old_w && m.height == old_h) {
+    Image as_image(m.width, m.height);
+    for (size_t i = 0; i < m.keep.size(); ++i) as_image.rgb[i * 3] = m.keep[i] ? 1.0f : 0.0f;
+    const Image small = ResizeImage(as_image, w, h);
+    m.width = w;
+    m.height = h;
+    m.keep.assign(small.num_pixels(), 0);
+    for (size_t i = 0; i < m.keep.size(); ++i) m.keep[i] = small.rgb[i * 3] >= 0.5f;
+  }
+}
+
+}  // namespace clnerf

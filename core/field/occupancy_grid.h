@@ -1,0 +1,122 @@
+// OccupancyGrid: Instant-NGP's multi-cascade occupancy grid that lets the ray
+// marcher skip empty space. Each cascade c is a res^3 grid over
+// [-min(2^(c-1), s), +min(2^(c-1), s)]^3 of the model box [-s, s]^3, with
+// max(1 + ceil(log2(2s)), 1) cascades. Every cell keeps an EMA of density
+// (new = max(decay * old, sigma)); a bitfield marks cells whose density
+// exceeds min(mean density, threshold). Cells that no training camera sees are
+// marked empty permanently.
+//
+// The grid does not evaluate the network: the trainer asks for the cells to
+// refresh (CellsToUpdate), evaluates densities at jittered positions, and
+// hands them back (ApplyUpdate). Readers (Occupied) may run concurrently with
+// each other but not with ApplyUpdate/MarkInvisible.
+#ifndef CLNERF_CORE_FIELD_OCCUPANCY_GRID_H_
+#define CLNERF_CORE_FIELD_OCCUPANCY_GRID_H_
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <random>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "core/data/camera.h"
+#include "Eigen/Core"
+
+namespace clnerf {
+
+struct OccupancyGridOptions {
+  int resolution = 128;         // Cells per axis per cascade (power of two).
+  int update_interval = 16;     // Training iterations between updates.
+  int warmup_iterations = 256;  // Update every cell until this iteration.
+  float decay = 0.95f;          // EMA decay of cell densities.
+  // Occupancy threshold on sigma; <= 0 derives 0.01 / min_step (upstream:
+  // 0.01 * 1024 / sqrt(3) for the synthetic step size).
+  float density_threshold = 0.0f;
+  absl::Status Validate() const;
+};
+
+class OccupancyGrid {
+ public:
+  OccupancyGrid() = default;
+  OccupancyGrid(const OccupancyGridOptions& options, float bound, float min_step);
+
+  const OccupancyGridOptions& options() const { return options_; }
+  // Contracted grids (unbounded scenes) index contracted space; cell
+  // positions are mapped back to model space (Uncontract) for visibility.
+  void set_contracted(bool contracted) { contracted_ = contracted; }
+  bool contracted() const { return contracted_; }
+  int resolution() const { return res_; }
+  int num_cascades() const { return cascades_; }
+  size_t cells_per_cascade() const { return size_t(res_) * res_ * res_; }
+  size_t num_cells() const { return cells_per_cascade() * cascades_; }
+  float cascade_half_size(int c) const { return half_[c]; }
+  float threshold() const { return threshold_; }
+
+  // Cascade containing model-space point p (the finest that covers it), or -1
+  // when p is outside the model box.
+  int CascadeOf(const Eigen::Vector3f& p) const {
+    const float m = std::max(std::abs(p.x()), std::max(std::abs(p.y()), std::abs(p.z())));
+    if (!(m <= bound_)) return -1;
+    int c = 0;
+    while (c < cascades_ - 1 && m >= half_[c]) ++c;
+    return c;
+  }
+  // Linear cell index (including cascade offset) of p in cascade c.
+  uint32_t CellIndex(const Eigen::Vector3f& p, int c) const {
+    const float h = half_[c], s = cells_per_unit_[c];
+    const int x = std::clamp(int((p.x() + h) * s), 0, res_ - 1);
+    const int y = std::clamp(int((p.y() + h) * s), 0, res_ - 1);
+    const int z = std::clamp(int((p.z() + h) * s), 0, res_ - 1);
+    return uint32_t(size_t(c) * cells_per_cascade() + x + size_t(res_) * (y + size_t(res_) * z));
+  }
+  bool Occupied(const Eigen::Vector3f& p) const;
+  bool OccupiedCell(uint32_t cell) const { return (bits_[cell >> 6] >> (cell & 63)) & 1; }
+  // Side length of a cell of cascade c.
+  float CellSize(int c) const { return 1.0f / cells_per_unit_[c]; }
+
+  // Model-space position of a cell (centre + jitter in [-0.5, 0.5) cells).
+  Eigen::Vector3f CellPosition(uint32_t cell, const Eigen::Vector3f& jitter) const;
+
+  // Cells to refresh at training iteration `iter`: all cells during warm-up,
+  // otherwise a quarter at random plus a quarter drawn from occupied cells.
+  std::vector<uint32_t> CellsToUpdate(int iter, std::mt19937_64* rng) const;
+  // new = max(decay * old, sigma) for the given cells, then refreshes bits.
+  void ApplyUpdate(const std::vector<uint32_t>& cells, const std::vector<float>& sigma);
+  // Recomputes visibility: cells outside every camera frustum (model-space
+  // cameras) are empty until the next call; cells that become visible start
+  // occupied.
+  void MarkInvisible(const std::vector<Camera>& cameras, float near);
+  // Marks all visible cells occupied (initial state before any update).
+  void SetAllOccupied();
+
+  size_t num_occupied() const;
+  size_t num_visible() const;
+  // Raw state for checkpoints.
+  const std::vector<float>& density() const { return density_; }
+  const std::vector<uint8_t>& visible() const { return visible_; }
+  const std::vector<uint64_t>& bits() const { return bits_; }
+  void Restore(std::vector<float> density, std::vector<uint8_t> visible, std::vector<uint64_t> bits,
+               float threshold);
+
+ private:
+  void RefreshBits();
+
+  OccupancyGridOptions options_;
+  bool contracted_ = false;
+  float bound_ = 0.5f;
+  float max_threshold_ = 0;
+  float threshold_ = 0;
+  int res_ = 0;
+  int cascades_ = 0;
+  std::vector<float> density_;
+  std::vector<uint8_t> visible_;
+  std::vector<uint64_t> bits_;
+  std::vector<float> fresh_;
+  std::vector<float> half_;           // Half-size of each cascade.
+  std::vector<float> cells_per_unit_; // res / (2 * half) per cascade.  // Scratch for ApplyUpdate (-1 = untouched).
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_FIELD_OCCUPANCY_GRID_H_

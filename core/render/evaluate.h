@@ -1,0 +1,47 @@
+// Evaluation: renders a set of views with a model and scores them against
+// their images (PSNR and SSIM per image, then averaged, as in NeRF papers).
+// Each view is rendered with its own time step's embeddings. Thread-safe with
+// respect to the (const) model.
+#ifndef CLNERF_CORE_RENDER_EVALUATE_H_
+#define CLNERF_CORE_RENDER_EVALUATE_H_
+
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/field/ngp_model.h"
+#include "core/render/renderer.h"
+#include "core/data/scene.h"
+
+namespace clnerf {
+
+struct EvalOptions {
+  RenderOptions render;
+  std::string save_dir;  // When set, writes <save_dir>/<index>_<name>.png renders.
+  int max_views = 0;     // 0 = all views; otherwise an evenly spaced subset.
+  absl::Status Validate() const;
+};
+
+struct ViewScore {
+  std::string name;
+  int time_step = 0;
+  double psnr = 0, ssim = 0;
+  double render_seconds = 0;
+};
+
+struct EvalResult {
+  double psnr = 0, ssim = 0;  // Means over views.
+  double mean_render_seconds = 0;
+  std::vector<ViewScore> views;
+};
+
+// PSNR over `test` of predicting the mean training colour everywhere: the
+// floor a trained model must clear.
+double ConstantColourPsnr(const std::vector<View>& train, const std::vector<View>& test);
+
+absl::StatusOr<EvalResult> EvaluateViews(const NgpModel& model, const std::vector<View>& views,
+                                         const EvalOptions& options);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_RENDER_EVALUATE_H_

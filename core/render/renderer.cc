@@ -1,0 +1,205 @@
+#include "core/render/renderer.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+
+#include "absl/strings/str_format.h"
+#include "core/field/field.h"
+#include "core/field/ray_marcher.h"
+#include "core/render/volume_rendering.h"
+
+namespace clnerf {
+
+absl::Status RenderOptions::Validate() const {
+  if (block_rays < 1) return absl::InvalidArgumentError("render: block_rays must be >= 1");
+  if (threads < 0) return absl::InvalidArgumentError("render: threads must be >= 0");
+  return absl::OkStatus();
+}
+
+namespace {
+
+struct RayState {
+  float t, t_end, T;
+  int samples;  // Marched so far (at most kMaxMarchSamples).
+  float rgb[3];
+  float depth;
+  bool alive;
+};
+
+// Renders one block of rays with a private workspace.
+long long RenderBlock(const FieldEvaluator& field, const float* origins, const float* dirs, int n, int time_step,
+                      float min_weight, float* rgb_out, float* opacity_out, float* depth_out) {
+  const NgpModel& model = field.model();
+  std::vector<RayState> st(n);
+  // Scratch reused across blocks and calls on the same thread.
+  thread_local FieldContext fc;
+  thread_local std::vector<RaySample> samples;
+  thread_local std::vector<int> seg, seg_ray, keep, keep_seg, keep_ray;
+  thread_local std::vector<float> w;
+  field.SetRays(n, dirs, nullptr, time_step, &fc);
+  for (int r = 0; r < n; ++r) {
+    const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
+    RayState& s = st[r];
+    s.T = 1.0f;
+    s.rgb[0] = s.rgb[1] = s.rgb[2] = 0.0f;
+    s.depth = 0.0f;
+    s.samples = 0;
+    s.alive = model.RayInterval(o, d, &s.t, &s.t_end);
+  }
+
+  long long evaluated = 0;
+  int alive = n;
+  const int max_samples = kMaxMarchSamples;  // A safety bound no real model reaches.
+  for (;;) {
+    // Samples per live ray this wave: the wave's total stays near kWaveBudget
+    // so activations stay in cache; few live rays march further per wave.
+    constexpr int kWaveBudget = 4096;
+    const int wave = std::clamp(kWaveBudget / std::max(alive, 1), 2, 64);
+    samples.clear();
+    seg.assign(1, 0);
+    seg_ray.clear();
+    for (int r = 0; r < n; ++r) {
+      RayState& s = st[r];
+      if (!s.alive) continue;
+      const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
+      const size_t before = samples.size();
+      const float t_before = s.t;
+      s.t = model.March(o, d, s.t, s.t_end, std::min(wave, max_samples - s.samples), &samples);
+      if (samples.size() == before) {
+        s.alive = false;
+        continue;
+      }
+      // A ray ends after kMaxMarchSamples samples and when its march stops
+      // advancing (steps below float spacing): both bound the work of any
+      // model, even a pathological one.
+      s.samples += int(samples.size() - before);
+      if (s.samples >= max_samples || !(s.t > t_before)) s.alive = false;
+      seg.push_back(int(samples.size()));
+      seg_ray.push_back(r);
+    }
+    const int m = int(samples.size());
+    if (m == 0) break;
+    alive = int(seg_ray.size());
+    evaluated += m;
+    const int nseg = int(seg_ray.size());
+    field.ResizeSamples(m, &fc);
+    w.resize(m);
+    for (int k = 0; k < nseg; ++k) {
+      const int r = seg_ray[k];
+      const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
+      for (int j = seg[k]; j < seg[k + 1]; ++j) field.SetSample(j, o + samples[j].t * d, &fc);
+    }
+    field.Density(m, seg.data(), seg_ray.data(), nseg, &fc);
+    // Front-to-back weights per ray; select samples that matter.
+    keep.clear();
+    keep_seg.assign(1, 0);
+    keep_ray.clear();
+    for (int k = 0; k < nseg; ++k) {
+      RayState& s = st[seg_ray[k]];
+      float T = s.T;
+      for (int j = seg[k]; j < seg[k + 1]; ++j) {
+        const float alpha = 1.0f - std::exp(-fc.sigma[j] * samples[j].dt);
+        w[j] = T * alpha;
+        T *= 1.0f - alpha;
+        if (w[j] >= min_weight) keep.push_back(j);
+        if (T <= kMinTransmittance) {
+          s.alive = false;
+          break;
+        }
+      }
+      s.T = T;
+      if (int(keep.size()) > keep_seg.back()) {
+        keep_seg.push_back(int(keep.size()));
+        keep_ray.push_back(seg_ray[k]);
+      }
+    }
+    const int mk = int(keep.size());
+    if (mk == 0) continue;
+    // Colour the kept samples and accumulate.
+    field.Select(keep.data(), mk, /*for_backward=*/false, &fc);
+    field.Colour(mk, keep_seg.data(), keep_ray.data(), int(keep_ray.size()), &fc);
+    for (size_t q = 0; q < keep_ray.size(); ++q) {
+      RayState& s = st[keep_ray[q]];
+      for (int i = keep_seg[q]; i < keep_seg[q + 1]; ++i) {
+        const int j = keep[i];
+        s.rgb[0] += w[j] * fc.ws.rgb(0, i);
+        s.rgb[1] += w[j] * fc.ws.rgb(1, i);
+        s.rgb[2] += w[j] * fc.ws.rgb(2, i);
+        s.depth += w[j] * samples[j].t;
+      }
+    }
+  }
+  const Eigen::Vector3f& bg = model.background();
+  for (int r = 0; r < n; ++r) {
+    const RayState& s = st[r];
+    for (int c = 0; c < 3; ++c) rgb_out[3 * r + c] = s.rgb[c] + s.T * bg[c];
+    if (opacity_out) opacity_out[r] = 1.0f - s.T;
+    if (depth_out) depth_out[r] = s.depth;
+  }
+  return evaluated;
+}
+
+}  // namespace
+
+long long RenderRays(const NgpModel& model, const float* origins, const float* dirs, int n, int time_step,
+                     const RenderOptions& options, float* rgb, float* opacity, float* depth) {
+  const int t = time_step < 0 ? model.num_time_steps() - 1 : std::min(time_step, model.num_time_steps() - 1);
+  const FieldEvaluator field(model);
+  const int block = options.block_rays;
+  const int nblocks = (n + block - 1) / block;
+  long long total = 0;
+  const int threads = options.threads > 0 ? options.threads : omp_get_max_threads();
+  std::atomic<bool> stopped{false};
+#pragma omp parallel for schedule(dynamic) reduction(+ : total) num_threads(threads)
+  for (int b = 0; b < nblocks; ++b) {
+    if (stopped.load(std::memory_order_relaxed)) continue;
+    if (options.should_stop && options.should_stop()) {
+      stopped = true;
+      continue;
+    }
+    const int begin = b * block, m = std::min(block, n - begin);
+    total += RenderBlock(field, origins + 3 * size_t(begin), dirs + 3 * size_t(begin), m, t, options.min_weight,
+                         rgb + 3 * size_t(begin), opacity ? opacity + begin : nullptr,
+                         depth ? depth + begin : nullptr);
+  }
+  return stopped ? -1 : total;
+}
+
+absl::StatusOr<RenderedView> RenderView(const NgpModel& model, const Camera& world_camera,
+                                        const RenderOptions& options) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  if (absl::Status s = ValidateCamera(world_camera); !s.ok()) return s;
+  if (options.time_step >= model.num_time_steps()) {
+    return absl::InvalidArgumentError(absl::StrFormat("time step %d does not exist (model has %d)",
+                                                      options.time_step, model.num_time_steps()));
+  }
+  const Camera cam = model.ToModelCamera(world_camera);
+  const int W = cam.intrinsics.width, H = cam.intrinsics.height;
+  const size_t n = size_t(W) * H;
+  std::vector<float> o(3 * n), d(3 * n);
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      Eigen::Vector3f oo, dd;
+      cam.Ray(x + 0.5f, y + 0.5f, &oo, &dd);
+      const size_t i = size_t(y) * W + x;
+      for (int c = 0; c < 3; ++c) {
+        o[3 * i + c] = oo[c];
+        d[3 * i + c] = dd[c];
+      }
+    }
+  }
+  RenderedView out;
+  out.rgb = Image(W, H);
+  out.opacity.resize(n);
+  out.depth.resize(n);
+  out.samples = RenderRays(model, o.data(), d.data(), int(n), options.time_step, options, out.rgb.rgb.data(),
+                           out.opacity.data(), out.depth.data());
+  if (out.samples < 0) return absl::CancelledError("render stopped before it finished");
+  for (float& z : out.depth) z /= model.normalization().scale;
+  return out;
+}
+
+}  // namespace clnerf

@@ -1,0 +1,60 @@
+// Renderer: inference-time rendering of a NgpModel. Rays are processed in
+// blocks; each block marches all live rays a few samples at a time ("waves"),
+// evaluates the density MLP on the whole wave, composites front to back, and
+// runs the colour MLP only on samples whose weight matters. Rays stop at
+// transmittance <= 1e-4 or when they leave the box.
+//
+// All functions take the model by const reference and are safe to call from
+// many threads at once on the same model (each call uses its own scratch).
+// Parallelism: each call splits its rays over the OpenMP threads of the
+// calling context (set with SetRenderThreads / omp_set_num_threads).
+#ifndef CLNERF_CORE_RENDER_RENDERER_H_
+#define CLNERF_CORE_RENDER_RENDERER_H_
+
+#include <functional>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/data/camera.h"
+#include "core/data/image.h"
+#include "core/field/ngp_model.h"
+
+namespace clnerf {
+
+struct RenderOptions {
+  int time_step = -1;       // Embedding row to use; -1 = the latest step.
+  int block_rays = 512;     // Rays per parallel task.
+  int threads = 0;          // OpenMP threads; 0 = all available.
+  float min_weight = 2e-5f; // Samples with smaller weight skip the colour MLP.
+  // Polled before each block of rays (from the rendering threads, so it must
+  // be thread-safe); once it returns true the remaining blocks are skipped
+  // and RenderView returns CANCELLED. Empty = never stop. Used for renders
+  // whose caller went away or whose deadline passed, and for cancelled
+  // updates.
+  std::function<bool()> should_stop;
+  absl::Status Validate() const;
+};
+
+struct RenderedView {
+  Image rgb;
+  std::vector<float> opacity;  // Accumulated alpha per pixel.
+  std::vector<float> depth;    // Expected distance (world units) per pixel.
+  long long samples = 0;       // Network evaluations (density).
+};
+
+// Renders rays given in model space (origins/directions n x 3; directions
+// unit length). rgb: n x 3, opacity/depth: n (may be null; depth in model
+// units). Returns the number of density evaluations, or -1 when
+// options.should_stop stopped it (the outputs are then incomplete).
+long long RenderRays(const NgpModel& model, const float* origins, const float* dirs, int n, int time_step,
+                     const RenderOptions& options, float* rgb, float* opacity, float* depth);
+
+// Renders a full image for a world-space camera. INVALID_ARGUMENT for a bad
+// camera or a time step the model does not have; CANCELLED when
+// options.should_stop stopped it.
+absl::StatusOr<RenderedView> RenderView(const NgpModel& model, const Camera& world_camera,
+                                        const RenderOptions& options);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_RENDER_RENDERER_H_

@@ -1,0 +1,58 @@
+// Fit: trains a fresh model on one scene from start to finish: normalisation,
+// capacity derivation, sampler, trainer, and (optionally) a PSNR-vs-time curve
+// on held-out views. This is what `clnerf train` runs; the continual update
+// builds on the same pieces. Not thread-safe per call; independent calls may
+// run concurrently (they share nothing), though each uses all OpenMP threads.
+#ifndef CLNERF_CORE_TRAIN_FIT_H_
+#define CLNERF_CORE_TRAIN_FIT_H_
+
+#include <atomic>
+#include <functional>
+#include <memory>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/field/capacity.h"
+#include "core/field/ngp_model.h"
+#include "core/data/scene.h"
+#include "core/train/trainer.h"
+
+namespace clnerf {
+
+struct FitOptions {
+  TrainOptions train;
+  ModelOptions model;             // Network options etc.; see derive_capacity.
+  bool derive_capacity = true;    // Overwrite grid/occupancy/march sizes from the scene.
+  CapacityOptions capacity;
+  int curve_every = 0;            // Evaluate held-out views every N steps (0 = never).
+  int curve_views = 8;            // Held-out views used for each curve point.
+  absl::Status Validate() const;
+};
+
+struct CurvePoint {
+  int iteration = 0;
+  double train_seconds = 0;  // Training wall time only (evaluation excluded).
+  double psnr = 0, ssim = 0;
+};
+
+struct FitResult {
+  std::unique_ptr<NgpModel> model;
+  CapacityReport capacity;
+  int iterations = 0;
+  double train_seconds = 0;
+  long long samples = 0;      // Network-evaluated samples over the run.
+  double samples_per_second = 0;             // Marched samples (density MLP) per second.
+  double composited_samples_per_second = 0;  // Samples through colour MLP + full backward.
+  double rays_per_second = 0;
+  int skipped_batches = 0;    // NaN/Inf batches the trainer skipped.
+  std::vector<CurvePoint> curve;
+};
+
+using FitProgress = std::function<void(const StepStats& step, const Trainer& trainer)>;
+
+absl::StatusOr<FitResult> FitScene(const Scene& scene, const FitOptions& options, const FitProgress& progress,
+                                   const std::atomic<bool>* cancel = nullptr);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_TRAIN_FIT_H_

@@ -1,0 +1,580 @@
+#include "core/train/trainer.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "absl/strings/str_format.h"
+#include "core/data/contraction.h"
+#include "core/field/field.h"
+#include "core/render/volume_rendering.h"
+#include "spdlog/spdlog.h"
+
+namespace clnerf {
+
+absl::Status TrainOptions::Validate() const {
+  if (iterations < 0) return absl::InvalidArgumentError("train: iterations must be >= 0");
+  if (batch_rays < 1 || max_batch_rays < batch_rays) {
+    return absl::InvalidArgumentError("train: need 1 <= batch_rays <= max_batch_rays");
+  }
+  if (target_samples < 0) return absl::InvalidArgumentError("train: target_samples must be >= 0");
+  if (!(learning_rate > 0) || !(lr_final_ratio > 0 && lr_final_ratio <= 1)) {
+    return absl::InvalidArgumentError("train: learning_rate must be > 0 and lr_final_ratio in (0, 1]");
+  }
+  if (!(opacity_reg >= 0)) return absl::InvalidArgumentError("train: opacity_reg must be >= 0");
+  if (!std::isfinite(distortion_reg) || !std::isfinite(near_density_reg)) {
+    return absl::InvalidArgumentError("train: distortion_reg and near_density_reg must be finite");
+  }
+  if (!(near_density_fade >= 0) || !std::isfinite(near_density_fade)) {
+    return absl::InvalidArgumentError("train: near_density_fade must be finite and >= 0");
+  }
+  if (!(near_density_distance >= 0) || !std::isfinite(near_density_distance)) {
+    return absl::InvalidArgumentError("train: near_density_distance must be finite and >= 0");
+  }
+  if (threads < 0) return absl::InvalidArgumentError("train: threads must be >= 0");
+  if (max_bad_batches < 0 || inject_nan_gradient_at_step < 0) {
+    return absl::InvalidArgumentError("train: max_bad_batches and inject_nan_gradient_at_step must be >= 0");
+  }
+  return adam.Validate();
+}
+
+// One marching wave of a block: the samples its live rays marched, their
+// field context, and which of them were kept (up to early termination).
+struct TrainWave {
+  FieldContext fc;
+  std::vector<RaySample> samples;
+  std::vector<int> seg, seg_ray;      // Marched segments (one per live ray).
+  std::vector<int> keep, kseg, kray;  // Kept samples (ascending) and their segments.
+  std::vector<int> ray_kseg;          // Per ray of the block: its kept segment, or -1.
+  std::vector<float> kt, kdt;         // t and dt of kept samples.
+  std::vector<float> d_rgb, d_sigma;  // Per kept sample.
+};
+
+struct Trainer::ThreadScratch {
+  static constexpr int kMaxWaves = 3;
+  TrainWave waves[kMaxWaves];
+  // Per ray of the block.
+  std::vector<float> ray_t, ray_t1, ray_T;
+  std::vector<uint8_t> ray_alive;
+  // Kept samples gathered per ray across waves (gseg: ray offsets).
+  std::vector<int> gseg, gwave, gcol;
+  std::vector<float> gsigma, gt, gdt, gw, grgb, gmid, gwidth, gdrgb, gdsigma, t_final;
+  std::vector<float> grad_mlp, grad_emb;
+  std::vector<float> store_pos, store_dfeat;  // For the grid backward phase.
+  double sq_err = 0, loss = 0;
+  long long samples_marched = 0, samples_used = 0;
+};
+
+namespace {
+constexpr int kBlockRays = 128;
+
+// A regulariser weight where < 0 means "auto": `auto_weight` for unbounded
+// (contracted) scenes, 0 for bounded ones.
+float ResolveAutoWeight(float weight, float auto_weight, bool contracted) {
+  return weight >= 0 ? weight : contracted ? auto_weight : 0.0f;
+}
+
+template <typename V>
+bool AllFinite(const V& v) {
+  for (float x : v) {
+    if (!std::isfinite(x)) return false;
+  }
+  return true;
+}
+}  // namespace
+
+Trainer::Trainer(NgpModel* model, RaySampler* sampler, const TrainOptions& options)
+    : model_(model), sampler_(sampler), options_(options), adam_(options.adam), rng_(options.seed) {
+  threads_ = options.threads > 0 ? options.threads : omp_get_max_threads();
+  batch_rays_ = options.batch_rays;
+  grad_grid_.assign(model->params().grid.size(), 0.0f);
+  touched_.assign(model->grid().num_params() / HashGrid::kFeatures, 0);
+  touched_lists_.resize(model->grid().num_levels());
+  adam_.ResizeBlock(0, model->params().grid.size());
+  adam_.ResizeBlock(1, model->params().mlp.size());
+  adam_.ResizeBlock(2, model->params().emb.size());
+  for (int i = 0; i < threads_; ++i) scratch_.push_back(std::make_unique<ThreadScratch>());
+  model->mutable_occupancy().MarkInvisible(sampler->Cameras(), model->options().march.near);
+}
+
+Trainer::~Trainer() = default;
+
+float Trainer::CurrentLearningRate() const {
+  const float lr = options_.learning_rate, lo = lr * options_.lr_final_ratio;
+  const float p = options_.iterations > 0 ? std::min(1.0f, float(step_) / options_.iterations) : 1.0f;
+  return lo + 0.5f * (lr - lo) * (1.0f + std::cos(float(M_PI) * p));
+}
+
+float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const float* ray_bg,
+                               bool track_touched) {
+  const NgpModel& model = *model_;
+  const FieldEvaluator field(model);
+  const HashGrid& grid = model.grid();
+  const MarchOptions& mo = model.options().march;
+  const int Dg = grid.output_dim();
+  const int nrays = batch.size();
+  const float inv_n = 1.0f / float(std::max(nrays, 1));
+  const float lambda = options_.opacity_reg;
+  const Eigen::Vector3f bg = model.background();
+  const float dist_reg =
+      ResolveAutoWeight(options_.distortion_reg, TrainOptions::kAutoDistortion, model.contracted());
+  const float inv_box = 1.0f / (2.0f * model.bound());
+  float near_reg = ResolveAutoWeight(options_.near_density_reg, TrainOptions::kAutoNearDensity, model.contracted());
+  if (options_.near_density_fade > 0 && options_.iterations > 0) {
+    near_reg *= std::max(0.0f, 1.0f - float(step_) / (options_.near_density_fade * float(options_.iterations)));
+  }
+  const float near_dist = options_.near_density_distance;
+
+  const int nblocks = (nrays + kBlockRays - 1) / kBlockRays;
+  // Reset every scratch, not only those of the threads that run: the OpenMP
+  // runtime may grant fewer threads than requested (OMP_THREAD_LIMIT, nested
+  // regions), and the reductions below read all of them.
+  for (const auto& sp : scratch_) {
+    ThreadScratch& s = *sp;
+    s.grad_mlp.assign(model.params().mlp.size(), 0.0f);
+    s.grad_emb.assign(model.params().emb.size(), 0.0f);
+    s.store_pos.clear();
+    s.store_dfeat.clear();
+    s.sq_err = s.loss = 0;
+    s.samples_marched = s.samples_used = 0;
+  }
+  // Rays march in waves: the first covers about what a ray composites on
+  // average, and only rays still above the termination threshold march on,
+  // so samples behind early termination are rarely marched or evaluated.
+  const int first_wave = std::clamp(int(1.5 * mean_used_per_ray_) + 8, 16, mo.max_samples);
+#pragma omp parallel num_threads(threads_)
+  {
+    ThreadScratch& s = *scratch_[omp_get_thread_num()];
+#pragma omp for schedule(static, 1)
+    for (int b = 0; b < nblocks; ++b) {
+      const int r0 = b * kBlockRays, nr = std::min(kBlockRays, nrays - r0);
+      auto origin = [&](int i) { return Eigen::Map<const Eigen::Vector3f>(&batch.origin[3 * size_t(r0 + i)]); };
+      auto dir = [&](int i) { return Eigen::Map<const Eigen::Vector3f>(&batch.dir[3 * size_t(r0 + i)]); };
+      s.ray_t.resize(nr);
+      s.ray_t1.resize(nr);
+      s.ray_T.assign(nr, 1.0f);
+      s.ray_alive.resize(nr);
+      for (int i = 0; i < nr; ++i) {
+        float t0 = 0, t1 = 0;
+        s.ray_alive[i] = model.RayInterval(origin(i), dir(i), &t0, &t1);
+        // First sample jittered.
+        s.ray_t[i] = s.ray_alive[i] ? t0 + jitter[r0 + i] * model.StepAt(origin(i), dir(i), t0) : 0.0f;
+        s.ray_t1[i] = t1;
+      }
+      // 1. March, evaluate density and composite, wave by wave.
+      int nwaves = 0;
+      for (int wv = 0; wv < ThreadScratch::kMaxWaves; ++wv) {
+        TrainWave& W = s.waves[wv];
+        const int budget = wv + 1 == ThreadScratch::kMaxWaves ? mo.max_samples : first_wave << wv;
+        W.samples.clear();
+        W.seg.assign(1, 0);
+        W.seg_ray.clear();
+        for (int i = 0; i < nr; ++i) {
+          if (!s.ray_alive[i]) continue;
+          const size_t before = W.samples.size();
+          s.ray_t[i] = model.March(origin(i), dir(i), s.ray_t[i], s.ray_t1[i], budget, &W.samples);
+          if (W.samples.size() == before) {
+            s.ray_alive[i] = 0;
+            continue;
+          }
+          W.seg.push_back(int(W.samples.size()));
+          W.seg_ray.push_back(i);
+        }
+        const int m = int(W.samples.size());
+        W.ray_kseg.assign(nr, -1);
+        if (m == 0) break;
+        nwaves = wv + 1;
+        s.samples_marched += m;
+        const int nseg = int(W.seg_ray.size());
+        if (wv == 0) {
+          field.SetRays(nr, &batch.dir[3 * size_t(r0)], &batch.time_step[r0], 0, &W.fc);
+        } else {  // The per-ray inputs are the same for every wave: copy, don't recompute.
+          const FieldContext& first = s.waves[0].fc;
+          W.fc.num_rays = first.num_rays;
+          W.fc.ray_step = first.ray_step;
+          W.fc.ray_sh = first.ray_sh;
+          W.fc.ray_colour_bias = first.ray_colour_bias;
+        }
+        field.ResizeSamples(m, &W.fc);
+        for (int k = 0; k < nseg; ++k) {
+          const int i = W.seg_ray[k];
+          for (int j = W.seg[k]; j < W.seg[k + 1]; ++j) field.SetSample(j, origin(i) + W.samples[j].t * dir(i), &W.fc);
+        }
+        field.Density(m, W.seg.data(), W.seg_ray.data(), nseg, &W.fc);
+        // Keep samples up to early termination (the sample that crosses the
+        // threshold included, as CompositeWeights does).
+        W.keep.clear();
+        W.kseg.assign(1, 0);
+        W.kray.clear();
+        W.kt.clear();
+        W.kdt.clear();
+        for (int k = 0; k < nseg; ++k) {
+          const int i = W.seg_ray[k];
+          float T = s.ray_T[i];
+          for (int j = W.seg[k]; j < W.seg[k + 1]; ++j) {
+            W.keep.push_back(j);
+            W.kt.push_back(W.samples[j].t);
+            W.kdt.push_back(W.samples[j].dt);
+            const float alpha = 1.0f - std::exp(-W.fc.sigma[j] * W.samples[j].dt);  // As CompositeWeights.
+            T *= 1.0f - alpha;
+            if (T <= kMinTransmittance) {
+              s.ray_alive[i] = 0;
+              break;
+            }
+          }
+          s.ray_T[i] = T;
+          W.ray_kseg[i] = int(W.kray.size());
+          W.kseg.push_back(int(W.keep.size()));
+          W.kray.push_back(i);
+        }
+        field.Select(W.keep.data(), int(W.keep.size()), /*for_backward=*/true, &W.fc);
+        // 2. Colour on the kept samples.
+        field.Colour(int(W.keep.size()), W.kseg.data(), W.kray.data(), int(W.kray.size()), &W.fc);
+      }
+      // 3. Gather each ray's kept samples across waves, in order.
+      s.gseg.assign(1, 0);
+      s.gwave.clear();
+      s.gcol.clear();
+      for (int i = 0; i < nr; ++i) {
+        for (int wv = 0; wv < nwaves; ++wv) {
+          const TrainWave& W = s.waves[wv];
+          const int k = W.ray_kseg[i];
+          if (k < 0) continue;
+          for (int c = W.kseg[k]; c < W.kseg[k + 1]; ++c) {
+            s.gwave.push_back(wv);
+            s.gcol.push_back(c);
+          }
+        }
+        s.gseg.push_back(int(s.gwave.size()));
+      }
+      const int m2 = int(s.gwave.size());
+      s.samples_used += m2;
+      s.gsigma.resize(m2);
+      s.gt.resize(m2);
+      s.gdt.resize(m2);
+      s.gw.resize(m2);
+      s.grgb.resize(3 * size_t(m2));
+      s.gmid.resize(m2);
+      s.gwidth.resize(m2);
+      s.gdrgb.assign(3 * size_t(m2), 0.0f);
+      s.gdsigma.assign(m2, 0.0f);
+      s.t_final.resize(nr);
+      for (int j = 0; j < m2; ++j) {
+        const TrainWave& W = s.waves[s.gwave[j]];
+        const int c = s.gcol[j];
+        s.gsigma[j] = W.fc.sigma[c];
+        s.gt[j] = W.kt[c];
+        s.gdt[j] = W.kdt[c];
+        for (int k = 0; k < 3; ++k) s.grgb[3 * size_t(j) + k] = W.fc.ws.rgb(k, c);
+      }
+      // 4. Loss and compositing backward per ray.
+      for (int i = 0; i < nr; ++i) {
+        const int r = r0 + i;
+        const int a = s.gseg[i], n_i = s.gseg[i + 1] - a;
+        s.t_final[i] = 1.0f;
+        const int used =
+            n_i > 0 ? CompositeWeights(&s.gsigma[a], &s.gdt[a], n_i, kMinTransmittance, &s.gw[a], &s.t_final[i]) : 0;
+        const float* rgb = &s.grgb[3 * size_t(a)];
+        float c[3];
+        const float* bgr = ray_bg ? &ray_bg[3 * size_t(r)] : bg.data();
+        CompositeColour(&s.gw[a], rgb, used, s.t_final[i], bgr, c);
+        const float* gt = &batch.target[3 * size_t(r)];
+        const float wr = batch.weight[r];
+        const bool robust = !batch.robust.empty() && batch.robust[r] != 0;
+        float dc[3], se = 0, data_loss = 0;
+        for (int k = 0; k < 3; ++k) {
+          const float e = c[k] - gt[k];
+          se += e * e;
+          if (robust) {  // Charbonnier (MEIL-NeRF's replay loss).
+            const float ch = std::sqrt(e * e + 1e-6f);
+            data_loss += ch;
+            dc[k] = wr * e / ch / 3.0f * inv_n;
+          } else {
+            data_loss += e * e;
+            dc[k] = wr * 2.0f * e / 3.0f * inv_n;
+          }
+        }
+        const float o = 1.0f - s.t_final[i] + 1e-10f;
+        s.sq_err += se / 3.0f;
+        s.loss += (wr * data_loss / 3.0f + lambda * (-o * std::log(o))) * inv_n;
+        const float d_opacity = lambda * -(std::log(o) + 1.0f) * inv_n;
+        if (used == 0) continue;
+        CompositeBackward(&s.gsigma[a], &s.gdt[a], rgb, &s.gw[a], used, s.t_final[i], bgr, dc, d_opacity,
+                          &s.gdrgb[3 * size_t(a)], &s.gdsigma[a]);
+        if (near_reg > 0) {  // Occlusion penalty: sum of sigma * dt close to the camera.
+          for (int j = a; j < a + used; ++j) {
+            if (s.gt[j] >= near_dist) break;  // Samples are in ray order.
+            s.loss += near_reg * inv_n * s.gsigma[j] * s.gdt[j];
+            s.gdsigma[j] += near_reg * inv_n * s.gdt[j];
+          }
+        }
+        if (dist_reg > 0) {
+          // Interval midpoints and widths in normalised ray distance.
+          const Eigen::Vector3f o3 = origin(i), d3 = dir(i);
+          const Eigen::Vector3f q0 = model.contracted() ? Contract(o3) : o3;
+          for (int j = a; j < a + used; ++j) {
+            const float tm = s.gt[j] + 0.5f * s.gdt[j];
+            if (model.contracted()) {
+              const Eigen::Vector3f x = o3 + tm * d3;
+              s.gmid[j] = (Contract(x) - q0).norm() * inv_box;
+              s.gwidth[j] = s.gdt[j] * ContractDirectional(x, d3).norm() * inv_box;
+            } else {
+              s.gmid[j] = tm * inv_box;
+              s.gwidth[j] = s.gdt[j] * inv_box;
+            }
+          }
+          s.loss += dist_reg * inv_n *
+                    DistortionLoss(&s.gdt[a], &s.gw[a], &s.gmid[a], &s.gwidth[a], used, dist_reg * inv_n,
+                                   &s.gdsigma[a]);
+        }
+      }
+      // 5. Scatter the gradients back to the waves; field backward per wave;
+      // stash grid-input gradients for phase 2.
+      for (int wv = 0; wv < nwaves; ++wv) {
+        TrainWave& W = s.waves[wv];
+        W.d_rgb.assign(3 * W.keep.size(), 0.0f);
+        W.d_sigma.assign(W.keep.size(), 0.0f);
+      }
+      for (int j = 0; j < m2; ++j) {
+        TrainWave& W = s.waves[s.gwave[j]];
+        const int c = s.gcol[j];
+        for (int k = 0; k < 3; ++k) W.d_rgb[3 * size_t(c) + k] = s.gdrgb[3 * size_t(j) + k];
+        W.d_sigma[c] = s.gdsigma[j];
+      }
+      for (int wv = 0; wv < nwaves; ++wv) {
+        TrainWave& W = s.waves[wv];
+        const int mk = int(W.keep.size());
+        field.Backward(mk, W.kseg.data(), W.kray.data(), int(W.kray.size()), W.d_rgb.data(), W.d_sigma.data(), &W.fc,
+                       s.grad_mlp.data(), s.grad_emb.data());
+        s.store_pos.insert(s.store_pos.end(), W.fc.pos.begin(), W.fc.pos.begin() + 3 * size_t(mk));
+        s.store_dfeat.insert(s.store_dfeat.end(), W.fc.d_feat.begin(), W.fc.d_feat.begin() + size_t(mk) * Dg);
+      }
+    }
+  }
+  // Phase 2: hash-grid backward, levels partitioned over threads.
+  const int L = grid.num_levels();
+#pragma omp parallel num_threads(threads_)
+  {
+    const int tid = omp_get_thread_num(), nt = omp_get_num_threads();
+    for (int l = tid; l < L; l += nt) {
+      for (const auto& sp : scratch_) {
+        const int n = int(sp->store_pos.size() / 3);
+        grid.BackwardLevel(l, sp->store_pos.data(), sp->store_dfeat.data(), n, grad_grid_.data(),
+                           track_touched ? touched_.data() : nullptr, &touched_lists_[l]);
+      }
+    }
+  }
+  // Reduce the small per-thread gradients in a fixed order (deterministic).
+  grad_mlp_.assign(model.params().mlp.size(), 0.0f);
+  grad_emb_.assign(model.params().emb.size(), 0.0f);
+  double loss = 0, sq = 0;
+  batch_samples_ = batch_composited_ = 0;
+  for (const auto& sp : scratch_) {
+    for (size_t i = 0; i < grad_mlp_.size(); ++i) grad_mlp_[i] += sp->grad_mlp[i];
+    for (size_t i = 0; i < grad_emb_.size(); ++i) grad_emb_[i] += sp->grad_emb[i];
+    loss += sp->loss;
+    sq += sp->sq_err;
+    batch_samples_ += sp->samples_marched;
+    batch_composited_ += sp->samples_used;
+  }
+  batch_mse_ = sq * inv_n;
+  return float(loss);
+}
+
+float Trainer::ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* g) {
+  std::fill(grad_grid_.begin(), grad_grid_.end(), 0.0f);
+  float loss = ForwardBackward(batch, jitter.data(), /*ray_bg=*/nullptr, /*track_touched=*/false);
+  if (options_.ewc != nullptr) loss += ApplyEwc(/*track_touched=*/false);
+  g->grid = grad_grid_;
+  g->mlp = grad_mlp_;
+  g->emb = grad_emb_;
+  std::fill(grad_grid_.begin(), grad_grid_.end(), 0.0f);
+  return loss;
+}
+
+void Trainer::ClearLevelGradients(int level) {
+  for (uint32_t e : touched_lists_[level]) {
+    grad_grid_[2 * size_t(e)] = 0.0f;
+    grad_grid_[2 * size_t(e) + 1] = 0.0f;
+    touched_[e] = 0;
+  }
+  touched_lists_[level].clear();
+}
+
+float Trainer::ApplyEwc(bool track_touched) {
+  const EwcPenalty& e = *options_.ewc;
+  const ModelParams& p = model_->params();
+  double loss = 0;
+  auto dense = [&](const std::vector<float>& theta, const std::vector<float>& f, const std::vector<float>& a,
+                   std::vector<float>* g) {
+    const size_t n = std::min({theta.size(), f.size(), a.size()});
+    for (size_t i = 0; i < n; ++i) {
+      const float d = theta[i] - a[i];
+      (*g)[i] += e.lambda * f[i] * d;
+      loss += 0.5 * double(e.lambda) * f[i] * d * d;
+    }
+  };
+  dense(p.mlp, e.fisher.mlp, e.anchor.mlp, &grad_mlp_);
+  dense(p.emb, e.fisher.emb, e.anchor.emb, &grad_emb_);
+  // Grid: every entry with Fisher information gets a gradient (dense, which
+  // is what makes EWC expensive on hash grids).
+  const HashGrid& grid = model_->grid();
+  const int L = grid.num_levels();
+  if (e.fisher.grid.size() != p.grid.size() || e.anchor.grid.size() != p.grid.size()) return float(loss);
+  double grid_loss = 0;
+#pragma omp parallel for schedule(dynamic) reduction(+ : grid_loss) num_threads(threads_)
+  for (int l = 0; l < L; ++l) {
+    const size_t begin = grid.level_offset(l), end = begin + grid.level_size(l);
+    for (size_t entry = begin; entry < end; ++entry) {
+      const float f0 = e.fisher.grid[2 * entry], f1 = e.fisher.grid[2 * entry + 1];
+      if (f0 == 0.0f && f1 == 0.0f) continue;
+      const float d0 = p.grid[2 * entry] - e.anchor.grid[2 * entry];
+      const float d1 = p.grid[2 * entry + 1] - e.anchor.grid[2 * entry + 1];
+      grad_grid_[2 * entry] += e.lambda * f0 * d0;
+      grad_grid_[2 * entry + 1] += e.lambda * f1 * d1;
+      grid_loss += 0.5 * double(e.lambda) * (f0 * d0 * d0 + f1 * d1 * d1);
+      if (track_touched && !touched_[entry]) {
+        touched_[entry] = 1;
+        touched_lists_[l].push_back(uint32_t(entry));
+      }
+    }
+  }
+  return float(loss + grid_loss);
+}
+
+absl::Status Trainer::Step() {
+  const auto start = std::chrono::steady_clock::now();
+  NgpModel& model = *model_;
+  const int mo_interval = model.options().occupancy.update_interval;
+  if (step_ % mo_interval == 0) model.UpdateOccupancy(step_, &rng_);
+
+  RayBatch batch;
+  sampler_->SetProgress(options_.iterations > 0 ? float(step_) / options_.iterations : 1.0f);
+  sampler_->Sample(batch_rays_, &rng_, &batch);
+  std::vector<float> jitter(batch.size());
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (float& j : jitter) j = u(rng_);
+  std::vector<float> ray_bg;
+  if (options_.random_background && model.kind() == SceneKind::kUnbounded) {
+    ray_bg.resize(3 * size_t(batch.size()));
+    for (float& c : ray_bg) c = u(rng_);
+  }
+
+  float loss = ForwardBackward(batch, jitter.data(), ray_bg.empty() ? nullptr : ray_bg.data(), /*track_touched=*/true);
+  if (options_.ewc != nullptr) loss += ApplyEwc(/*track_touched=*/true);
+  const int next = step_ + 1;
+  if (next == options_.inject_nan_gradient_at_step && !grad_mlp_.empty()) grad_mlp_[0] = NAN;
+
+  const int L = int(touched_lists_.size());
+  auto clear_grid_grads = [this, L]() {
+#pragma omp parallel for schedule(dynamic) num_threads(threads_)
+    for (int l = 0; l < L; ++l) ClearLevelGradients(l);
+  };
+  // Stability checks before anything is applied.
+  std::string bad;
+  if (!std::isfinite(loss)) bad = absl::StrFormat("loss is %f", loss);
+  else if (!AllFinite(grad_mlp_)) bad = "MLP gradient has NaN/Inf";
+  else if (!AllFinite(grad_emb_)) bad = "embedding gradient has NaN/Inf";
+  else {
+    int grid_bad = 0;
+#pragma omp parallel for schedule(dynamic) reduction(+ : grid_bad) num_threads(threads_)
+    for (int l = 0; l < L; ++l) {
+      for (uint32_t e : touched_lists_[l]) {
+        if (!std::isfinite(grad_grid_[2 * size_t(e)]) || !std::isfinite(grad_grid_[2 * size_t(e) + 1])) {
+          ++grid_bad;
+          break;
+        }
+      }
+    }
+    if (grid_bad > 0) bad = "hash-grid gradient has NaN/Inf";
+  }
+  if (!bad.empty()) {
+    clear_grid_grads();
+    // A transient bad batch (finite parameters) is skipped; a persistent one,
+    // or a non-finite parameter, is divergence.
+    if (consecutive_bad_ < options_.max_bad_batches && model.AllFinite()) {
+      ++consecutive_bad_;
+      ++skipped_batches_;
+      spdlog::warn("step {}: {}; batch skipped ({} in a row, at most {})", next, bad, consecutive_bad_,
+                   options_.max_bad_batches);
+      step_ = next;
+      last_ = StepStats{};
+      last_.step = step_;
+      last_.loss = loss;
+      last_.rays = batch.size();
+      return absl::OkStatus();
+    }
+    return absl::InternalError(absl::StrFormat("training diverged at step %d: %s", next, bad));
+  }
+  consecutive_bad_ = 0;
+
+  const float lr = CurrentLearningRate();
+  ModelParams& p = model.mutable_params();
+  // Keep a copy of the small blocks so a non-finite update can be undone.
+  const std::vector<float> mlp_before = p.mlp, emb_before = p.emb;
+  adam_.UpdateDense(1, lr, next, p.mlp.data(), grad_mlp_.data(), p.mlp.size());
+  adam_.UpdateDense(2, lr, next, p.emb.data(), grad_emb_.data(), p.emb.size());
+  bool finite = AllFinite(p.mlp) && AllFinite(p.emb);
+  if (finite) {
+    // Sparse grid update, one level per task (levels own disjoint entries);
+    // gradients are cleared in the same pass.
+    int grid_bad = 0;
+#pragma omp parallel for schedule(dynamic) reduction(+ : grid_bad) num_threads(threads_)
+    for (int l = 0; l < L; ++l) {
+      adam_.UpdateSparse(0, lr, next, p.grid.data(), grad_grid_.data(), touched_lists_[l], HashGrid::kFeatures);
+      for (uint32_t e : touched_lists_[l]) {
+        if (!std::isfinite(p.grid[2 * size_t(e)]) || !std::isfinite(p.grid[2 * size_t(e) + 1])) ++grid_bad;
+      }
+      ClearLevelGradients(l);
+    }
+    finite = grid_bad == 0;
+  } else {
+    clear_grid_grads();
+  }
+  if (!finite) {
+    p.mlp = mlp_before;
+    p.emb = emb_before;
+    return absl::InternalError(absl::StrFormat(
+        "training diverged at step %d: parameters became NaN/Inf after the update", next));
+  }
+  step_ = next;
+
+  // Adapt the batch so it marches about target_samples samples.
+  const double spr = batch.size() > 0 ? double(batch_samples_) / batch.size() : 0.0;
+  const double upr = batch.size() > 0 ? double(batch_composited_) / batch.size() : 0.0;
+  mean_used_per_ray_ = mean_used_per_ray_ == 0 ? upr : 0.9 * mean_used_per_ray_ + 0.1 * upr;
+  mean_samples_per_ray_ = mean_samples_per_ray_ == 0 ? spr : 0.9 * mean_samples_per_ray_ + 0.1 * spr;
+  if (options_.target_samples > 0 && mean_samples_per_ray_ > 0) {
+    const int want = int(options_.target_samples / mean_samples_per_ray_);
+    batch_rays_ = std::clamp((want + 127) / 128 * 128, 256, options_.max_batch_rays);
+  }
+  const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  last_.step = step_;
+  last_.loss = loss;
+  last_.mse = float(batch_mse_);
+  last_.psnr = batch_mse_ > 0 ? float(-10.0 * std::log10(batch_mse_)) : 99.0f;
+  last_.rays = batch.size();
+  last_.samples = batch_samples_;
+  last_.samples_composited = batch_composited_;
+  last_.seconds = secs;
+  total_seconds_ += secs;
+  total_samples_ += batch_samples_;
+  total_rays_ += batch.size();
+  total_composited_ += batch_composited_;
+  return absl::OkStatus();
+}
+
+absl::Status Trainer::Run(const std::function<void(const StepStats&)>& on_step, const std::atomic<bool>* cancel) {
+  while (step_ < options_.iterations) {
+    if (cancel != nullptr && cancel->load()) {
+      return absl::CancelledError(absl::StrFormat("training cancelled at step %d", step_));
+    }
+    if (absl::Status s = Step(); !s.ok()) return s;
+    if (on_step) on_step(last_);
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace clnerf

@@ -1,0 +1,178 @@
+// Trainer: optimises a NgpModel on rays from a RaySampler with Adam, the
+// cosine learning-rate schedule, MSE + opacity-entropy loss (plus, on real
+// captures, the distortion loss and an occlusion penalty near the cameras),
+// and periodic occupancy-grid refreshes.
+//
+// One training step: sample rays -> march through the occupancy grid (first
+// sample jittered) -> hash-encode + density MLP on every marched sample ->
+// composite sigma front to back and drop samples behind early termination ->
+// colour MLP on the rest -> loss -> backward through compositing, both MLPs
+// and (in a second phase, one thread per subset of levels, so no atomics) the
+// hash grid -> Adam (lazy on the grid).
+//
+// Stability: the loss, every gradient and every updated parameter are checked
+// for NaN/Inf; a bad step is not applied and Step() returns INTERNAL naming
+// the step that diverged, leaving the model at its last finite state.
+//
+// A Trainer mutates its model and is not thread-safe; it uses OpenMP threads
+// internally.
+#ifndef CLNERF_CORE_TRAIN_TRAINER_H_
+#define CLNERF_CORE_TRAIN_TRAINER_H_
+
+#include <atomic>
+#include <functional>
+#include <memory>
+#include <random>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "core/train/adam.h"
+#include "core/field/ngp_model.h"
+#include "core/train/ray_sampler.h"
+
+namespace clnerf {
+
+// Elastic weight consolidation: adds lambda/2 * sum F_i (theta_i - anchor_i)^2
+// to the loss. `fisher` and `anchor` have the layout of ModelParams; embedding
+// rows beyond the anchor's (new time steps) are not penalised.
+struct EwcPenalty {
+  float lambda = 1e5f;
+  ModelParams fisher;
+  ModelParams anchor;
+};
+
+struct TrainOptions {
+  int iterations = 2000;          // Training steps.
+  int batch_rays = 4096;          // Rays in the first batch.
+  int target_samples = 1 << 17;   // Adapt rays so a batch marches ~this many samples (0 = fixed).
+  int max_batch_rays = 1 << 15;   // Upper bound for the adaptive batch.
+  float learning_rate = 1e-2f;    // Initial learning rate (all blocks).
+  float lr_final_ratio = 1.0f / 30.0f;  // Cosine decay to lr * ratio.
+  float opacity_reg = 1e-3f;      // Weight of mean(-o log o).
+  // Weight of the distortion loss (mip-NeRF 360) on each ray's weights, in
+  // ray distance normalised by the box size (contracted distance for
+  // unbounded scenes). < 0 = auto: kAutoDistortion for unbounded scenes, 0 for
+  // bounded ones.
+  float distortion_reg = -1.0f;
+  static constexpr float kAutoDistortion = 1e-2f;
+  // Occlusion penalty near the cameras (FreeNeRF): adds weight * sigma * dt
+  // for every composited sample closer than `near_density_distance` (model
+  // units) to its ray's origin. A region just in front of one camera is seen
+  // by almost no other camera, so on real captures with large textureless
+  // surfaces the field can explain each view with a "billboard" there; this
+  // makes that solution cost more than the true surface. < 0 = auto:
+  // kAutoNearDensity for unbounded scenes, 0 for bounded ones.
+  float near_density_reg = -1.0f;
+  float near_density_distance = 0.2f;
+  // > 0: the weight fades linearly to 0 over this fraction of `iterations`
+  // (the penalty steers early training away from billboards; once the
+  // surfaces exist it is no longer needed). 0: constant.
+  float near_density_fade = 0.0f;
+  static constexpr float kAutoNearDensity = 1e-2f;
+  // Unbounded (real) scenes: composite each training ray onto a random
+  // background colour (instant-ngp's trick), so the field cannot explain
+  // dark pixels with transparency and must become opaque; this is what lets
+  // rays terminate early. Rendering still uses the model's background.
+  bool random_background = false;
+  AdamOptions adam;
+  uint64_t seed = 0;
+  int threads = 0;                // OpenMP threads; 0 = all cores.
+  const EwcPenalty* ewc = nullptr;  // Optional EWC regulariser (not owned).
+  // Stability: a batch whose loss or gradient is NaN/Inf is skipped (nothing
+  // is applied, the iteration is spent, a warning is logged) as long as the
+  // parameters themselves are finite; the step fails with INTERNAL
+  // ("training diverged") once more than this many batches in a row were
+  // bad, or at once when a parameter is non-finite. 0: fail on the first.
+  int max_bad_batches = 3;
+  // Fault injection (tests and `clnerf bench stability`): poisons one
+  // gradient entry of this 1-based step with NaN. 0 = off.
+  int inject_nan_gradient_at_step = 0;
+  absl::Status Validate() const;
+};
+
+struct StepStats {
+  int step = 0;           // 1-based index of the step just taken.
+  float loss = 0;         // Total loss of the batch.
+  float mse = 0;          // Colour MSE of the batch.
+  float psnr = 0;         // -10 log10(mse).
+  int rays = 0;
+  long long samples = 0;  // Network-evaluated samples (marched).
+  long long samples_composited = 0;  // After early termination.
+  double seconds = 0;     // Wall time of the step.
+};
+
+class Trainer {
+ public:
+  // The model and sampler must outlive the trainer.
+  Trainer(NgpModel* model, RaySampler* sampler, const TrainOptions& options);
+  ~Trainer();
+
+  // One iteration. A bad batch (NaN/Inf loss or gradient) is skipped up to
+  // options.max_bad_batches times in a row; beyond that, or when the
+  // parameters are non-finite, INTERNAL ("training diverged at step N: ...")
+  // and the model keeps its last finite parameters.
+  absl::Status Step();
+  // Runs until `options.iterations` steps were taken, `cancel` becomes true
+  // (CANCELLED) or a step fails. `on_step` is called after every step.
+  absl::Status Run(const std::function<void(const StepStats&)>& on_step,
+                   const std::atomic<bool>* cancel = nullptr);
+
+  const StepStats& last() const { return last_; }
+  int step() const { return step_; }
+  float CurrentLearningRate() const;
+  double total_seconds() const { return total_seconds_; }
+  long long total_samples() const { return total_samples_; }
+  long long total_rays() const { return total_rays_; }
+  // Batches skipped because their loss or gradient was NaN/Inf.
+  int skipped_batches() const { return skipped_batches_; }
+  // Samples that reached the colour MLP and the backward pass.
+  long long total_composited() const { return total_composited_; }
+
+  // Loss and gradients of one fixed batch without updating anything (used by
+  // gradient checks). Gradients are returned in the same layout as params.
+  struct Gradients {
+    std::vector<float> grid, mlp, emb;
+  };
+  float ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* grads);
+
+ private:
+  struct ThreadScratch;
+  // ray_bg: 3 per ray, or nullptr for the model's background.
+  float ForwardBackward(const RayBatch& batch, const float* jitter, const float* ray_bg, bool compute_grid_touch);
+  // Adds the EWC penalty's gradient (marking grid entries touched) and
+  // returns its loss.
+  float ApplyEwc(bool track_touched);
+  // Zeroes the gradients and touched flags of one level's touched entries.
+  void ClearLevelGradients(int level);
+
+  NgpModel* model_;
+  RaySampler* sampler_;
+  TrainOptions options_;
+  Adam adam_;
+  std::mt19937_64 rng_;
+  int step_ = 0;
+  int consecutive_bad_ = 0, skipped_batches_ = 0;
+  int batch_rays_;
+  double mean_samples_per_ray_ = 0;
+  double mean_used_per_ray_ = 0;  // Composited samples per ray (sizes the first march wave).
+  StepStats last_;
+  double total_seconds_ = 0;
+  long long total_samples_ = 0;
+  long long total_rays_ = 0;
+  long long total_composited_ = 0;
+  int threads_ = 1;
+
+  // Gradient buffers.
+  std::vector<float> grad_grid_;
+  std::vector<uint8_t> touched_;
+  std::vector<std::vector<uint32_t>> touched_lists_;  // Per level.
+  std::vector<float> grad_mlp_, grad_emb_;
+  std::vector<std::unique_ptr<ThreadScratch>> scratch_;
+  // Batch statistics from the last ForwardBackward.
+  double batch_mse_ = 0;
+  long long batch_samples_ = 0, batch_composited_ = 0;
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_TRAIN_TRAINER_H_

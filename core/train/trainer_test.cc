@@ -1,0 +1,608 @@
+// Whole-pipeline tests of the trainer: the loss gradient of one batch
+// (march -> encode -> MLPs -> compositing with early termination -> MSE +
+// opacity entropy) against central differences of the loss, NaN handling in
+// Step(), and run-to-run determinism.
+#include "core/train/trainer.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <memory>
+#include <random>
+#include <vector>
+
+#include "Eigen/Core"
+#include "Eigen/Dense"
+#include "core/data/contraction.h"
+#include "core/field/ray_marcher.h"
+#include "core/render/renderer.h"
+#include "core/train/ray_sampler.h"
+#include "core/render/volume_rendering.h"
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+ModelOptions TinyOptions() {
+  ModelOptions o;
+  o.grid.levels = 4;
+  o.grid.log2_table_size = 10;
+  o.grid.base_resolution = 4;
+  o.grid.finest_resolution = 32;
+  o.network.density_hidden = 16;
+  o.network.density_hidden_layers = 1;
+  o.network.density_out = 16;
+  o.network.colour_hidden = 16;
+  o.network.colour_hidden_layers = 2;
+  o.network.appearance_dim = 8;
+  o.network.geometry_dim = 4;
+  o.occupancy.resolution = 16;
+  o.march.steps_per_diagonal = 64;  // <= 64 samples per ray.
+  o.march.near = 0.05f;
+  return o;
+}
+
+NgpModel TinyModel(uint64_t seed, int time_steps = 2, SceneKind kind = SceneKind::kBounded) {
+  Normalization norm;
+  ModelOptions o = TinyOptions();
+  if (kind == SceneKind::kUnbounded) {
+    norm.bound = kContractedBound;
+    // The contracted cube is 4 units wide: keep rays at <= ~50 samples.
+    o.march.steps_per_diagonal = 32;
+  }
+  auto m = NgpModel::Create(o, norm, kind, Eigen::Vector3f(0.3f, 0.6f, 0.9f), time_steps, seed);
+  EXPECT_TRUE(m.ok()) << m.status();
+  return *std::move(m);
+}
+
+// A sampler that never samples and has no cameras, so the trainer leaves the
+// occupancy grid fully occupied (ComputeLossAndGradients takes its batch
+// directly).
+class NoSampler : public RaySampler {
+ public:
+  void Sample(int, std::mt19937_64*, RayBatch*) override { ADD_FAILURE() << "not used"; }
+  std::vector<Camera> Cameras() const override { return {}; }
+};
+
+// Rays from a sphere of radius 1.3 aimed near the centre, random targets,
+// time steps and loss weights.
+RayBatch MakeBatch(int n, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<float> g(0.0f, 1.0f);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  RayBatch b;
+  b.Resize(n);
+  for (int i = 0; i < n; ++i) {
+    const Eigen::Vector3f o = 1.3f * Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized();
+    const Eigen::Vector3f aim = 0.15f * Eigen::Vector3f(g(rng), g(rng), g(rng));
+    const Eigen::Vector3f d = (aim - o).normalized();
+    for (int k = 0; k < 3; ++k) {
+      b.origin[3 * i + k] = o[k];
+      b.dir[3 * i + k] = d[k];
+      b.target[3 * i + k] = u(rng);
+    }
+    b.time_step[i] = i % 2;
+    b.weight[i] = 0.5f + u(rng);
+  }
+  return b;
+}
+
+// The composited colour of ray i exactly as the trainer computes it, read
+// back through the loss of single-ray batches (weight 1): L(t) = |c - t|^2 / 3
+// + entropy, so L(0) - L(e_k) = (2 c_k - 1) / 3.
+Eigen::Vector3f TrainerColour(Trainer* trainer, const RayBatch& batch, const std::vector<float>& jitter, int i) {
+  RayBatch one;
+  one.Resize(1);
+  std::copy_n(&batch.origin[3 * i], 3, one.origin.begin());
+  std::copy_n(&batch.dir[3 * i], 3, one.dir.begin());
+  one.time_step[0] = batch.time_step[i];
+  one.weight[0] = 1.0f;
+  const std::vector<float> j = {jitter[i]};
+  Trainer::Gradients g;
+  std::fill(one.target.begin(), one.target.end(), 0.0f);
+  const double l0 = trainer->ComputeLossAndGradients(one, j, &g);
+  Eigen::Vector3f c;
+  for (int k = 0; k < 3; ++k) {
+    std::fill(one.target.begin(), one.target.end(), 0.0f);
+    one.target[k] = 1.0f;
+    const double lk = trainer->ComputeLossAndGradients(one, j, &g);
+    c[k] = float((3 * (l0 - lk) + 1) / 2);
+  }
+  return c;
+}
+
+// Single-threaded trainer for the gradient checks. With TrainOptions::threads
+// = 1 the trainer's OpenMP regions have one thread, and Eigen (built with
+// -fopenmp) then parallelises the larger GEMMs itself with all cores; keep
+// Eigen serial while these tests run so they are not slowed down by spinning
+// threads on a loaded machine. Results do not depend on it.
+class SerialEigen {
+ public:
+  SerialEigen() : saved_(Eigen::nbThreads()) { Eigen::setNbThreads(1); }
+  ~SerialEigen() { Eigen::setNbThreads(saved_); }
+
+ private:
+  int saved_;
+};
+
+// Per ray, the transmittance after each marched sample, recomputed
+// independently of the trainer: same marching (public IntersectBox /
+// StepAt / MarchRay with the same jitter) and NgpModel::Density at the
+// samples (one call per time step).
+std::vector<std::vector<double>> Transmittances(const NgpModel& model, const RayBatch& batch,
+                                                const std::vector<float>& jitter) {
+  const MarchOptions& mo = model.options().march;
+  std::vector<std::vector<RaySample>> samples(batch.size());
+  for (int r = 0; r < batch.size(); ++r) {
+    const Eigen::Vector3f o(&batch.origin[3 * r]), d(&batch.dir[3 * r]);
+    float t0, t1;
+    if (!model.RayInterval(o, d, &t0, &t1)) continue;
+    const float t = t0 + jitter[r] * model.StepAt(o, d, t0);
+    model.March(o, d, t, t1, mo.max_samples, &samples[r]);
+  }
+  std::vector<std::vector<double>> out(batch.size());
+  for (int step = 0; step < model.num_time_steps(); ++step) {
+    std::vector<float> pts;
+    for (int r = 0; r < batch.size(); ++r) {
+      if (batch.time_step[r] != step) continue;
+      const Eigen::Vector3f o(&batch.origin[3 * r]), d(&batch.dir[3 * r]);
+      for (const RaySample& s : samples[r]) {
+        const Eigen::Vector3f x = o + s.t * d;
+        const Eigen::Vector3f p = model.contracted() ? Contract(x) : x;  // Density takes field space.
+        pts.insert(pts.end(), p.data(), p.data() + 3);
+      }
+    }
+    std::vector<float> sigma(pts.size() / 3);
+    model.Density(pts.data(), int(sigma.size()), step, sigma.data());
+    size_t k = 0;
+    for (int r = 0; r < batch.size(); ++r) {
+      if (batch.time_step[r] != step) continue;
+      double tau = 0;
+      for (const RaySample& s : samples[r]) {
+        tau += double(sigma[k++]) * s.dt;
+        out[r].push_back(std::exp(-tau));
+      }
+    }
+  }
+  return out;
+}
+
+struct Block {
+  const char* name;
+  std::vector<float> ModelParams::*params;
+  std::vector<float> Trainer::Gradients::*grads;
+  float h;  // FD step.
+};
+
+// Loss gradient of one batch vs central differences of the loss returned by
+// ComputeLossAndGradients. `opaque` makes the density large, so that most
+// rays terminate early (exercising the trainer's compaction of the kept
+// samples); otherwise no ray gets near the termination threshold.
+// `contracted` uses an unbounded scene: contracted space, contracted
+// marching, and the distortion loss (on by default there).
+// `near_reg` is the occlusion penalty's weight (0: off; `near_distance`
+// its reach); the test then also checks that the term changes the loss.
+void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.0f, float near_distance = 0.2f) {
+  SerialEigen serial;
+  NgpModel model = TinyModel(3, 2, contracted ? SceneKind::kUnbounded : SceneKind::kBounded);
+  ModelParams& p = model.mutable_params();
+  // Grid values of O(0.1) instead of 1e-4, so that the grid features (and
+  // the MLP weights that read them) matter.
+  std::mt19937_64 rng(4);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (float& v : p.grid) v = u(rng) - 0.5f;
+  if (opaque) {
+    // h0 = W[0, :] relu(...) with a positive first row: sigma = exp(h0) of
+    // several tens.
+    const Network::Layer& last = model.network().density_layers().back();
+    for (int c = 0; c < last.cols; ++c) {
+      float& w = p.mlp[last.offset + size_t(c) * last.rows];
+      w = std::abs(w) + 0.6f;
+    }
+  }
+  NoSampler sampler;
+  TrainOptions to;
+  to.threads = 1;
+  to.opacity_reg = 0.01f;  // Entropy gradient comparable to the MSE one.
+  to.near_density_reg = near_reg;
+  to.near_density_distance = near_distance;
+  Trainer trainer(&model, &sampler, to);
+  ASSERT_EQ(model.occupancy().num_occupied(), model.occupancy().num_cells());
+
+  // 16 rays out of 48 candidates: those whose transmittance never comes
+  // within a factor e^0.05 of the termination threshold, so that no FD step
+  // (which changes log T by ~1e-2) changes the samples kept.
+  RayBatch batch;
+  std::vector<float> jitter;
+  int terminated = 0;
+  {
+    const RayBatch all = MakeBatch(48, 5);
+    std::vector<float> all_jitter(all.size());
+    for (float& j : all_jitter) j = u(rng);
+    const std::vector<std::vector<double>> T = Transmittances(model, all, all_jitter);
+    batch.Resize(16);
+    int n = 0;
+    for (int r = 0; r < all.size() && n < 16; ++r) {
+      if (T[r].empty()) continue;
+      bool safe = true;
+      for (double t : T[r]) safe &= std::abs(std::log(t / kMinTransmittance)) > 0.05;
+      if (!safe) continue;
+      terminated += T[r].back() <= kMinTransmittance;
+      std::copy_n(&all.origin[3 * r], 3, &batch.origin[3 * n]);
+      std::copy_n(&all.dir[3 * r], 3, &batch.dir[3 * n]);
+      batch.time_step[n] = all.time_step[r];
+      batch.weight[n] = all.weight[r];
+      jitter.push_back(all_jitter[r]);
+      ++n;
+    }
+    ASSERT_EQ(n, 16);
+  }
+  if (opaque) {
+    EXPECT_GE(terminated, 12);
+  } else if (!contracted) {  // Contracted rays cross the whole far shell; some terminate.
+    EXPECT_EQ(terminated, 0);
+  }
+
+  // Targets a small residual (0.02..0.05 per channel) away from the
+  // prediction: the loss, and so the rounding of the float it is returned
+  // as, is then small compared with its gradient.
+  for (int i = 0; i < batch.size(); ++i) {
+    const Eigen::Vector3f c = TrainerColour(&trainer, batch, jitter, i);
+    for (int k = 0; k < 3; ++k) {
+      ASSERT_GT(c[k], 0.0f);
+      ASSERT_LT(c[k], 1.0f);
+      const float r = (0.02f + 0.03f * u(rng)) * (rng() % 2 ? 1.0f : -1.0f);
+      batch.target[3 * i + k] = c[k] + r;
+    }
+  }
+
+  Trainer::Gradients grads;
+  const float base = trainer.ComputeLossAndGradients(batch, jitter, &grads);
+  ASSERT_TRUE(std::isfinite(base));
+  ASSERT_GT(base, 0.0f);
+  ASSERT_LT(base, 0.01f);
+  if (near_reg > 0) {  // The penalty contributes a sizeable part of the loss.
+    TrainOptions off = to;
+    off.near_density_reg = 0.0f;
+    NoSampler sampler2;
+    Trainer without(&model, &sampler2, off);
+    Trainer::Gradients g0;
+    const float l0 = without.ComputeLossAndGradients(batch, jitter, &g0);
+    EXPECT_GT(base - l0, 0.1f * base) << "penalty " << base - l0 << " of " << base;
+  }
+  const double ulp = double(std::nextafter(base, 1.0f)) - base;
+  ASSERT_EQ(grads.grid.size(), p.grid.size());
+  ASSERT_EQ(grads.mlp.size(), p.mlp.size());
+  ASSERT_EQ(grads.emb.size(), p.emb.size());
+  // The gradient call leaves no state behind: a second call gives the same.
+  {
+    Trainer::Gradients again;
+    EXPECT_EQ(trainer.ComputeLossAndGradients(batch, jitter, &again), base);
+    EXPECT_EQ(again.grid, grads.grid);
+    EXPECT_EQ(again.mlp, grads.mlp);
+    EXPECT_EQ(again.emb, grads.emb);
+  }
+
+  // Steps: most grid entries feed only a few samples (and the loss is linear
+  // in them up to the MLP), so a larger h = 2e-3 keeps the float noise down;
+  // MLP weights and embeddings feed every sample (~600 samples x 32 ReLUs)
+  // and need h = 1e-3 to keep the number of kinks inside [x - h, x + h] low.
+  const Block blocks[3] = {{"grid", &ModelParams::grid, &Trainer::Gradients::grid, 2e-3f},
+                           {"mlp", &ModelParams::mlp, &Trainer::Gradients::mlp, 1e-3f},
+                           {"emb", &ModelParams::emb, &Trainer::Gradients::emb, 1e-3f}};
+  for (const Block& b : blocks) {
+    SCOPED_TRACE(b.name);
+    std::vector<float>& x = p.*(b.params);
+    const std::vector<float>& g = grads.*(b.grads);
+    double gmax = 0;
+    for (float v : g) gmax = std::max(gmax, double(std::abs(v)));
+    ASSERT_GT(gmax, 0.0);
+    // Indices: 40 with a gradient of at least 5% of the block's largest (the
+    // grid gradient is sparse) and 20 uniformly at random.
+    std::vector<size_t> large, picks;
+    for (size_t i = 0; i < g.size(); ++i) {
+      if (std::abs(g[i]) >= 0.05 * gmax) large.push_back(i);
+    }
+    ASSERT_GT(large.size(), 10u);
+    for (int k = 0; k < 40; ++k) picks.push_back(large[rng() % large.size()]);
+    for (int k = 0; k < 20; ++k) picks.push_back(rng() % g.size());
+    int skipped = 0;
+    for (size_t i : picks) {
+      const float x0 = x[i];
+      Trainer::Gradients tmp;
+      x[i] = x0 + b.h;
+      const float hi = x[i];
+      const double lp = trainer.ComputeLossAndGradients(batch, jitter, &tmp);
+      x[i] = x0 - b.h;
+      const float lo = x[i];
+      const double lm = trainer.ComputeLossAndGradients(batch, jitter, &tmp);
+      x[i] = x0;
+      const double up = (lp - base) / (double(hi) - x0), down = (base - lm) / (double(x0) - lo);
+      const double fd = (lp - lm) / (double(hi) - double(lo));
+      // Noise: the loss is returned as a float (+-1/2 ulp per value) and the
+      // per-ray colours and errors are float (~1 ulp of the total over 16
+      // rays): ~4 ulp / (2h). On top of it 3% relative (second-order terms
+      // and ReLU kinks of a few of the ~600 samples inside [x - h, x + h];
+      // FD with h/2, h/4 converges to the analytic value) and 1e-3 of the
+      // block's largest gradient. Over several seeds, errors stay below ~80%
+      // of this tolerance.
+      // Contracted rays composite ~3x more samples (the far shell), and the
+      // float forward's rounding noise grows with them: measured FD quanta
+      // of ~6 ulp of the loss (halving h doubles the scatter, so it is noise,
+      // not a gradient error), hence 16 ulp there.
+      const double noise_ulp = contracted ? 16 : 4;
+      const double tol = noise_ulp * ulp / (double(hi) - double(lo)) + 3e-2 * std::abs(fd) + 1e-3 * gmax;
+      if (std::abs(up - down) > 2 * tol) {
+        ++skipped;  // A ReLU kink inside [x - h, x + h].
+        continue;
+      }
+      EXPECT_NEAR(g[i], fd, tol) << b.name << "[" << i << "] one-sided " << up << " " << down;
+    }
+    EXPECT_LE(skipped, 6);
+  }
+}
+
+TEST(TrainerGradientTest, LossGradientMatchesFiniteDifferences) { CheckLossGradient(/*opaque=*/false); }
+
+TEST(TrainerGradientTest, LossGradientMatchesFiniteDifferencesWithEarlyTermination) {
+  CheckLossGradient(/*opaque=*/true);
+}
+
+TEST(TrainerGradientTest, ContractedSceneWithDistortionLossMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/false, /*contracted=*/true);
+}
+
+TEST(TrainerGradientTest, ContractedSceneWithEarlyTerminationMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/true, /*contracted=*/true);
+}
+
+// The occlusion penalty near the cameras (sigma * dt of samples within the
+// given distance of the ray origin), on a bounded and a contracted scene.
+TEST(TrainerGradientTest, NearDensityPenaltyMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/false, /*contracted=*/false, /*near_reg=*/0.002f, /*near_distance=*/2.0f);
+}
+
+TEST(TrainerGradientTest, ContractedSceneWithNearDensityPenaltyMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/false, /*contracted=*/true, /*near_reg=*/0.002f, /*near_distance=*/2.0f);
+}
+
+// The field evaluator's two callers compute one function: the trainer's
+// composited colour of a ray (read back through its loss) equals the
+// renderer's, for bounded and contracted scenes.
+TEST(FieldCallersTest, TrainerAndRendererAgreeOnEveryRay) {
+  SerialEigen serial;
+  for (SceneKind kind : {SceneKind::kBounded, SceneKind::kUnbounded}) {
+    SCOPED_TRACE(kind == SceneKind::kBounded ? "bounded" : "contracted");
+    NgpModel model = TinyModel(5, 2, kind);
+    std::mt19937_64 rng(6);
+    std::uniform_real_distribution<float> u(0.0f, 1.0f);
+    for (float& v : model.mutable_params().grid) v = u(rng) - 0.5f;
+    NoSampler sampler;
+    TrainOptions to;
+    to.threads = 1;
+    Trainer trainer(&model, &sampler, to);
+    const RayBatch batch = MakeBatch(12, 7);
+    const std::vector<float> jitter(batch.size(), 0.0f);  // The renderer starts at t0.
+    RenderOptions ro;
+    ro.min_weight = 0.0f;  // Colour every sample, as training does.
+    ro.threads = 1;
+    for (int i = 0; i < batch.size(); ++i) {
+      float rgb[3];
+      RenderRays(model, &batch.origin[3 * i], &batch.dir[3 * i], 1, batch.time_step[i], ro, rgb, nullptr, nullptr);
+      const Eigen::Vector3f c = TrainerColour(&trainer, batch, jitter, i);
+      for (int k = 0; k < 3; ++k) EXPECT_NEAR(c[k], rgb[k], 2e-4f) << "ray " << i << " channel " << k;
+    }
+  }
+}
+
+// A 16x16 view of the box from z = -1.3 (OpenCV: looking along +z); half
+// field of view atan(8 / 16) = 26.6 degrees covers the whole box.
+View MakeView(bool gradient_image) {
+  View v;
+  v.name = "front";
+  v.camera.intrinsics.width = v.camera.intrinsics.height = 16;
+  v.camera.intrinsics.fx = v.camera.intrinsics.fy = 16.0f;
+  v.camera.intrinsics.cx = v.camera.intrinsics.cy = 8.0f;
+  v.camera.c2w = Pose::Identity();
+  v.camera.c2w.col(3) = Eigen::Vector3f(0.0f, 0.0f, -1.3f);
+  v.image = Image(16, 16, 0.5f);
+  if (gradient_image) {
+    for (int y = 0; y < 16; ++y) {
+      for (int x = 0; x < 16; ++x) {
+        float* px = v.image.pixel(x, y);
+        px[0] = x / 15.0f;
+        px[1] = y / 15.0f;
+        px[2] = 0.3f;
+      }
+    }
+  }
+  return v;
+}
+
+TrainOptions StepOptions(int threads) {
+  TrainOptions to;
+  to.iterations = 5;
+  to.batch_rays = 512;  // 4 blocks of 128 rays: both threads march rays.
+  to.max_batch_rays = 512;
+  to.target_samples = 0;  // Fixed batch size.
+  to.seed = 11;
+  to.threads = threads;
+  return to;
+}
+
+bool SameBits(const std::vector<float>& a, const std::vector<float>& b) {
+  return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0;
+}
+
+TEST(TrainerStepTest, NanWeightStopsAtStepOneWithoutTouchingParameters) {
+  SerialEigen serial;
+  NgpModel model = TinyModel(5, /*time_steps=*/1);
+  const View view = MakeView(/*gradient_image=*/false);
+  auto sampler = ImageRaySampler::Create({&view}, model);
+  ASSERT_TRUE(sampler.ok()) << sampler.status();
+  Trainer trainer(&model, sampler->get(), StepOptions(1));
+  // One weight of the colour MLP's hidden layer becomes NaN.
+  const Network::Layer& layer = model.network().colour_layers()[1];
+  model.mutable_params().mlp[layer.offset + 5] = NAN;
+  const ModelParams before = model.params();
+
+  const absl::Status s = trainer.Step();
+  ASSERT_FALSE(s.ok());
+  EXPECT_EQ(s.code(), absl::StatusCode::kInternal);
+  EXPECT_NE(s.message().find("diverged at step 1"), std::string::npos) << s.message();
+  EXPECT_EQ(trainer.step(), 0);
+  // Nothing was applied: bit-identical parameters (the NaN stays where it
+  // was, no other value became NaN).
+  EXPECT_TRUE(SameBits(model.params().grid, before.grid));
+  EXPECT_TRUE(SameBits(model.params().mlp, before.mlp));
+  EXPECT_TRUE(SameBits(model.params().emb, before.emb));
+  int nans = 0;
+  for (float v : model.params().mlp) nans += std::isnan(v);
+  EXPECT_EQ(nans, 1);
+  for (float v : model.params().grid) ASSERT_TRUE(std::isfinite(v));
+  // Retrying fails again at the same step.
+  const absl::Status again = trainer.Step();
+  EXPECT_EQ(again.code(), absl::StatusCode::kInternal);
+  EXPECT_NE(again.message().find("diverged at step 1"), std::string::npos) << again.message();
+  EXPECT_TRUE(SameBits(model.params().mlp, before.mlp));
+
+  // Control: with the weight restored the same step succeeds and changes
+  // the parameters.
+  model.mutable_params().mlp[layer.offset + 5] = 0.1f;
+  const std::vector<float> mlp_before = model.params().mlp;
+  ASSERT_TRUE(trainer.Step().ok());
+  EXPECT_EQ(trainer.step(), 1);
+  EXPECT_FALSE(SameBits(model.params().mlp, mlp_before));
+  EXPECT_TRUE(model.AllFinite());
+}
+
+// A NaN injected into one gradient mid-run (finite parameters) is a bad
+// batch: it is skipped, nothing of it is applied, and training goes on. With
+// no tolerance (max_bad_batches = 0) the same step fails and leaves the
+// parameters of the step before bit-identical; a NaN in every batch fails
+// once the tolerance is spent.
+TEST(TrainerStepTest, TransientNanGradientIsSkippedPersistentOneFails) {
+  SerialEigen serial;
+  const View view = MakeView(/*gradient_image=*/true);
+  {
+    NgpModel model = TinyModel(5, /*time_steps=*/1);
+    auto sampler = ImageRaySampler::Create({&view}, model);
+    ASSERT_TRUE(sampler.ok()) << sampler.status();
+    TrainOptions to = StepOptions(1);
+    to.inject_nan_gradient_at_step = 3;
+    Trainer trainer(&model, sampler->get(), to);
+    ASSERT_TRUE(trainer.Step().ok());
+    ASSERT_TRUE(trainer.Step().ok());
+    const ModelParams before = model.params();
+    ASSERT_TRUE(trainer.Step().ok());  // The poisoned batch: skipped.
+    EXPECT_EQ(trainer.step(), 3);
+    EXPECT_EQ(trainer.skipped_batches(), 1);
+    EXPECT_TRUE(SameBits(model.params().grid, before.grid));
+    EXPECT_TRUE(SameBits(model.params().mlp, before.mlp));
+    EXPECT_TRUE(SameBits(model.params().emb, before.emb));
+    ASSERT_TRUE(trainer.Step().ok());  // The next batch trains again.
+    EXPECT_FALSE(SameBits(model.params().mlp, before.mlp));
+    EXPECT_TRUE(model.AllFinite());
+  }
+  {
+    NgpModel model = TinyModel(5, /*time_steps=*/1);
+    auto sampler = ImageRaySampler::Create({&view}, model);
+    ASSERT_TRUE(sampler.ok()) << sampler.status();
+    TrainOptions to = StepOptions(1);
+    to.inject_nan_gradient_at_step = 2;
+    to.max_bad_batches = 0;
+    Trainer trainer(&model, sampler->get(), to);
+    ASSERT_TRUE(trainer.Step().ok());
+    const ModelParams before = model.params();
+    const absl::Status s = trainer.Step();
+    EXPECT_EQ(s.code(), absl::StatusCode::kInternal);
+    EXPECT_NE(s.message().find("diverged at step 2"), std::string::npos) << s.message();
+    EXPECT_TRUE(SameBits(model.params().grid, before.grid));
+    EXPECT_TRUE(SameBits(model.params().mlp, before.mlp));
+  }
+  {
+    // Every batch bad (an infinite loss from a huge learning rate's
+    // overflow is not needed: a NaN pixel target does it).
+    View nan_view = view;
+    for (float& x : nan_view.image.rgb) x = NAN;
+    NgpModel model = TinyModel(5, /*time_steps=*/1);
+    auto sampler = ImageRaySampler::Create({&nan_view}, model);
+    ASSERT_TRUE(sampler.ok()) << sampler.status();
+    TrainOptions to = StepOptions(1);
+    to.max_bad_batches = 2;
+    Trainer trainer(&model, sampler->get(), to);
+    const ModelParams before = model.params();
+    EXPECT_TRUE(trainer.Step().ok());
+    EXPECT_TRUE(trainer.Step().ok());
+    const absl::Status s = trainer.Step();
+    EXPECT_EQ(s.code(), absl::StatusCode::kInternal);
+    EXPECT_NE(s.message().find("diverged at step 3"), std::string::npos) << s.message();
+    EXPECT_EQ(trainer.skipped_batches(), 2);
+    EXPECT_TRUE(SameBits(model.params().grid, before.grid));
+    EXPECT_TRUE(SameBits(model.params().mlp, before.mlp));
+  }
+}
+
+TEST(TrainerStepTest, FixedSeedTwoThreadsIsBitIdentical) {
+  const View view = MakeView(/*gradient_image=*/true);
+  auto run = [&view]() {
+    NgpModel model = TinyModel(9, /*time_steps=*/1);
+    auto sampler = ImageRaySampler::Create({&view}, model);
+    EXPECT_TRUE(sampler.ok()) << sampler.status();
+    Trainer trainer(&model, sampler->get(), StepOptions(2));
+    std::vector<float> losses;
+    EXPECT_TRUE(trainer.Run([&losses](const StepStats& st) { losses.push_back(st.loss); }).ok());
+    EXPECT_EQ(trainer.step(), 5);
+    return std::make_pair(model, losses);
+  };
+  const auto [a, la] = run();
+  const auto [b, lb] = run();
+  const NgpModel fresh = TinyModel(9, 1);
+  EXPECT_FALSE(SameBits(a.params().mlp, fresh.params().mlp));  // Training did something.
+  EXPECT_FALSE(SameBits(a.params().grid, fresh.params().grid));
+  EXPECT_TRUE(SameBits(a.params().grid, b.params().grid));
+  EXPECT_TRUE(SameBits(a.params().mlp, b.params().mlp));
+  EXPECT_TRUE(SameBits(a.params().emb, b.params().emb));
+  EXPECT_TRUE(SameBits(a.occupancy().density(), b.occupancy().density()));
+  EXPECT_EQ(la, lb);
+  ASSERT_EQ(la.size(), 5u);
+}
+
+// The OpenMP runtime may grant fewer threads than a trainer asks for (here:
+// a nested region with nesting off, as under OMP_THREAD_LIMIT). Training must
+// then equal a one-thread run bit for bit, not read stale per-thread scratch
+// (which crashed before the fix, found by the TSan run of the server tests).
+TEST(TrainerStepTest, FewerThreadsThanRequestedEqualsOneThread) {
+  const View view = MakeView(/*gradient_image=*/true);
+  auto run = [&view](int requested) {
+    NgpModel model = TinyModel(9, /*time_steps=*/1);
+    std::vector<float> losses;
+    const int saved = omp_get_max_active_levels();
+    omp_set_max_active_levels(1);
+#pragma omp parallel num_threads(2)
+    {
+      // Only the first thread trains; inside this active region every
+      // nested region gets one thread.
+      if (omp_get_thread_num() == 0) {
+        auto sampler = ImageRaySampler::Create({&view}, model);
+        EXPECT_TRUE(sampler.ok()) << sampler.status();
+        Trainer trainer(&model, sampler->get(), StepOptions(requested));
+        EXPECT_TRUE(trainer.Run([&losses](const StepStats& st) { losses.push_back(st.loss); }).ok());
+      }
+    }
+    omp_set_max_active_levels(saved);
+    return std::make_pair(model, losses);
+  };
+  const auto [one, l1] = run(1);
+  const auto [two, l2] = run(2);
+  ASSERT_EQ(l1.size(), 5u);
+  EXPECT_EQ(l1, l2);
+  EXPECT_TRUE(SameBits(one.params().grid, two.params().grid));
+  EXPECT_TRUE(SameBits(one.params().mlp, two.params().mlp));
+  EXPECT_TRUE(SameBits(one.params().emb, two.params().emb));
+}
+
+}  // namespace
+}  // namespace clnerf
