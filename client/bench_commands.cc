@@ -11,12 +11,25 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "client/commands.h"
+#include "client/verb_set.h"
 #include "core/io/checkpoint.h"
 #include "core/data/dataset.h"
 #include "core/render/renderer.h"
 #include "nlohmann/json.hpp"
 
 namespace clnerf {
+
+CLI::App* BindBenchRender(CLI::App* parent, BenchRenderArgs* a) {
+  CLI::App* c = parent->add_subcommand("render", "Time renders of test views at several sizes");
+  c->add_option("--model", a->model, "Model file")->required();
+  c->add_option("--data", a->data, "Dataset (cameras of its test split)")->required();
+  c->add_option("--sizes", a->sizes, "Comma-separated square sizes")->capture_default_str();
+  c->add_option("--views", a->views, "Views per size")->capture_default_str();
+  c->add_option("--repeats", a->repeats, "Renders per view (median kept)")->capture_default_str();
+  BindThreadsFlag(c, &a->threads);
+  c->add_option("--json", a->json, "Write JSON here");
+  return c;
+}
 
 int RunBenchRender(const BenchRenderArgs& a) {
   SetThreads(a.threads);

@@ -1,6 +1,8 @@
-// The `clnerf` CLI verbs. main.cc parses flags into these argument structs
-// and calls the Run* functions, which return a process exit code (0 = ok) and
-// print a one-line reason on failure. Not thread-safe (CLI entry points).
+// The local `clnerf` CLI verbs (the engine in-process) and the benchmarks.
+// Each verb has a Bind* function, which adds its subcommand and binds its
+// flags onto an argument struct (registered in client/verbs.cc), and a Run*
+// function, which returns a process exit code (0 = ok) and prints a one-line
+// reason on failure. Not thread-safe (CLI entry points).
 #ifndef CLNERF_CLIENT_COMMANDS_H_
 #define CLNERF_CLIENT_COMMANDS_H_
 
@@ -11,47 +13,29 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "client/remote_commands.h"
+#include "core/continual/continual_protocol.h"
+#include "core/continual/continual_update.h"
+#include "core/continual/stability.h"
+#include "core/data/dataset_options.h"
+#include "core/data/procedural_scene.h"
+#include "core/render/evaluate.h"
+#include "core/train/fit.h"
 #include "nlohmann/json_fwd.hpp"
 
 namespace clnerf {
 
-struct FitOptions;  // core/train/fit.h
-struct FitResult;   // core/train/fit.h
-struct Scene;       // core/data/scene.h
-
-// Overrides of model capacity (0 / negative = derive from the scene).
-struct ModelArgs {
-  int levels = 0;
-  int log2_table_size = 0;
-  int finest_resolution = 0;
-  float steps_per_diagonal = 0;
-  int occupancy_resolution = 0;
-  float cone_angle = -1;           // < 0: derived.
-  float near = -1;                 // < 0: derived (model units from the camera).
-  float occupancy_threshold = -1;  // < 0: derived (0.01 / min step).
-  float distortion = -1;           // < 0: auto (TrainOptions::distortion_reg).
-  float near_density = -1;         // < 0: auto (TrainOptions::near_density_reg).
-  float near_density_distance = -1;  // < 0: TrainOptions' default.
-  float near_density_fade = -1;      // < 0: TrainOptions' default.
-  bool random_background = false;
-  bool no_embed = false;
-};
+// Each verb's arguments: the verb's own flags (paths, output files) plus the
+// core Options structs its flags bind to directly (client/verb_set.h), so a
+// flag's default is the core default unless the verb sets its own (noted).
 
 struct TrainArgs {
   std::string data;
   std::string out;
-  int iterations = 2000;
-  uint64_t seed = 0;
-  int threads = 0;
-  float downscale = 1.0f;
-  float learning_rate = 1e-2f;
-  int target_samples = 1 << 17;
-  int curve_every = 0;
-  int curve_views = 8;
   std::string json;
   bool eval_after = true;  // Evaluate on the test split when done.
   bool fp16 = false;       // Save the parameters as binary16.
-  ModelArgs model;
+  DatasetOptions dataset;
+  FitOptions fit;
 };
 
 struct EvalArgs {
@@ -59,10 +43,9 @@ struct EvalArgs {
   std::string data;
   std::string split = "test";
   std::string json;
-  std::string save_dir;
-  int max_views = 0;
   int threads = 0;
-  float downscale = 1.0f;
+  EvalOptions eval;
+  DatasetOptions dataset;
 };
 
 // `render` renders locally with --model, else on the server (`remote`).
@@ -88,22 +71,13 @@ struct RenderArgs {
 
 struct DemoArgs {
   std::string out = "clnerf-demo";
-  int iterations = 600;
-  int size = 64;
-  uint64_t seed = 0;
-  int threads = 0;
-  bool thin = false;      // Thin rods (ProceduralSceneOptions::thin_structures).
-  bool backdrop = false;  // Unbounded scene (ProceduralSceneOptions::backdrop).
+  ProceduralSceneOptions scene;  // The verb's defaults: 60 train / 12 test views.
+  FitOptions fit;                // The verb's default: 600 iterations.
 };
 
 struct ScansArgs {
   std::string out = "clnerf-scans";
-  int scans = 3;
-  int size = 64;
-  int train_views = 50;
-  int test_views = 8;
-  uint64_t seed = 0;
-  bool thin = false;  // Thin rods (ProceduralSceneOptions::thin_structures).
+  ProceduralSceneOptions scene;  // The verb's defaults: 3 scans, 8 test views each.
 };
 
 struct BenchRenderArgs {
@@ -122,34 +96,21 @@ struct BenchRenderArgs {
 struct BenchScenesArgs {
   std::vector<std::string> dirs;
   std::string out = "bench/results/scenes";
-  int iterations = TrainArgs{}.iterations;  // `clnerf train`'s default.
+  FitOptions fit;               // `clnerf train`'s defaults; --iters, --threads, --curve-views.
   bool capacity_sweep = false;  // Also log2 tables {derived-2 .. derived+1}, clamped to [12, 20].
-  int threads = 0;
   int curve_every = 0;  // PSNR-vs-time curve every N steps (0 = iterations / 10).
-  int curve_views = 8;  // Held-out views per curve point.
   int train_views = 8;  // Training views scored for the train-view PSNR.
   bool force = false;   // Re-run configurations whose results are already in `out`.
 };
 
 struct BenchContinualArgs {
-  std::string method = "clnerf";  // nt|ewc|er|meil|clnerf|clnerf-noer|ub
+  std::string method = "clnerf";  // A ContinualMethod name, or ub.
   std::string data;               // Dataset, scan-folder directory, or "procedural".
   int tasks = 0;                  // 0 = 10 for a static dataset, 5 procedural scans.
-  int iterations = 300;           // Training steps per update.
-  std::string ub_budget = "total";  // ub: total (tasks x iterations) | per-step (iterations).
-  std::string init = "warm";      // reinit|warm
-  std::string replay = "offline"; // offline|online
-  int buffer = 10;                // K real images (clnerf, er).
-  bool prioritized = false;       // Keep the K lowest-PSNR images instead of a reservoir.
-  bool no_embed = false;
-  float ewc_lambda = 1e5f;
-  float warm_lr_scale = 1.0f;     // Learning-rate factor for warm-started updates.
-  float new_share = 0.0f;         // Fraction of rays from the new scan (0 = uniform).
-  bool copy_embedding = false;    // New time step's embeddings start as the last step's.
-  float downscale = 1.0f;
+  UbBudget ub_budget = UbBudget::kTotal;
+  UpdateOptions update;           // The verb's default: 300 iterations per update.
+  DatasetOptions dataset;
   int procedural_size = 64;       // Image size of the procedural scans.
-  uint64_t seed = 0;
-  int threads = 0;
   std::string json;
 };
 
@@ -157,12 +118,7 @@ struct BenchContinualArgs {
 struct BenchStabilityArgs {
   std::vector<std::string> methods = {"nt", "ewc", "er", "meil", "clnerf-noer", "clnerf", "ub"};
   std::vector<std::string> stressors;  // Empty = all.
-  int scans = 3;
-  int size = 32;
-  int iterations = 100;
-  int batch_samples = 1 << 15;
-  uint64_t seed = 0;
-  int threads = 0;
+  StabilityOptions stability;
   std::string json;
   std::string markdown;  // Also write the table here.
 };
@@ -174,12 +130,22 @@ void SetThreads(int threads);
 // Writes `j` to `path` ("-" = stdout, "" = nowhere).
 absl::Status WriteJson(const std::string& path, const nlohmann::json& j);
 
-// `clnerf train`'s pieces, shared by the verbs that train like it: the
-// FitOptions its flags give, and FitScene with a progress bar (on stderr,
-// labelled `label`) after applying the explicit capacity overrides.
-FitOptions MakeFitOptions(const TrainArgs& args);
-absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, FitOptions fo, const ModelArgs& overrides,
+// FitScene with a progress bar on stderr, labelled `label` (`clnerf train`
+// and the verbs that train like it).
+absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, const FitOptions& options,
                                             const std::string& label = "train");
+
+// Each verb's Bind adds its subcommand under `parent` with its flags bound
+// onto `args` (see client/verb_set.h); its Run runs it.
+CLI::App* BindTrain(CLI::App* parent, TrainArgs* args);
+CLI::App* BindEval(CLI::App* parent, EvalArgs* args);
+CLI::App* BindRender(CLI::App* parent, RenderArgs* args);
+CLI::App* BindDemo(CLI::App* parent, DemoArgs* args);
+CLI::App* BindScans(CLI::App* parent, ScansArgs* args);
+CLI::App* BindBenchRender(CLI::App* parent, BenchRenderArgs* args);
+CLI::App* BindBenchScenes(CLI::App* parent, BenchScenesArgs* args);
+CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* args);
+CLI::App* BindBenchStability(CLI::App* parent, BenchStabilityArgs* args);
 
 int RunTrain(const TrainArgs& args);
 int RunBenchRender(const BenchRenderArgs& args);

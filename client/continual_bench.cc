@@ -10,6 +10,8 @@
 
 #include "absl/strings/str_format.h"
 #include "client/commands.h"
+#include "client/core_flags.h"
+#include "client/verb_set.h"
 #include "client/progress_bar.h"
 #include "core/continual/continual_protocol.h"
 #include "core/continual/continual_update.h"
@@ -78,44 +80,68 @@ absl::StatusOr<Scores> Score(const NgpModel& model, const ScanSequence& seq, int
   return s;
 }
 
+const char* InitName(InitMode m) { return m == InitMode::kWarm ? "warm" : "reinit"; }
+const char* ReplayName(ReplayMode m) { return m == ReplayMode::kOffline ? "offline" : "online"; }
+
 }  // namespace
 
+CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* a) {
+  CLI::App* c = parent->add_subcommand("continual", "Run one continual method through every step of a scan sequence");
+  UpdateOptions& u = a->update;
+  u.train.iterations = 300;  // The verb's default: a quick sequence.
+  c->add_option("--method", a->method, "nt|ewc|er|meil|clnerf|clnerf-noer|ub")->capture_default_str();
+  c->add_option("--data", a->data,
+                "Static dataset (cut into --tasks), dataset with time steps, directory of scan folders, or "
+                "'procedural'")
+      ->required();
+  c->add_option("--tasks", a->tasks, "Tasks for a static dataset / scans for 'procedural' (0 = 10 / 5)")
+      ->capture_default_str();
+  c->add_option("--iters", u.train.iterations, "Training steps per update")->capture_default_str();
+  BindEnumFlag(c, "--ub-budget", &a->ub_budget, {{"total", UbBudget::kTotal}, {"per-step", UbBudget::kPerStep}},
+               "ub's iterations: tasks x --iters (equal compute) or --iters (the paper's protocol)");
+  BindEnumFlag(c, "--init", &u.init, {{"warm", InitMode::kWarm}, {"reinit", InitMode::kReinit}},
+               "Start each update from the previous model or from scratch");
+  BindEnumFlag(c, "--replay", &u.replay, {{"offline", ReplayMode::kOffline}, {"online", ReplayMode::kOnline}},
+               "Generative replay labels rendered once per update or per batch");
+  c->add_option("--buffer", u.buffer_size, "Real images kept for experience replay (clnerf, er)")
+      ->capture_default_str();
+  c->add_flag("--prioritized", u.prioritized_buffer, "Buffer keeps the lowest-PSNR images instead of a reservoir");
+  c->add_flag("!--no-embed", u.model.network.use_embeddings, "Ablation: no per-time-step embeddings");
+  c->add_option("--ewc-lambda", u.ewc_lambda, "EWC strength")->capture_default_str();
+  c->add_option("--warm-lr-scale", u.warm_lr_scale, "Learning-rate factor for warm-started updates")
+      ->capture_default_str();
+  c->add_option("--new-share", u.new_scan_share,
+                "clnerf/clnerf-noer/er: fraction of each batch from the new scan (0 = uniform over all views)")
+      ->capture_default_str();
+  c->add_flag("--copy-embedding", u.copy_embedding,
+              "Warm start: the new time step's embeddings start as a copy of the last step's");
+  c->add_option("--procedural-size", a->procedural_size, "Image size of the procedural scans")->capture_default_str();
+  c->add_option("--seed", u.train.seed, "Random seed")->capture_default_str();
+  BindThreadsFlag(c, &u.train.threads);
+  c->add_option("--json", a->json, "Write JSON here ('-' = stdout)");
+  BindDatasetFlags(c, &a->dataset);
+  return c;
+}
+
 int RunBenchContinual(const BenchContinualArgs& a) {
-  SetThreads(a.threads);
+  SetThreads(a.update.train.threads);
   const bool ub = a.method == "ub";
-  absl::StatusOr<UbBudget> ub_budget = ParseUbBudget(a.ub_budget);
-  if (!ub_budget.ok()) return Fail(ub_budget.status());
-  UpdateOptions uo;
+  UpdateOptions uo = a.update;
   if (!ub) {
     absl::StatusOr<ContinualMethod> m = ParseContinualMethod(a.method);
     if (!m.ok()) return Fail(absl::InvalidArgumentError(absl::StrCat(m.status().message(), " or ub")));
     uo.method = *m;
   }
-  if (a.init != "warm" && a.init != "reinit") return Fail(absl::InvalidArgumentError("--init must be warm or reinit"));
-  if (a.replay != "offline" && a.replay != "online") {
-    return Fail(absl::InvalidArgumentError("--replay must be offline or online"));
-  }
-  uo.init = a.init == "warm" ? InitMode::kWarm : InitMode::kReinit;
-  uo.replay = a.replay == "offline" ? ReplayMode::kOffline : ReplayMode::kOnline;
-  uo.buffer_size = uo.method == ContinualMethod::kCLNeRFNoER ? 0 : a.buffer;
-  uo.prioritized_buffer = a.prioritized;
-  uo.ewc_lambda = a.ewc_lambda;
-  uo.warm_lr_scale = a.warm_lr_scale;
-  uo.new_scan_share = a.new_share;
-  uo.copy_embedding = a.copy_embedding;
-  uo.train.iterations = a.iterations;
-  uo.train.seed = a.seed;
-  uo.train.threads = a.threads;
-  uo.model.network.use_embeddings = !a.no_embed;
+  if (uo.method == ContinualMethod::kCLNeRFNoER) uo.buffer_size = 0;
   if (absl::Status s = uo.Validate(); !s.ok()) return Fail(s);
+  const int iterations = uo.train.iterations;
+  const uint64_t seed = uo.train.seed;
 
   const bool procedural = a.data == "procedural";
   const int tasks = a.tasks > 0 ? a.tasks : (procedural ? 5 : 10);
   absl::StatusOr<ScanSequence> seq_or = [&]() -> absl::StatusOr<ScanSequence> {
-    if (procedural) return ProceduralSequence(tasks, a.procedural_size, a.seed);
-    DatasetOptions dopt;
-    dopt.downscale = a.downscale;
-    return LoadScanSequence(a.data, tasks, dopt);
+    if (procedural) return ProceduralSequence(tasks, a.procedural_size, seed);
+    return LoadScanSequence(a.data, tasks, a.dataset);
   }();
   if (!seq_or.ok()) return Fail(seq_or.status());
   const ScanSequence& seq = *seq_or;
@@ -123,30 +149,30 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   int num_test = 0;
   for (const Scan& s : seq.scans) num_test += int(s.test.size());
   spdlog::info("bench continual: method {} on '{}': {} steps, {} test images, {} iterations per step", a.method,
-               seq.name, T, num_test, a.iterations);
+               seq.name, T, num_test, iterations);
 
   nlohmann::json j = {{"method", a.method},
                       {"data", a.data},
                       {"scene", seq.name},
                       {"tasks", T},
-                      {"iterations", a.iterations},
-                      {"init", a.init},
-                      {"replay", a.replay},
+                      {"iterations", iterations},
+                      {"init", InitName(uo.init)},
+                      {"replay", ReplayName(uo.replay)},
                       {"buffer", uo.buffer_size},
-                      {"prioritized", a.prioritized},
-                      {"embeddings", !a.no_embed},
-                      {"seed", a.seed},
-                      {"threads", a.threads},
+                      {"prioritized", uo.prioritized_buffer},
+                      {"embeddings", uo.model.network.use_embeddings},
+                      {"seed", seed},
+                      {"threads", uo.train.threads},
                       {"status", "ok"}};
-  if (uo.method == ContinualMethod::kEWC && !ub) j["ewc_lambda"] = a.ewc_lambda;
-  const int ub_iterations = UpperBoundIterations(*ub_budget, T, a.iterations);
+  if (uo.method == ContinualMethod::kEWC && !ub) j["ewc_lambda"] = uo.ewc_lambda;
+  const int ub_iterations = UpperBoundIterations(a.ub_budget, T, iterations);
   if (ub) {
-    j["ub_budget"] = UbBudgetName(*ub_budget);
+    j["ub_budget"] = UbBudgetName(a.ub_budget);
     j["ub_iterations"] = ub_iterations;
   }
-  if (a.warm_lr_scale != 1.0f) j["warm_lr_scale"] = a.warm_lr_scale;
-  if (a.new_share > 0) j["new_scan_share"] = a.new_share;
-  if (a.copy_embedding) j["copy_embedding"] = true;
+  if (uo.warm_lr_scale != 1.0f) j["warm_lr_scale"] = uo.warm_lr_scale;
+  if (uo.new_scan_share > 0) j["new_scan_share"] = uo.new_scan_share;
+  if (uo.copy_embedding) j["copy_embedding"] = true;
   nlohmann::json matrix = nlohmann::json::array(), step_seconds = nlohmann::json::array();
   nlohmann::json steps = nlohmann::json::array();
   double total = 0, eval_seconds = 0;
@@ -280,21 +306,21 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   }
   // Only the settings that matter for this method.
   std::string setting =
-      ub ? absl::StrFormat("all scans at once, %d iterations (%s budget)", ub_iterations, UbBudgetName(*ub_budget))
-         : a.init;
+      ub ? absl::StrFormat("all scans at once, %d iterations (%s budget)", ub_iterations, UbBudgetName(a.ub_budget))
+         : std::string(InitName(uo.init));
   if (!ub && (uo.method == ContinualMethod::kCLNeRF || uo.method == ContinualMethod::kCLNeRFNoER ||
               uo.method == ContinualMethod::kMEIL)) {
-    setting += ", " + a.replay + " replay";
+    setting += absl::StrCat(", ", ReplayName(uo.replay), " replay");
   }
   if (!ub && (uo.method == ContinualMethod::kCLNeRF || uo.method == ContinualMethod::kER)) {
-    setting += absl::StrFormat(", K=%d%s", uo.buffer_size, a.prioritized ? " prioritized" : "");
+    setting += absl::StrFormat(", K=%d%s", uo.buffer_size, uo.prioritized_buffer ? " prioritized" : "");
   }
-  if (a.no_embed) setting += ", no-embed";
+  if (!uo.model.network.use_embeddings) setting += ", no-embed";
   std::printf(
       "bench continual %s (%s) on %s: %d steps x %d iters | PSNR %.2f dB, SSIM %.4f over %d "
       "images | scan 0 %.2f dB%s | total %.1fs | model %.2f MB | replay memory %zu B (%.1f B/camera) | peak RSS "
       "%.0f MB\n",
-      a.method.c_str(), setting.c_str(), seq.name.c_str(), T, a.iterations, f.mean_psnr, f.mean_ssim, f.images, f.psnr[0],
+      a.method.c_str(), setting.c_str(), seq.name.c_str(), T, iterations, f.mean_psnr, f.mean_ssim, f.images, f.psnr[0],
       forgetting.c_str(), total, final_model->num_bytes() / 1e6, replay_bytes, bytes_per_camera, PeakRssBytes() / 1e6);
   std::printf("%s\n", j.dump().c_str());
   if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);

@@ -4,6 +4,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/job_watch.h"
+#include "client/verb_set.h"
 #include "client/progress_bar.h"
 #include "client/proto_json.h"
 #include "client/remote_client.h"
@@ -13,10 +14,23 @@
 
 namespace clnerf {
 
+CLI::App* BindWatch(CLI::App* parent, JobArgs* a) {
+  CLI::App* c = parent->add_subcommand("watch", "Follow an update job until it is done, failed or cancelled");
+  c->add_option("job", a->job_id, "Job id")->required();
+  BindRemoteFlags(c, &a->remote);
+  return c;
+}
+
 int RunWatch(const JobArgs& a) {
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
   if (!client.ok()) return FailRemote("watch", client.status());
   return ReportJob("watch", FollowJob(**client, a.job_id), a.remote);
+}
+
+CLI::App* BindJobs(CLI::App* parent, ListArgs* a) {
+  CLI::App* c = parent->add_subcommand("jobs", "List the server's update jobs");
+  BindRemoteFlags(c, &a->remote);
+  return c;
 }
 
 int RunJobs(const ListArgs& a) {
@@ -61,6 +75,13 @@ int RunJobs(const ListArgs& a) {
   }
   table.Print();
   return 0;
+}
+
+CLI::App* BindCancel(CLI::App* parent, JobArgs* a) {
+  CLI::App* c = parent->add_subcommand("cancel", "Cancel a queued or running update job");
+  c->add_option("job", a->job_id, "Job id")->required();
+  BindRemoteFlags(c, &a->remote);
+  return c;
 }
 
 int RunCancel(const JobArgs& a) {

@@ -11,6 +11,8 @@
 #include "absl/strings/str_split.h"
 #include "client/camera_path.h"
 #include "client/commands.h"
+#include "client/core_flags.h"
+#include "client/verb_set.h"
 #include "client/progress_bar.h"
 #include "core/io/checkpoint.h"
 #include "core/data/dataset.h"
@@ -31,18 +33,6 @@ const std::vector<View>* Split(const Scene& scene, const std::string& name) {
   return nullptr;
 }
 
-// Applies explicit capacity overrides after derivation.
-ModelOptions ApplyOverrides(ModelOptions mo, const ModelArgs& a) {
-  if (a.log2_table_size > 0) mo.grid.log2_table_size = a.log2_table_size;
-  if (a.finest_resolution > 0) mo.grid.finest_resolution = a.finest_resolution;
-  if (a.steps_per_diagonal > 0) mo.march.steps_per_diagonal = a.steps_per_diagonal;
-  if (a.occupancy_resolution > 0) mo.occupancy.resolution = a.occupancy_resolution;
-  if (a.cone_angle >= 0) mo.march.cone_angle = a.cone_angle;
-  if (a.near >= 0) mo.march.near = a.near;
-  if (a.occupancy_threshold > 0) mo.occupancy.density_threshold = a.occupancy_threshold;
-  return mo;
-}
-
 nlohmann::json EvalJson(const EvalResult& r) {
   nlohmann::json per = nlohmann::json::array();
   for (const ViewScore& v : r.views) {
@@ -55,34 +45,7 @@ nlohmann::json EvalJson(const EvalResult& r) {
 
 }  // namespace
 
-FitOptions MakeFitOptions(const TrainArgs& a) {
-  FitOptions fo;
-  fo.train.iterations = a.iterations;
-  fo.train.seed = a.seed;
-  fo.train.threads = a.threads;
-  fo.train.learning_rate = a.learning_rate;
-  fo.train.target_samples = a.target_samples;
-  fo.train.distortion_reg = a.model.distortion;
-  fo.train.near_density_reg = a.model.near_density;
-  if (a.model.near_density_distance >= 0) fo.train.near_density_distance = a.model.near_density_distance;
-  if (a.model.near_density_fade >= 0) fo.train.near_density_fade = a.model.near_density_fade;
-  fo.train.random_background = a.model.random_background;
-  fo.curve_every = a.curve_every;
-  fo.curve_views = a.curve_views;
-  fo.model.network.use_embeddings = !a.model.no_embed;
-  if (a.model.levels > 0) fo.model.grid.levels = a.model.levels;
-  return fo;
-}
-
-absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, FitOptions fo, const ModelArgs& overrides,
-                                            const std::string& label) {
-  if (overrides.log2_table_size > 0 || overrides.finest_resolution > 0 || overrides.steps_per_diagonal > 0 ||
-      overrides.occupancy_resolution > 0 || overrides.cone_angle >= 0 || overrides.occupancy_threshold > 0 ||
-      overrides.near >= 0) {
-    const Normalization norm = ComputeNormalization(scene);
-    fo.model = ApplyOverrides(DeriveModelOptions(scene, norm, fo.capacity, fo.model), overrides);
-    fo.derive_capacity = false;
-  }
+absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, const FitOptions& fo, const std::string& label) {
   ProgressBar bar(label, fo.train.iterations);
   double rays = 0, secs = 0;
   auto result = FitScene(scene, fo, [&](const StepStats& s, const Trainer& t) {
@@ -117,15 +80,25 @@ int Fail(const absl::Status& s) {
   return 1;
 }
 
+CLI::App* BindTrain(CLI::App* parent, TrainArgs* a) {
+  CLI::App* c = parent->add_subcommand("train", "Train a model on a dataset (Blender, transforms.json, COLMAP or LLFF)");
+  c->add_option("--data", a->data, "Dataset directory")->required();
+  c->add_option("--out", a->out, "Output model file")->required();
+  c->add_option("--json", a->json, "Write results as JSON to this file ('-' = stdout)");
+  c->add_flag("!--no-eval", a->eval_after, "Skip the final test-split evaluation");
+  c->add_flag("--fp16", a->fp16, "Save the parameters as fp16 (about half the file; relative error <= 2^-11)");
+  BindFitFlags(c, &a->fit);
+  BindDatasetFlags(c, &a->dataset);
+  return c;
+}
+
 int RunTrain(const TrainArgs& a) {
-  SetThreads(a.threads);
-  DatasetOptions dopt;
-  dopt.downscale = a.downscale;
-  absl::StatusOr<Scene> scene = LoadScene(a.data, dopt);
+  SetThreads(a.fit.train.threads);
+  absl::StatusOr<Scene> scene = LoadScene(a.data, a.dataset);
   if (!scene.ok()) return Fail(scene.status());
   spdlog::info("loaded '{}': {} train, {} val, {} test views, {} time step(s)", scene->name, scene->train.size(),
                scene->val.size(), scene->test.size(), scene->num_time_steps());
-  absl::StatusOr<FitResult> fit = TrainWithProgress(*scene, MakeFitOptions(a), a.model);
+  absl::StatusOr<FitResult> fit = TrainWithProgress(*scene, a.fit);
   if (!fit.ok()) return Fail(fit.status());
   CheckpointOptions save_options;
   save_options.fp16_params = a.fp16;
@@ -172,21 +145,29 @@ int RunTrain(const TrainArgs& a) {
   return 0;
 }
 
+CLI::App* BindEval(CLI::App* parent, EvalArgs* a) {
+  CLI::App* c = parent->add_subcommand("eval", "Render a split and report PSNR/SSIM");
+  c->add_option("--model", a->model, "Model file")->required();
+  c->add_option("--data", a->data, "Dataset directory")->required();
+  c->add_option("--split", a->split, "train|val|test")->capture_default_str();
+  c->add_option("--json", a->json, "Write results as JSON to this file ('-' = stdout)");
+  c->add_option("--save-dir", a->eval.save_dir, "Also write the renders here");
+  c->add_option("--max-views", a->eval.max_views, "Evaluate an evenly spaced subset (0 = all)")->capture_default_str();
+  BindThreadsFlag(c, &a->threads);
+  BindDatasetFlags(c, &a->dataset);
+  return c;
+}
+
 int RunEval(const EvalArgs& a) {
   SetThreads(a.threads);
   absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
   if (!ck.ok()) return Fail(ck.status());
-  DatasetOptions dopt;
-  dopt.downscale = a.downscale;
-  absl::StatusOr<Scene> scene = LoadScene(a.data, dopt);
+  absl::StatusOr<Scene> scene = LoadScene(a.data, a.dataset);
   if (!scene.ok()) return Fail(scene.status());
   const std::vector<View>* views = Split(*scene, a.split);
   if (views == nullptr) return Fail(absl::InvalidArgumentError("--split must be train, val or test"));
   if (views->empty()) return Fail(absl::InvalidArgumentError(absl::StrFormat("split '%s' is empty", a.split)));
-  EvalOptions eo;
-  eo.save_dir = a.save_dir;
-  eo.max_views = a.max_views;
-  absl::StatusOr<EvalResult> ev = EvaluateViews(ck->model, *views, eo);
+  absl::StatusOr<EvalResult> ev = EvaluateViews(ck->model, *views, a.eval);
   if (!ev.ok()) return Fail(ev.status());
   nlohmann::json j = EvalJson(*ev);
   j["model"] = a.model;
@@ -197,6 +178,27 @@ int RunEval(const EvalArgs& a) {
               ev->views.size(), ev->mean_render_seconds * 1e3);
   if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
   return 0;
+}
+
+CLI::App* BindRender(CLI::App* parent, RenderArgs* a) {
+  CLI::App* c = parent->add_subcommand(
+      "render", "Render views to PNG: locally with --model, else on the server (remote flags apply)");
+  c->add_option("--model", a->model, "Model file (omit to render on the server)");
+  c->add_option("--out", a->out, "PNG file (one view) or directory")->required();
+  c->add_option("--data,--views-from", a->data,
+                "Take cameras from this dataset's split (remote: and score the renders against its images)");
+  c->add_option("--camera-path", a->camera_path, "nerfstudio camera_path.json");
+  c->add_option("--split", a->split, "train|val|test")->capture_default_str();
+  c->add_option("--index", a->index, "Only this view of the split (-1 = all)")->capture_default_str();
+  c->add_option("--pose", a->pose, "Camera-to-world matrix, OpenGL convention, 12 or 16 numbers row-major");
+  c->add_option("--width", a->width, "Image width for --pose")->capture_default_str();
+  c->add_option("--height", a->height, "Image height for --pose")->capture_default_str();
+  c->add_option("--focal", a->focal, "Focal length in pixels for --pose (0 = NeRF-synthetic FOV)");
+  c->add_option("--time-step", a->time_step, "Time step to render (-1 = latest)")->capture_default_str();
+  BindThreadsFlag(c, &a->threads);
+  c->add_option("--version", a->version, "Remote: model version (0 = the deployed one)")->capture_default_str();
+  BindRemoteFlags(c, &a->remote);
+  return c;
 }
 
 int RunRender(const RenderArgs& a) {
@@ -249,28 +251,40 @@ int RunRender(const RenderArgs& a) {
   return 0;
 }
 
+CLI::App* BindDemo(CLI::App* parent, DemoArgs* a) {
+  CLI::App* c = parent->add_subcommand(
+      "demo", "Engine-only demo: procedural scene -> train -> render -> PSNR in-process (no data needed)");
+  a->scene.num_train_views = 60;
+  a->scene.num_test_views = 12;
+  a->fit.train.iterations = 600;
+  c->add_option("--out", a->out, "Output directory")->capture_default_str();
+  c->add_option("--iters", a->fit.train.iterations, "Training steps")->capture_default_str();
+  c->add_option_function<int>(
+       "--size", [a](int size) { a->scene.width = a->scene.height = size; }, "Image size (pixels)")
+      ->default_str(std::to_string(a->scene.width));
+  c->add_option_function<uint64_t>(
+       "--seed", [a](uint64_t seed) { a->scene.seed = a->fit.train.seed = seed; }, "Random seed (scene and training)")
+      ->default_str(std::to_string(a->scene.seed));
+  BindThreadsFlag(c, &a->fit.train.threads);
+  c->add_flag("--thin", a->scene.thin_structures, "Add thin rods (about a pixel wide) to the scene");
+  c->add_flag("--backdrop", a->scene.backdrop,
+              "Unbounded scene: ground plane, pillars and a far backdrop, trained in contracted space "
+              "(the scene folder written is Blender format, which loads back as a bounded scene)");
+  return c;
+}
+
 int RunDemo(const DemoArgs& a) {
-  SetThreads(a.threads);
+  SetThreads(a.fit.train.threads);
   std::error_code ec;
   std::filesystem::create_directories(a.out, ec);
   if (ec) return Fail(absl::InternalError(absl::StrFormat("cannot create '%s': %s", a.out, ec.message())));
-  ProceduralSceneOptions po;
-  po.seed = a.seed;
-  po.width = po.height = a.size;
-  po.num_train_views = 60;
-  po.num_test_views = 12;
-  po.thin_structures = a.thin;
-  po.backdrop = a.backdrop;
+  const ProceduralSceneOptions& po = a.scene;
   spdlog::info("generating a procedural scene ({} train / {} test views at {}x{})", po.num_train_views,
-               po.num_test_views, a.size, a.size);
+               po.num_test_views, po.width, po.height);
   absl::StatusOr<ProceduralDataset> data = GenerateProceduralDataset(po);
   if (!data.ok()) return Fail(data.status());
   if (absl::Status s = WriteBlenderDataset(*data, a.out + "/scene"); !s.ok()) return Fail(s);
-  TrainArgs ta;
-  ta.iterations = a.iterations;
-  ta.seed = a.seed;
-  ta.threads = a.threads;
-  absl::StatusOr<FitResult> fit = TrainWithProgress(data->scene, MakeFitOptions(ta), ta.model);
+  absl::StatusOr<FitResult> fit = TrainWithProgress(data->scene, a.fit);
   if (!fit.ok()) return Fail(fit.status());
   const std::string model_path = a.out + "/model.clnerf";
   absl::StatusOr<size_t> bytes = SaveCheckpoint(*fit->model, model_path);

@@ -1,6 +1,6 @@
 // The remote `clnerf` verbs: they talk to a clnerf server (clnerf.v1 over
-// gRPC) instead of running the engine in-process. main.cc parses flags into
-// these argument structs; each Run* function returns a process exit code and,
+// gRPC) instead of running the engine in-process. Each verb's Bind* function
+// binds its flags onto its argument struct; each Run* function returns a process exit code and,
 // on failure, prints one line "clnerf <verb>: <CODE>: <message>" to stderr.
 // Results go to stdout (a human line or table, or JSON with --json); logs and
 // progress bars go to stderr. Not thread-safe (CLI entry points).
@@ -12,6 +12,10 @@
 
 #include <cstdint>
 #include <string>
+
+namespace CLI {
+class App;
+}  // namespace CLI
 
 namespace clnerf {
 
@@ -64,6 +68,17 @@ struct BenchServeArgs {
   int renders_per_client = 6;      // Requests per client per configuration.
   std::string json;
 };
+
+// Each verb's Bind adds its subcommand under `parent` with its flags bound
+// onto `args` (see client/verb_set.h); its Run runs it.
+CLI::App* BindUpload(CLI::App* parent, UploadArgs* args);
+CLI::App* BindBenchServe(CLI::App* parent, BenchServeArgs* args);
+CLI::App* BindWatch(CLI::App* parent, JobArgs* args);
+CLI::App* BindJobs(CLI::App* parent, ListArgs* args);
+CLI::App* BindCancel(CLI::App* parent, JobArgs* args);
+CLI::App* BindVersions(CLI::App* parent, ListArgs* args);
+CLI::App* BindRollback(CLI::App* parent, RollbackArgs* args);
+CLI::App* BindInfo(CLI::App* parent, ListArgs* args);
 
 int RunUpload(const UploadArgs& args);
 int RunBenchServe(const BenchServeArgs& args);

@@ -6,25 +6,38 @@
 
 #include "absl/strings/str_format.h"
 #include "client/commands.h"
+#include "client/verb_set.h"
 #include "core/data/procedural_scene.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {
 
+CLI::App* BindScans(CLI::App* parent, ScansArgs* a) {
+  CLI::App* c =
+      parent->add_subcommand("scans", "Write scans of the procedural changing scene (one folder per scan, for upload)");
+  ProceduralSceneOptions& po = a->scene;
+  po.num_time_steps = 3;
+  po.num_test_views = 8;
+  c->add_option("--out", a->out, "Output directory")->capture_default_str();
+  c->add_option("--scans", po.num_time_steps, "Number of scans (time steps)")->capture_default_str();
+  c->add_option_function<int>(
+       "--size", [a](int size) { a->scene.width = a->scene.height = size; }, "Image size (pixels)")
+      ->default_str(std::to_string(po.width));
+  c->add_option("--train-views", po.num_train_views, "Training views per scan")->capture_default_str();
+  c->add_option("--test-views", po.num_test_views, "Held-out views per scan")->capture_default_str();
+  c->add_option("--seed", po.seed, "Random seed")->capture_default_str();
+  c->add_flag("--thin", po.thin_structures, "Add thin rods (about a pixel wide) to the scene");
+  return c;
+}
+
 int RunScans(const ScansArgs& a) {
-  ProceduralSceneOptions po;
-  po.seed = a.seed;
-  po.width = po.height = a.size;
-  po.num_train_views = a.train_views;
-  po.num_test_views = a.test_views;
-  po.num_time_steps = a.scans;
-  po.thin_structures = a.thin;
-  spdlog::info("generating {} scans of the procedural changing scene ({} train / {} test views each, {}x{})", a.scans,
-               po.num_train_views, po.num_test_views, a.size, a.size);
+  const ProceduralSceneOptions& po = a.scene;
+  spdlog::info("generating {} scans of the procedural changing scene ({} train / {} test views each, {}x{})",
+               po.num_time_steps, po.num_train_views, po.num_test_views, po.width, po.height);
   absl::StatusOr<ProceduralDataset> data = GenerateProceduralDataset(po);
   if (!data.ok()) return Fail(data.status());
   if (absl::Status s = WriteScanFolders(*data, a.out); !s.ok()) return Fail(s);
-  for (int t = 0; t < a.scans; ++t) std::printf("%s/scan_%03d\n", a.out.c_str(), t);
+  for (int t = 0; t < po.num_time_steps; ++t) std::printf("%s/scan_%03d\n", a.out.c_str(), t);
   return 0;
 }
 

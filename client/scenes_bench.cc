@@ -36,6 +36,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "client/commands.h"
+#include "client/verb_set.h"
 #include "client/progress_bar.h"
 #include "core/io/checkpoint.h"
 #include "core/data/dataset.h"
@@ -71,16 +72,12 @@ std::string Bytes(double b) {
 // Trains one configuration (log2_table = 0: derived) and scores it.
 absl::StatusOr<json> RunOne(const Scene& scene, const std::string& dir, const BenchScenesArgs& a, int log2_table,
                             const std::string& model_path, const std::string& label) {
-  TrainArgs ta;  // `clnerf train`'s defaults, but for what the suite sets.
-  ta.data = dir;
-  ta.out = model_path;
-  ta.iterations = a.iterations;
-  ta.threads = a.threads;
+  FitOptions fo = a.fit;  // `clnerf train`'s defaults, but for what the suite sets.
+  const int iterations = fo.train.iterations;
   // The sweep runs only need their final figures.
-  ta.curve_every = log2_table > 0 ? 0 : (a.curve_every > 0 ? a.curve_every : std::max(1, a.iterations / 10));
-  ta.curve_views = a.curve_views;
-  ta.model.log2_table_size = log2_table;
-  absl::StatusOr<FitResult> fit = TrainWithProgress(scene, MakeFitOptions(ta), ta.model, label);
+  fo.curve_every = log2_table > 0 ? 0 : (a.curve_every > 0 ? a.curve_every : std::max(1, iterations / 10));
+  if (log2_table > 0) fo.overrides.log2_table_size = log2_table;
+  absl::StatusOr<FitResult> fit = TrainWithProgress(scene, fo, label);
   if (!fit.ok()) return fit.status();
   absl::StatusOr<size_t> file_bytes = SaveCheckpoint(*fit->model, model_path);
   if (!file_bytes.ok()) return file_bytes.status();
@@ -185,7 +182,7 @@ std::optional<json> Cached(const fs::path& path, const BenchScenesArgs& a) {
   if (a.force || !fs::exists(path)) return std::nullopt;
   std::ifstream f(path);
   json j = json::parse(f, nullptr, /*allow_exceptions=*/false);
-  if (j.is_discarded() || !j.is_object() || j.value("iterations", -1) != a.iterations) return std::nullopt;
+  if (j.is_discarded() || !j.is_object() || j.value("iterations", -1) != a.fit.train.iterations) return std::nullopt;
   return j;
 }
 
@@ -209,13 +206,30 @@ void Plot(const fs::path& out) {
 
 }  // namespace
 
+CLI::App* BindBenchScenes(CLI::App* parent, BenchScenesArgs* a) {
+  CLI::App* c = parent->add_subcommand(
+      "scenes", "Scene suite: train (default flags) and evaluate each dataset; table, CSV and charts");
+  c->add_option("dirs", a->dirs, "Dataset directories")->required();
+  c->add_option("--out", a->out, "Output directory (models, JSON, CSV, markdown, PNG charts)")->capture_default_str();
+  c->add_option("--iters", a->fit.train.iterations, "Training steps per run (as `train`)")->capture_default_str();
+  c->add_flag("--capacity-sweep", a->capacity_sweep,
+              "Also train with log2 tables derived-2..derived+1 (PSNR vs bytes chart)");
+  BindThreadsFlag(c, &a->fit.train.threads);
+  c->add_option("--curve-every", a->curve_every, "PSNR-vs-time curve every N steps (default: iters / 10)");
+  c->add_option("--curve-views", a->fit.curve_views, "Held-out views per curve point")->capture_default_str();
+  c->add_option("--train-views", a->train_views, "Training views for the train-view PSNR")->capture_default_str();
+  c->add_flag("--force", a->force, "Re-run configurations whose results are already in --out");
+  return c;
+}
+
 int RunBenchScenes(const BenchScenesArgs& a) {
-  SetThreads(a.threads);
+  SetThreads(a.fit.train.threads);
+  const int iterations = a.fit.train.iterations;
   const fs::path out(a.out);
   std::error_code ec;
   fs::create_directories(out / "runs", ec);
   if (ec) return Fail(absl::InternalError(absl::StrFormat("cannot create '%s': %s", a.out, ec.message())));
-  if (a.iterations < 1) return Fail(absl::InvalidArgumentError("--iters must be positive"));
+  if (iterations < 1) return Fail(absl::InvalidArgumentError("--iters must be positive"));
 
   json scenes = json::array(), sweep = json::array(), best = json::array();
   std::set<std::string> names;
@@ -306,9 +320,9 @@ int RunBenchScenes(const BenchScenesArgs& a) {
     for (json& r : rows) sweep.push_back(std::move(r));
   }
 
-  json j = {{"benchmark", "scenes"}, {"iterations", a.iterations}, {"threads", omp_get_max_threads()},
+  json j = {{"benchmark", "scenes"}, {"iterations", iterations}, {"threads", omp_get_max_threads()},
             {"capacity_sweep", a.capacity_sweep}, {"pareto_tolerance_db", kParetoToleranceDb},
-            {"curve_views", a.curve_views}, {"train_views", a.train_views},
+            {"curve_views", a.fit.curve_views}, {"train_views", a.train_views},
             {"scenes", scenes}, {"sweep", sweep}, {"sweep_best", best}};
   if (absl::Status s = WriteJson((out / "scenes.json").string(), j); !s.ok()) return Fail(s);
 
@@ -324,7 +338,7 @@ int RunBenchScenes(const BenchScenesArgs& a) {
   std::string md = absl::StrFormat(
       "Default flags, %d iterations, %d threads. Test PSNR/SSIM: means over the test split; train-view PSNR: "
       "up to %d training views; render: mean per test view at the dataset's resolution.\n\n",
-      a.iterations, omp_get_max_threads(), a.train_views);
+      iterations, omp_get_max_threads(), a.train_views);
   md += "| scene | resolution | test PSNR | SSIM | train-view PSNR | train s | samples/s | rays/s | samples/ray | "
         "model | file | render ms/view |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const json& r : scenes) {
@@ -344,7 +358,7 @@ int RunBenchScenes(const BenchScenesArgs& a) {
     md += absl::StrFormat(
         "\nCapacity sweep (hash-table entries per level around the derived size, %d iterations each); "
         "**bold**: the smallest within %.1f dB of the best tried.\n\n",
-        a.iterations, kParetoToleranceDb);
+        iterations, kParetoToleranceDb);
     md += "| scene | table | model | file | test PSNR | SSIM | train-view PSNR | train s |\n"
           "|---|---|---|---|---|---|---|---|\n";
     for (const json& r : sweep) {

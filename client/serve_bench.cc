@@ -16,6 +16,7 @@
 #include "absl/strings/str_split.h"
 #include "proto/wire/wire.h"
 #include "client/commands.h"
+#include "client/verb_set.h"
 #include "client/remote_client.h"
 #include "client/remote_commands.h"
 #include "client/remote_format.h"
@@ -210,6 +211,22 @@ absl::StatusOr<std::vector<int>> ParseInts(const std::string& csv) {
 }
 
 }  // namespace
+
+CLI::App* BindBenchServe(CLI::App* parent, BenchServeArgs* a) {
+  CLI::App* c = parent->add_subcommand("serve", "Render latency (idle / during an update), upload throughput and "
+                                                "upload-to-served time against a running server");
+  c->add_option("--data", a->data, "Dataset cut into tasks (scans 0 and 1 are uploaded) or 'procedural'")
+      ->capture_default_str();
+  c->add_option("--tasks", a->tasks, "Tasks to cut a static dataset into")->capture_default_str();
+  c->add_option("--sizes", a->sizes, "Comma-separated square render sizes")->capture_default_str();
+  c->add_option("--clients", a->clients, "Comma-separated concurrent client counts")->capture_default_str();
+  c->add_option("--renders", a->renders_per_client, "Requests per client per configuration")->capture_default_str();
+  c->add_option("--store", a->store,
+                "The server's store directory: also time the same renders in-process (the 100x100 target)");
+  c->add_option("--json-out", a->json, "Write JSON here ('-' = stdout)");
+  BindRemoteFlags(c, &a->remote);
+  return c;
+}
 
 int RunBenchServe(const BenchServeArgs& a) {
   absl::StatusOr<std::vector<int>> sizes = ParseInts(a.sizes);

@@ -10,20 +10,35 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "client/commands.h"
+#include "client/verb_set.h"
 #include "core/continual/stability.h"
 #include "nlohmann/json.hpp"
 
 namespace clnerf {
 
+CLI::App* BindBenchStability(CLI::App* parent, BenchStabilityArgs* a) {
+  CLI::App* c = parent->add_subcommand(
+      "stability", "Stability matrix: every continual method (and ub) against every stressor, through the deployment gate");
+  StabilityOptions& o = a->stability;
+  c->add_option("--methods", a->methods, "Methods (nt ewc er meil clnerf-noer clnerf ub)")->delimiter(',');
+  c->add_option("--stressors", a->stressors,
+                "Stressors (default all: none iters_x5 lr_x3 lr_x10 chain_20 blank_scan single_view far_cameras "
+                "nan_gradient stale_memory)")
+      ->delimiter(',');
+  c->add_option("--scans", o.scans, "Scans of the procedural sequence (chain_20: 20)")->capture_default_str();
+  c->add_option("--size", o.image_size, "Image size of the procedural scans")->capture_default_str();
+  c->add_option("--iters", o.iterations, "Training steps per update (ub: scans x this)")->capture_default_str();
+  c->add_option("--batch-samples", o.batch_samples, "Samples per training batch (rays adapt)")->capture_default_str();
+  c->add_option("--seed", o.seed, "Random seed")->capture_default_str();
+  BindThreadsFlag(c, &o.threads);
+  c->add_option("--json", a->json, "Write JSON here ('-' = stdout)");
+  c->add_option("--markdown", a->markdown, "Also write the markdown table here");
+  return c;
+}
+
 int RunBenchStability(const BenchStabilityArgs& a) {
-  SetThreads(a.threads);
-  StabilityOptions o;
-  o.scans = a.scans;
-  o.image_size = a.size;
-  o.iterations = a.iterations;
-  o.batch_samples = a.batch_samples;
-  o.seed = a.seed;
-  o.threads = a.threads;
+  const StabilityOptions& o = a.stability;
+  SetThreads(o.threads);
   if (absl::Status s = o.Validate(); !s.ok()) return Fail(s);
   std::vector<Stressor> stressors;
   if (a.stressors.empty()) {
@@ -88,7 +103,7 @@ int RunBenchStability(const BenchStabilityArgs& a) {
       int(a.methods.size()), int(stressors.size()), o.scans, o.image_size, o.image_size, o.iterations, secs,
       broken ? "BROKEN" : "held in every cell");
   nlohmann::json j = {{"scans", o.scans},          {"chain_scans", o.chain_scans}, {"image_size", o.image_size},
-                      {"iterations", o.iterations}, {"seed", a.seed},              {"seconds", secs},
+                      {"iterations", o.iterations}, {"seed", o.seed},              {"seconds", secs},
                       {"invariants_held", !broken}, {"cells", cells}};
   std::printf("%s\n", j.dump().c_str());
   if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);

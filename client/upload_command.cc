@@ -5,6 +5,7 @@
 
 #include "absl/strings/str_format.h"
 #include "client/job_watch.h"
+#include "client/verb_set.h"
 #include "client/progress_bar.h"
 #include "client/proto_json.h"
 #include "client/remote_client.h"
@@ -27,6 +28,18 @@ std::vector<View>* TestViews(Scene& scene, const std::string& split) {
 }
 
 }  // namespace
+
+CLI::App* BindUpload(CLI::App* parent, UploadArgs* a) {
+  CLI::App* c = parent->add_subcommand(
+      "upload", "Upload a scan folder (Blender, transforms.json, COLMAP or LLFF) to the server");
+  c->add_option("dir", a->dir, "Dataset directory")->required();
+  c->add_option("--name", a->name, "Scan name (default: the folder's name)");
+  c->add_option("--test-split", a->test_split, "Held-out frames: test (falls back to val), val or none")
+      ->capture_default_str();
+  c->add_flag("--watch", a->watch, "Then follow the update job until it ends");
+  BindRemoteFlags(c, &a->remote);
+  return c;
+}
 
 int RunUpload(const UploadArgs& a) {
   if (a.test_split != "test" && a.test_split != "val" && a.test_split != "none") {

@@ -4,6 +4,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/progress_bar.h"
+#include "client/verb_set.h"
 #include "client/proto_json.h"
 #include "client/remote_client.h"
 #include "client/remote_commands.h"
@@ -11,6 +12,12 @@
 #include "client/text_table.h"
 
 namespace clnerf {
+
+CLI::App* BindVersions(CLI::App* parent, ListArgs* a) {
+  CLI::App* c = parent->add_subcommand("versions", "List the server's model versions");
+  BindRemoteFlags(c, &a->remote);
+  return c;
+}
 
 int RunVersions(const ListArgs& a) {
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
@@ -39,6 +46,13 @@ int RunVersions(const ListArgs& a) {
   return 0;
 }
 
+CLI::App* BindRollback(CLI::App* parent, RollbackArgs* a) {
+  CLI::App* c = parent->add_subcommand("rollback", "Deploy an existing model version");
+  c->add_option("version", a->version, "Version to deploy")->required();
+  BindRemoteFlags(c, &a->remote);
+  return c;
+}
+
 int RunRollback(const RollbackArgs& a) {
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
   if (!client.ok()) return FailRemote("rollback", client.status());
@@ -56,6 +70,12 @@ int RunRollback(const RollbackArgs& a) {
                 FormatMetrics(v.metrics()).c_str());
   }
   return 0;
+}
+
+CLI::App* BindInfo(CLI::App* parent, ListArgs* a) {
+  CLI::App* c = parent->add_subcommand("info", "Show the server's state and health");
+  BindRemoteFlags(c, &a->remote);
+  return c;
 }
 
 int RunInfo(const ListArgs& a) {

@@ -77,5 +77,26 @@ TEST(TrainingTest, CancelStopsTraining) {
   EXPECT_EQ(steps, 5);
 }
 
+TEST(TrainingTest, CapacityOverridesWinOverTheDerivedSizes) {
+  const Scene scene = TinyScene();
+  absl::StatusOr<FitResult> derived = FitScene(scene, TinyFit(1), nullptr);
+  ASSERT_TRUE(derived.ok()) << derived.status();
+  FitOptions fo = TinyFit(1);
+  fo.overrides.log2_table_size = derived->model->options().grid.log2_table_size - 1;
+  fo.overrides.occupancy_resolution = 32;
+  absl::StatusOr<FitResult> fit = FitScene(scene, fo, nullptr);
+  ASSERT_TRUE(fit.ok()) << fit.status();
+  EXPECT_EQ(fit->model->options().grid.log2_table_size, *fo.overrides.log2_table_size);
+  EXPECT_EQ(fit->capacity.log2_table_size, *fo.overrides.log2_table_size);
+  EXPECT_EQ(fit->model->options().occupancy.resolution, 32);
+  // What was not overridden is still derived, and the footprint is reported.
+  EXPECT_EQ(fit->model->options().grid.finest_resolution, derived->model->options().grid.finest_resolution);
+  EXPECT_EQ(fit->capacity.pixel_footprint, derived->capacity.pixel_footprint);
+  EXPECT_LT(fit->model->num_bytes(), derived->model->num_bytes());
+
+  fo.overrides.log2_table_size = 40;  // Out of range: refused, not clamped.
+  EXPECT_EQ(FitScene(scene, fo, nullptr).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
 }  // namespace
 }  // namespace clnerf

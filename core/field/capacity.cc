@@ -92,4 +92,20 @@ ModelOptions DeriveModelOptions(const Scene& scene, const Normalization& norm, c
   return base;
 }
 
+bool CapacityOverrides::empty() const {
+  return !log2_table_size && !finest_resolution && !occupancy_resolution && !steps_per_diagonal && !cone_angle &&
+         !near && !occupancy_threshold;
+}
+
+ModelOptions CapacityOverrides::ApplyTo(ModelOptions mo) const {
+  if (log2_table_size) mo.grid.log2_table_size = *log2_table_size;
+  if (finest_resolution) mo.grid.finest_resolution = *finest_resolution;
+  if (occupancy_resolution) mo.occupancy.resolution = *occupancy_resolution;
+  if (steps_per_diagonal) mo.march.steps_per_diagonal = *steps_per_diagonal;
+  if (cone_angle) mo.march.cone_angle = *cone_angle;
+  if (near) mo.march.near = *near;
+  if (occupancy_threshold) mo.occupancy.density_threshold = *occupancy_threshold;
+  return mo;
+}
+
 }  // namespace clnerf

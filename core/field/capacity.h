@@ -7,6 +7,7 @@
 #ifndef CLNERF_CORE_FIELD_CAPACITY_H_
 #define CLNERF_CORE_FIELD_CAPACITY_H_
 
+#include <optional>
 #include <string>
 
 #include "absl/status/status.h"
@@ -43,6 +44,21 @@ struct CapacityReport {
   int occupancy_resolution = 0;
   float steps_per_diagonal = 0;
   std::string ToString() const;
+};
+
+// Explicit sizes that win over the derived ones (`clnerf train --table-log2
+// 15`). Unset fields keep what DeriveModelOptions chose; set ones are applied
+// as given and checked by ModelOptions::Validate like any other option.
+struct CapacityOverrides {
+  std::optional<int> log2_table_size;
+  std::optional<int> finest_resolution;
+  std::optional<int> occupancy_resolution;
+  std::optional<float> steps_per_diagonal;
+  std::optional<float> cone_angle;           // 0: constant steps; > 0: exponential.
+  std::optional<float> near;                 // Model units from the camera.
+  std::optional<float> occupancy_threshold;  // Density; derived: 0.01 / minimum step.
+  bool empty() const;
+  ModelOptions ApplyTo(ModelOptions options) const;
 };
 
 // Fills grid/occupancy/march fields of `base` from the scene's training

@@ -22,10 +22,11 @@ absl::StatusOr<FitResult> FitScene(const Scene& scene, const FitOptions& options
   const Normalization norm = ComputeNormalization(scene);
   FitResult result;
   ModelOptions mo = options.model;
-  if (options.derive_capacity) {
-    mo = DeriveModelOptions(scene, norm, options.capacity, mo, &result.capacity);
-  } else {
-    // Sizes given by the caller: report them as they are (no footprint).
+  if (options.derive_capacity) mo = DeriveModelOptions(scene, norm, options.capacity, mo, &result.capacity);
+  mo = options.overrides.ApplyTo(mo);  // NgpModel::Create validates the result.
+  if (!options.derive_capacity || !options.overrides.empty()) {
+    // Sizes given by the caller: report them as used (the footprint, if
+    // derived, is kept).
     result.capacity.finest_resolution = mo.grid.finest_resolution;
     result.capacity.log2_table_size = mo.grid.log2_table_size;
     result.capacity.occupancy_resolution = mo.occupancy.resolution;

@@ -24,6 +24,8 @@ struct FitOptions {
   ModelOptions model;             // Network options etc.; see derive_capacity.
   bool derive_capacity = true;    // Overwrite grid/occupancy/march sizes from the scene.
   CapacityOptions capacity;
+  // Applied after derivation (or to `model` as given without it).
+  CapacityOverrides overrides;
   int curve_every = 0;            // Evaluate held-out views every N steps (0 = never).
   int curve_views = 8;            // Held-out views used for each curve point.
   absl::Status Validate() const;

@@ -1,0 +1,57 @@
+#include "client/core_flags.h"
+
+#include "client/verb_set.h"
+
+namespace clnerf {
+
+void BindFitFlags(CLI::App* c, FitOptions* fo) {
+  TrainOptions& t = fo->train;
+  c->add_option("--iters", t.iterations, "Training steps")->capture_default_str();
+  c->add_option("--seed", t.seed, "Random seed")->capture_default_str();
+  BindThreadsFlag(c, &t.threads);
+  c->add_option("--lr", t.learning_rate, "Initial learning rate")->capture_default_str();
+  c->add_option("--batch-samples", t.target_samples, "Samples per batch (rays adapt)")->capture_default_str();
+  c->add_option("--curve-every", fo->curve_every, "Evaluate held-out views every N steps (PSNR-vs-time curve)")
+      ->capture_default_str();
+  c->add_option("--curve-views", fo->curve_views, "Held-out views per curve point")->capture_default_str();
+  // Capacity: derived from the scene unless given (core/field/capacity.h).
+  CapacityOverrides& o = fo->overrides;
+  c->add_option("--levels", fo->model.grid.levels, "Hash-grid levels")->capture_default_str();
+  c->add_option("--table-log2", o.log2_table_size, "log2 entries per level (default: derived from the scene)");
+  c->add_option("--finest-res", o.finest_resolution, "Finest grid resolution (default: derived)");
+  c->add_option("--steps-per-diagonal", o.steps_per_diagonal, "March steps across the box diagonal (default: derived)");
+  c->add_option("--occupancy-res", o.occupancy_resolution, "Occupancy grid resolution (default: derived)");
+  c->add_option("--cone-angle", o.cone_angle, "March cone angle (exponential steps; default: derived)");
+  c->add_option("--near", o.near, "Near plane in model units (default: derived)");
+  c->add_option("--occupancy-threshold", o.occupancy_threshold,
+                "Occupancy density threshold (default: 0.01 / minimum step)");
+  // Regularisers (< 0: automatic, see core/train/trainer.h).
+  c->add_option("--distortion", t.distortion_reg,
+                "Distortion-loss weight (< 0: 0.01 for real captures, 0 for objects)")
+      ->capture_default_str();
+  c->add_option("--near-density", t.near_density_reg,
+                "Occlusion-penalty weight on density near the cameras (< 0: 0.01 for real captures, 0 for objects)")
+      ->capture_default_str();
+  c->add_option("--near-density-distance", t.near_density_distance,
+                "Distance from the camera, in model units, within which density is penalised")
+      ->capture_default_str();
+  c->add_option("--near-density-fade", t.near_density_fade,
+                "Fade the occlusion penalty to 0 over this fraction of training (0 = constant)")
+      ->capture_default_str();
+  c->add_flag("--random-background", t.random_background, "Real captures: train on random background colours");
+  c->add_flag("!--no-embed", fo->model.network.use_embeddings, "Disable per-time-step embeddings");
+}
+
+void BindDatasetFlags(CLI::App* c, DatasetOptions* d) {
+  c->add_option("--downscale", d->downscale, "Shrink images by this factor")->capture_default_str();
+  c->add_option("--images-dir", d->images_dir,
+                "COLMAP/LLFF: image folder, absolute or relative to the dataset (default: images_N/ or images/)");
+  c->add_option("--test-every", d->test_every,
+                "transforms.json without a split, COLMAP, LLFF: every N-th view is a test view (0 = none)")
+      ->capture_default_str();
+  c->add_option("--max-images", d->max_images_per_split, "Keep at most this many views per split (0 = all)")
+      ->capture_default_str();
+  c->add_flag("--ngp-bounded", d->ngp_bounded, "transforms.json: a bounded object scene (white background)");
+}
+
+}  // namespace clnerf

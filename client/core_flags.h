@@ -1,0 +1,24 @@
+// Flags bound straight onto core Options structs, shared by the verbs that
+// take them (`train`, `bench scenes`, `bench continual`, ...). Each binds to
+// the struct's own field, so the help text shows the core default and there
+// is no second copy of it. Not thread-safe (CLI set-up).
+#ifndef CLNERF_CLIENT_CORE_FLAGS_H_
+#define CLNERF_CLIENT_CORE_FLAGS_H_
+
+#include "CLI/CLI.hpp"
+#include "core/data/dataset_options.h"
+#include "core/train/fit.h"
+
+namespace clnerf {
+
+// What `clnerf train` trains with: steps, seed, threads, learning rate,
+// batch, PSNR-vs-time curve, the capacity overrides and the regularisers.
+void BindFitFlags(CLI::App* command, FitOptions* fit);
+
+// The dataset loader's options: downscale, image folder, test split,
+// per-split cap, bounded instant-ngp scenes.
+void BindDatasetFlags(CLI::App* command, DatasetOptions* dataset);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CLIENT_CORE_FLAGS_H_

@@ -1,0 +1,52 @@
+// CapacityOverrides: unset fields keep the derived sizes, set ones win.
+#include "core/field/capacity.h"
+
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+TEST(CapacityOverridesTest, EmptyOverridesChangeNothing) {
+  ModelOptions base;
+  base.grid.log2_table_size = 15;
+  base.march.cone_angle = 0.25f;
+  const CapacityOverrides none;
+  EXPECT_TRUE(none.empty());
+  const ModelOptions out = none.ApplyTo(base);
+  EXPECT_EQ(out.grid.log2_table_size, 15);
+  EXPECT_EQ(out.grid.finest_resolution, base.grid.finest_resolution);
+  EXPECT_EQ(out.occupancy.resolution, base.occupancy.resolution);
+  EXPECT_EQ(out.march.steps_per_diagonal, base.march.steps_per_diagonal);
+  EXPECT_EQ(out.march.cone_angle, 0.25f);
+  EXPECT_EQ(out.march.near, base.march.near);
+  EXPECT_EQ(out.occupancy.density_threshold, base.occupancy.density_threshold);
+}
+
+TEST(CapacityOverridesTest, SetFieldsWinAndOnlyThose) {
+  ModelOptions base;
+  CapacityOverrides o;
+  o.log2_table_size = 12;
+  o.cone_angle = 0.0f;  // A set zero is a value, not "unset".
+  o.occupancy_threshold = 0.5f;
+  EXPECT_FALSE(o.empty());
+  base.march.cone_angle = 1.0f / 256;
+  const ModelOptions out = o.ApplyTo(base);
+  EXPECT_EQ(out.grid.log2_table_size, 12);
+  EXPECT_EQ(out.march.cone_angle, 0.0f);
+  EXPECT_EQ(out.occupancy.density_threshold, 0.5f);
+  EXPECT_EQ(out.grid.finest_resolution, base.grid.finest_resolution);
+  EXPECT_EQ(out.march.steps_per_diagonal, base.march.steps_per_diagonal);
+  EXPECT_TRUE(out.Validate().ok()) << out.Validate();
+}
+
+TEST(CapacityOverridesTest, AnOutOfRangeOverrideFailsValidation) {
+  CapacityOverrides o;
+  o.log2_table_size = 0;
+  EXPECT_FALSE(o.ApplyTo(ModelOptions{}).Validate().ok());
+  CapacityOverrides s;
+  s.steps_per_diagonal = -3.0f;
+  EXPECT_FALSE(s.ApplyTo(ModelOptions{}).Validate().ok());
+}
+
+}  // namespace
+}  // namespace clnerf
