@@ -98,14 +98,9 @@ absl::Status LoadSplit(const fs::path& dir, const std::string& file_name,
 
 }  // namespace
 
-
 absl::StatusOr<Scene> LoadBlenderScene(const std::string& dir, const DatasetOptions& opts) {
-  if (absl::Status s = opts.Validate(); !s.ok()) return s;
+  if (absl::Status s = CheckDatasetDir(dir, opts); !s.ok()) return s;
   const fs::path root(dir);
-  std::error_code ec;
-  if (!fs::is_directory(root, ec)) {
-    return absl::NotFoundError(absl::StrCat("dataset directory not found: ", dir));
-  }
   Scene scene;
   scene.name = root.lexically_normal().filename().string();
   if (scene.name.empty()) scene.name = root.lexically_normal().parent_path().filename().string();
@@ -115,6 +110,7 @@ absl::StatusOr<Scene> LoadBlenderScene(const std::string& dir, const DatasetOpti
   scene.world_offset_hint = Eigen::Vector3f::Zero();
 
   bool any = false;
+  std::error_code ec;
   const std::pair<const char*, std::vector<View>*> splits[] = {
       {"train", &scene.train}, {"val", &scene.val}, {"test", &scene.test}};
   for (const auto& [split, views] : splits) {

@@ -409,14 +409,9 @@ absl::Status ReadModel(const fs::path& root, Cameras* cams, std::vector<ColmapIm
 
 }  // namespace
 
-
 absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const DatasetOptions& opts) {
-  if (absl::Status s = opts.Validate(); !s.ok()) return s;
+  if (absl::Status s = CheckDatasetDir(dir, opts); !s.ok()) return s;
   const fs::path root(dir);
-  std::error_code ec;
-  if (!fs::is_directory(root, ec)) {
-    return absl::NotFoundError(absl::StrCat("dataset directory not found: ", dir));
-  }
   Cameras cams;
   std::vector<ColmapImage> images;
   Points points;
@@ -487,7 +482,7 @@ absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const DatasetOptio
       absl::Status s = ScaleIntrinsicsToImage(view.image.width, view.image.height,
                                               image_path.string(), &view.camera.intrinsics);
       if (!s.ok()) return annotate(s);
-    } else if (fs::is_regular_file(image_path, ec)) {
+    } else if (std::error_code ec; fs::is_regular_file(image_path, ec)) {
       absl::StatusOr<ImageSize> size = ReadImageSize(image_path.string());
       if (!size.ok()) return annotate(size.status());
       absl::Status s = ScaleIntrinsicsToImage(size->width, size->height, image_path.string(),

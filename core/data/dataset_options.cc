@@ -1,5 +1,7 @@
 #include "core/data/dataset_options.h"
 
+#include <filesystem>
+
 #include "absl/strings/str_cat.h"
 
 namespace clnerf {
@@ -12,6 +14,15 @@ absl::Status DatasetOptions::Validate() const {
   if (test_every < 0) return absl::InvalidArgumentError("DatasetOptions.test_every must be >= 0");
   if (max_images_per_split < 0) {
     return absl::InvalidArgumentError("DatasetOptions.max_images_per_split must be >= 0");
+  }
+  return absl::OkStatus();
+}
+
+absl::Status CheckDatasetDir(const std::string& dir, const DatasetOptions& options) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  std::error_code ec;
+  if (!std::filesystem::is_directory(dir, ec)) {
+    return absl::NotFoundError(absl::StrCat("dataset directory not found: ", dir));
   }
   return absl::OkStatus();
 }

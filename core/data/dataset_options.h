@@ -34,6 +34,10 @@ struct DatasetOptions {
   absl::Status Validate() const;
 };
 
+// What every loader checks first: `options` are valid and `dir` is a
+// directory (NOT_FOUND otherwise).
+absl::Status CheckDatasetDir(const std::string& dir, const DatasetOptions& options);
+
 }  // namespace clnerf
 
 #endif  // CLNERF_CORE_DATA_DATASET_OPTIONS_H_

@@ -32,14 +32,9 @@ Pose ToPose(const NpyArray& a, int64_t i) {
 
 }  // namespace
 
-
 absl::StatusOr<Scene> LoadLlffScene(const std::string& dir, const DatasetOptions& opts) {
-  if (absl::Status s = opts.Validate(); !s.ok()) return s;
+  if (absl::Status s = CheckDatasetDir(dir, opts); !s.ok()) return s;
   const fs::path root(dir);
-  std::error_code ec;
-  if (!fs::is_directory(root, ec)) {
-    return absl::NotFoundError(absl::StrCat("dataset directory not found: ", dir));
-  }
   const fs::path npy_path = root / "poses_bounds.npy";
   absl::StatusOr<NpyArray> npy = ReadNpy(npy_path.string());
   if (!npy.ok()) return npy.status();

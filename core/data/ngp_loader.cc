@@ -248,14 +248,9 @@ absl::Status ReadHints(const json& doc, const std::string& file, Scene* scene) {
 
 }  // namespace
 
-
 absl::StatusOr<Scene> LoadNgpScene(const std::string& dir, const DatasetOptions& opts) {
-  if (absl::Status s = opts.Validate(); !s.ok()) return s;
+  if (absl::Status s = CheckDatasetDir(dir, opts); !s.ok()) return s;
   const fs::path root(dir);
-  std::error_code ec;
-  if (!fs::is_directory(root, ec)) {
-    return absl::NotFoundError(absl::StrCat("dataset directory not found: ", dir));
-  }
   Scene scene;
   const fs::path norm = root.lexically_normal();
   scene.name =
@@ -278,6 +273,7 @@ absl::StatusOr<Scene> LoadNgpScene(const std::string& dir, const DatasetOptions&
     return absl::OkStatus();
   };
 
+  std::error_code ec;
   try {
     if (fs::is_regular_file(root / "transforms_train.json", ec)) {
       const std::pair<const char*, Split> files[] = {{"transforms_train.json", kTrain},
