@@ -11,6 +11,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "client/commands.h"
+#include "client/core_flags.h"
 #include "client/verb_set.h"
 #include "core/io/checkpoint.h"
 #include "core/data/dataset.h"
@@ -28,6 +29,7 @@ CLI::App* BindBenchRender(CLI::App* parent, BenchRenderArgs* a) {
   c->add_option("--repeats", a->repeats, "Renders per view (median kept)")->capture_default_str();
   BindThreadsFlag(c, &a->threads);
   c->add_option("--json", a->json, "Write JSON here");
+  BindDatasetFlags(c, &a->dataset);
   return c;
 }
 
@@ -35,7 +37,7 @@ int RunBenchRender(const BenchRenderArgs& a) {
   SetThreads(a.threads);
   absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
   if (!ck.ok()) return Fail(ck.status());
-  DatasetOptions dopt;
+  DatasetOptions dopt = a.dataset;
   dopt.load_images = false;
   absl::StatusOr<Scene> scene = LoadScene(a.data, dopt);
   if (!scene.ok()) return Fail(scene.status());

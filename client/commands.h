@@ -60,6 +60,7 @@ struct RenderArgs {
   std::string pose;
   int width = 100, height = 100;
   float focal = 0;  // Pixels; 0 = from camera_angle_x of 0.6911.
+  DatasetOptions dataset;  // How --data is read (its split, image folder, size).
   // ...or a nerfstudio camera_path.json.
   std::string camera_path;
   int time_step = -1;
@@ -88,6 +89,7 @@ struct BenchRenderArgs {
   int repeats = 3;                 // Renders per view (the median is kept).
   int threads = 0;
   std::string json;
+  DatasetOptions dataset;          // How --data is read.
 };
 
 // `bench scenes`: trains and evaluates each dataset as `clnerf train` does

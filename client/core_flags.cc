@@ -24,7 +24,7 @@ void BindFitFlags(CLI::App* c, FitOptions* fo) {
   c->add_option("--cone-angle", o.cone_angle, "March cone angle (exponential steps; default: derived)");
   c->add_option("--near", o.near, "Near plane in model units (default: derived)");
   c->add_option("--occupancy-threshold", o.occupancy_threshold,
-                "Occupancy density threshold (default: 0.01 / minimum step)");
+                "Occupancy density threshold (default: derived from the minimum step)");
   // Regularisers (< 0: automatic, see core/train/trainer.h).
   c->add_option("--distortion", t.distortion_reg,
                 "Distortion-loss weight (< 0: 0.01 for real captures, 0 for objects)")

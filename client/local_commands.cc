@@ -197,6 +197,7 @@ CLI::App* BindRender(CLI::App* parent, RenderArgs* a) {
   c->add_option("--time-step", a->time_step, "Time step to render (-1 = latest)")->capture_default_str();
   BindThreadsFlag(c, &a->threads);
   c->add_option("--version", a->version, "Remote: model version (0 = the deployed one)")->capture_default_str();
+  BindDatasetFlags(c, &a->dataset);
   BindRemoteFlags(c, &a->remote);
   return c;
 }
@@ -220,7 +221,7 @@ int RunRender(const RenderArgs& a) {
     cams = std::move(*path);
     for (size_t i = 0; i < cams.size(); ++i) names.push_back(absl::StrFormat("path_%05d", int(i)));
   } else if (!a.data.empty()) {
-    DatasetOptions dopt;
+    DatasetOptions dopt = a.dataset;
     dopt.load_images = false;
     absl::StatusOr<Scene> scene = LoadScene(a.data, dopt);
     if (!scene.ok()) return Fail(scene.status());

@@ -34,7 +34,7 @@ struct Shots {
 };
 
 absl::StatusOr<Shots> SplitShots(const RenderArgs& a) {
-  DatasetOptions dopt;
+  DatasetOptions dopt = a.dataset;
   absl::StatusOr<Scene> scene = LoadScene(a.data, dopt);
   if (!scene.ok()) {
     // Cameras alone are enough to render; ground truth is optional.

@@ -12,7 +12,7 @@
 // `RemoteOptions remote`) also take the remote flags given before the verb
 // (`clnerf --server H:P upload DIR`); a flag after the verb wins.
 //
-// main() is the only caller; verbs are listed once, in RegisterVerbs
+// main() builds one; verbs are listed once, in RegisterVerbs
 // (client/verbs.h). Not thread-safe.
 #ifndef CLNERF_CLIENT_VERB_SET_H_
 #define CLNERF_CLIENT_VERB_SET_H_

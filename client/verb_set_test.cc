@@ -113,6 +113,14 @@ TEST(VerbSetTest, DemoSizeAndSeedSetEveryFieldTheyName) {
   EXPECT_TRUE(s.scene.Validate().ok());
 }
 
+TEST(VerbSetTest, RenderReadsItsDatasetAsTrainDoes) {
+  const RenderArgs a = Parse(BindRender, "render --out o --data d --test-every 4 --images-dir images_2 --downscale 2");
+  EXPECT_EQ(a.dataset.test_every, 4);
+  EXPECT_EQ(a.dataset.images_dir, "images_2");
+  EXPECT_FLOAT_EQ(a.dataset.downscale, 2.0f);
+  EXPECT_TRUE(a.model.empty());  // Remote mode.
+}
+
 TEST(VerbSetTest, StabilityBenchBindsStabilityOptions) {
   const BenchStabilityArgs a =
       Parse(BindBenchStability, "stability --methods nt,clnerf --stressors none,lr_x10 --scans 2 --size 16 --iters 5");

@@ -96,6 +96,9 @@ TEST(TrainingTest, CapacityOverridesWinOverTheDerivedSizes) {
 
   fo.overrides.log2_table_size = 40;  // Out of range: refused, not clamped.
   EXPECT_EQ(FitScene(scene, fo, nullptr).status().code(), absl::StatusCode::kInvalidArgument);
+  fo.overrides.log2_table_size.reset();
+  fo.overrides.occupancy_threshold = 0.0f;  // Not "derive": refused.
+  EXPECT_EQ(FitScene(scene, fo, nullptr).status().code(), absl::StatusCode::kInvalidArgument);
 }
 
 }  // namespace

@@ -97,6 +97,21 @@ bool CapacityOverrides::empty() const {
          !near && !occupancy_threshold;
 }
 
+absl::Status CapacityOverrides::Validate() const {
+  const auto positive = [](const auto& v) { return !v || *v > 0; };
+  const auto non_negative = [](const std::optional<float>& v) { return !v || *v >= 0; };
+  if (!positive(log2_table_size) || !positive(finest_resolution) || !positive(occupancy_resolution) ||
+      !positive(steps_per_diagonal) || !positive(occupancy_threshold)) {
+    return absl::InvalidArgumentError(
+        "capacity overrides: table size, finest resolution, occupancy resolution, steps per diagonal and "
+        "occupancy threshold must be positive (leave them unset to derive them from the scene)");
+  }
+  if (!non_negative(cone_angle) || !non_negative(near)) {
+    return absl::InvalidArgumentError("capacity overrides: cone angle and near plane must be >= 0");
+  }
+  return absl::OkStatus();
+}
+
 ModelOptions CapacityOverrides::ApplyTo(ModelOptions mo) const {
   if (log2_table_size) mo.grid.log2_table_size = *log2_table_size;
   if (finest_resolution) mo.grid.finest_resolution = *finest_resolution;

@@ -48,7 +48,9 @@ struct CapacityReport {
 
 // Explicit sizes that win over the derived ones (`clnerf train --table-log2
 // 15`). Unset fields keep what DeriveModelOptions chose; set ones are applied
-// as given and checked by ModelOptions::Validate like any other option.
+// as given. Validate() refuses values that would not mean what they say
+// (a zero or negative size, step or threshold; a negative cone or near
+// plane); the applied options are then checked by ModelOptions::Validate.
 struct CapacityOverrides {
   std::optional<int> log2_table_size;
   std::optional<int> finest_resolution;
@@ -56,8 +58,9 @@ struct CapacityOverrides {
   std::optional<float> steps_per_diagonal;
   std::optional<float> cone_angle;           // 0: constant steps; > 0: exponential.
   std::optional<float> near;                 // Model units from the camera.
-  std::optional<float> occupancy_threshold;  // Density; derived: 0.01 / minimum step.
+  std::optional<float> occupancy_threshold;  // Density; derived: see DeriveModelOptions.
   bool empty() const;
+  absl::Status Validate() const;
   ModelOptions ApplyTo(ModelOptions options) const;
 };
 

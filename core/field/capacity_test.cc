@@ -39,13 +39,31 @@ TEST(CapacityOverridesTest, SetFieldsWinAndOnlyThose) {
   EXPECT_TRUE(out.Validate().ok()) << out.Validate();
 }
 
-TEST(CapacityOverridesTest, AnOutOfRangeOverrideFailsValidation) {
+TEST(CapacityOverridesTest, OverridesThatWouldNotMeanWhatTheySayAreRefused) {
+  EXPECT_TRUE(CapacityOverrides{}.Validate().ok());
   CapacityOverrides o;
   o.log2_table_size = 0;
-  EXPECT_FALSE(o.ApplyTo(ModelOptions{}).Validate().ok());
+  EXPECT_FALSE(o.Validate().ok());
+  // Zero is not "derive": the occupancy grid would silently fall back to its
+  // own 0.01 / min step rule instead of the derived threshold.
+  CapacityOverrides t;
+  t.occupancy_threshold = 0.0f;
+  EXPECT_FALSE(t.Validate().ok());
   CapacityOverrides s;
   s.steps_per_diagonal = -3.0f;
-  EXPECT_FALSE(s.ApplyTo(ModelOptions{}).Validate().ok());
+  EXPECT_FALSE(s.Validate().ok());
+  CapacityOverrides n;
+  n.near = -0.1f;
+  EXPECT_FALSE(n.Validate().ok());
+  CapacityOverrides ok;
+  ok.cone_angle = 0.0f;
+  ok.near = 0.0f;
+  EXPECT_TRUE(ok.Validate().ok());
+  // In range for the overrides, out of range for the model.
+  CapacityOverrides big;
+  big.log2_table_size = 40;
+  EXPECT_TRUE(big.Validate().ok());
+  EXPECT_FALSE(big.ApplyTo(ModelOptions{}).Validate().ok());
 }
 
 }  // namespace

@@ -7,7 +7,7 @@
 namespace clnerf {
 
 absl::Status FitOptions::Validate() const {
-  for (const absl::Status& s : {train.Validate(), model.Validate(), capacity.Validate()}) {
+  for (const absl::Status& s : {train.Validate(), model.Validate(), capacity.Validate(), overrides.Validate()}) {
     if (!s.ok()) return s;
   }
   if (curve_every < 0 || curve_views < 1) return absl::InvalidArgumentError("fit: bad curve options");
