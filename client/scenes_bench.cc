@@ -58,12 +58,6 @@ using json = nlohmann::json;
 constexpr int kMinSweepLog2 = 12, kMaxSweepLog2 = 20;
 constexpr double kParetoToleranceDb = 0.2;
 
-// Scene::name as LoadScene sets it, known before loading (for resuming).
-std::string SceneNameOf(const std::string& dir) {
-  const fs::path norm = fs::path(dir).lexically_normal();
-  return norm.has_filename() ? norm.filename().string() : norm.parent_path().filename().string();
-}
-
 std::string Bytes(double b) {
   if (b >= 1e6) return absl::StrFormat("%.1f MB", b / 1e6);
   return absl::StrFormat("%.0f kB", b / 1e3);
@@ -235,8 +229,9 @@ int RunBenchScenes(const BenchScenesArgs& a) {
   std::set<std::string> names;
   int failures = 0;
   for (const std::string& dir : a.dirs) {
-    std::string name = SceneNameOf(dir);
-    for (int k = 2; names.count(name); ++k) name = absl::StrFormat("%s_%d", SceneNameOf(dir), k);
+    // Scene::name as LoadScene sets it, known before loading (for resuming).
+    std::string name = DatasetName(dir);
+    for (int k = 2; names.count(name); ++k) name = absl::StrFormat("%s_%d", DatasetName(dir), k);
     names.insert(name);
     std::optional<Scene> scene;  // Loaded only when something has to be trained.
     auto run = [&](int log2_table, const std::string& stem) -> absl::StatusOr<json> {

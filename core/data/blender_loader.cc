@@ -102,8 +102,7 @@ absl::StatusOr<Scene> LoadBlenderScene(const std::string& dir, const DatasetOpti
   if (absl::Status s = CheckDatasetDir(dir, opts); !s.ok()) return s;
   const fs::path root(dir);
   Scene scene;
-  scene.name = root.lexically_normal().filename().string();
-  if (scene.name.empty()) scene.name = root.lexically_normal().parent_path().filename().string();
+  scene.name = DatasetName(dir);
   scene.kind = SceneKind::kBounded;
   scene.background = Eigen::Vector3f::Ones();
   scene.world_scale_hint = 1.0f / 3.0f;

@@ -425,9 +425,7 @@ absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const DatasetOptio
   if (folder_name.empty()) folder_name = image_folder->path;
 
   Scene scene;
-  const fs::path norm = root.lexically_normal();
-  scene.name =
-      norm.has_filename() ? norm.filename().string() : norm.parent_path().filename().string();
+  scene.name = DatasetName(dir);
   scene.kind = SceneKind::kUnbounded;
   scene.background = Eigen::Vector3f::Zero();
   scene.content_points = std::move(points);

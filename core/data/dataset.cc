@@ -87,9 +87,7 @@ absl::StatusOr<Scene> LoadScene(const std::string& dir, const DatasetOptions& op
     case DatasetFormat::kLlff: scene = LoadLlffScene(dir, opts); break;
   }
   if (!scene.ok()) return scene.status();
-  const fs::path norm = fs::path(dir).lexically_normal();
-  scene->name =
-      norm.has_filename() ? norm.filename().string() : norm.parent_path().filename().string();
+  scene->name = DatasetName(dir);
   if (scene->train.empty() && scene->test.empty() && scene->val.empty()) {
     return absl::InvalidArgumentError(absl::StrCat("dataset ", dir, " has no views"));
   }

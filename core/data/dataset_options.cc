@@ -27,4 +27,9 @@ absl::Status CheckDatasetDir(const std::string& dir, const DatasetOptions& optio
   return absl::OkStatus();
 }
 
+std::string DatasetName(const std::string& dir) {
+  const std::filesystem::path norm = std::filesystem::path(dir).lexically_normal();
+  return norm.has_filename() ? norm.filename().string() : norm.parent_path().filename().string();
+}
+
 }  // namespace clnerf

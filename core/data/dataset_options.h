@@ -38,6 +38,10 @@ struct DatasetOptions {
 // directory (NOT_FOUND otherwise).
 absl::Status CheckDatasetDir(const std::string& dir, const DatasetOptions& options);
 
+// A dataset's name (Scene::name): its folder's name, "lego" for "data/lego/"
+// as for "data/lego".
+std::string DatasetName(const std::string& dir);
+
 }  // namespace clnerf
 
 #endif  // CLNERF_CORE_DATA_DATASET_OPTIONS_H_

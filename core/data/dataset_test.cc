@@ -325,5 +325,12 @@ TEST(DatasetRealDataTest, Beer2LoadersAgree) {
   EXPECT_LT(max_llff_colmap_pose, 1e-4);
 }
 
+TEST(DatasetNameTest, IsTheFolderNameWithOrWithoutATrailingSlash) {
+  EXPECT_EQ(DatasetName("data/lego"), "lego");
+  EXPECT_EQ(DatasetName("data/lego/"), "lego");
+  EXPECT_EQ(DatasetName("./data/../scans/scan_001//"), "scan_001");
+  EXPECT_EQ(DatasetName("/abs/path/beer_2"), "beer_2");
+}
+
 }  // namespace
 }  // namespace clnerf

@@ -59,9 +59,7 @@ absl::StatusOr<Scene> LoadLlffScene(const std::string& dir, const DatasetOptions
   if (folder_name.empty()) folder_name = folder->path;
 
   Scene scene;
-  const fs::path norm = root.lexically_normal();
-  scene.name =
-      norm.has_filename() ? norm.filename().string() : norm.parent_path().filename().string();
+  scene.name = DatasetName(dir);
   scene.kind = SceneKind::kUnbounded;
   scene.background = Eigen::Vector3f::Zero();
 

@@ -252,9 +252,7 @@ absl::StatusOr<Scene> LoadNgpScene(const std::string& dir, const DatasetOptions&
   if (absl::Status s = CheckDatasetDir(dir, opts); !s.ok()) return s;
   const fs::path root(dir);
   Scene scene;
-  const fs::path norm = root.lexically_normal();
-  scene.name =
-      norm.has_filename() ? norm.filename().string() : norm.parent_path().filename().string();
+  scene.name = DatasetName(dir);
   scene.kind = opts.ngp_bounded ? SceneKind::kBounded : SceneKind::kUnbounded;
   scene.background = opts.ngp_bounded ? Eigen::Vector3f::Ones() : Eigen::Vector3f::Zero();
 
