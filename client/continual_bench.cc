@@ -80,9 +80,6 @@ absl::StatusOr<Scores> Score(const NgpModel& model, const ScanSequence& seq, int
   return s;
 }
 
-const char* InitName(InitMode m) { return m == InitMode::kWarm ? "warm" : "reinit"; }
-const char* ReplayName(ReplayMode m) { return m == ReplayMode::kOffline ? "offline" : "online"; }
-
 }  // namespace
 
 CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* a) {
@@ -97,11 +94,11 @@ CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* a) {
   c->add_option("--tasks", a->tasks, "Tasks for a static dataset / scans for 'procedural' (0 = 10 / 5)")
       ->capture_default_str();
   c->add_option("--iters", u.train.iterations, "Training steps per update")->capture_default_str();
-  BindEnumFlag(c, "--ub-budget", &a->ub_budget, {{"total", UbBudget::kTotal}, {"per-step", UbBudget::kPerStep}},
+  BindEnumFlag(c, "--ub-budget", &a->ub_budget, {UbBudget::kTotal, UbBudget::kPerStep}, UbBudgetName,
                "ub's iterations: tasks x --iters (equal compute) or --iters (the paper's protocol)");
-  BindEnumFlag(c, "--init", &u.init, {{"warm", InitMode::kWarm}, {"reinit", InitMode::kReinit}},
+  BindEnumFlag(c, "--init", &u.init, {InitMode::kWarm, InitMode::kReinit}, InitModeName,
                "Start each update from the previous model or from scratch");
-  BindEnumFlag(c, "--replay", &u.replay, {{"offline", ReplayMode::kOffline}, {"online", ReplayMode::kOnline}},
+  BindEnumFlag(c, "--replay", &u.replay, {ReplayMode::kOffline, ReplayMode::kOnline}, ReplayModeName,
                "Generative replay labels rendered once per update or per batch");
   c->add_option("--buffer", u.buffer_size, "Real images kept for experience replay (clnerf, er)")
       ->capture_default_str();
@@ -156,8 +153,8 @@ int RunBenchContinual(const BenchContinualArgs& a) {
                       {"scene", seq.name},
                       {"tasks", T},
                       {"iterations", iterations},
-                      {"init", InitName(uo.init)},
-                      {"replay", ReplayName(uo.replay)},
+                      {"init", InitModeName(uo.init)},
+                      {"replay", ReplayModeName(uo.replay)},
                       {"buffer", uo.buffer_size},
                       {"prioritized", uo.prioritized_buffer},
                       {"embeddings", uo.model.network.use_embeddings},
@@ -307,10 +304,10 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   // Only the settings that matter for this method.
   std::string setting =
       ub ? absl::StrFormat("all scans at once, %d iterations (%s budget)", ub_iterations, UbBudgetName(a.ub_budget))
-         : std::string(InitName(uo.init));
+         : std::string(InitModeName(uo.init));
   if (!ub && (uo.method == ContinualMethod::kCLNeRF || uo.method == ContinualMethod::kCLNeRFNoER ||
               uo.method == ContinualMethod::kMEIL)) {
-    setting += absl::StrCat(", ", ReplayName(uo.replay), " replay");
+    setting += absl::StrCat(", ", ReplayModeName(uo.replay), " replay");
   }
   if (!ub && (uo.method == ContinualMethod::kCLNeRF || uo.method == ContinualMethod::kER)) {
     setting += absl::StrFormat(", K=%d%s", uo.buffer_size, uo.prioritized_buffer ? " prioritized" : "");

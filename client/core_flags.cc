@@ -54,4 +54,10 @@ void BindDatasetFlags(CLI::App* c, DatasetOptions* d) {
   c->add_flag("--ngp-bounded", d->ngp_bounded, "transforms.json: a bounded object scene (white background)");
 }
 
+void BindSquareSizeFlag(CLI::App* c, ProceduralSceneOptions* scene) {
+  c->add_option_function<int>(
+       "--size", [scene](int size) { scene->width = scene->height = size; }, "Image size (pixels)")
+      ->default_str(std::to_string(scene->width));
+}
+
 }  // namespace clnerf

@@ -7,6 +7,7 @@
 
 #include "CLI/CLI.hpp"
 #include "core/data/dataset_options.h"
+#include "core/data/procedural_scene.h"
 #include "core/train/fit.h"
 
 namespace clnerf {
@@ -18,6 +19,9 @@ void BindFitFlags(CLI::App* command, FitOptions* fit);
 // The dataset loader's options: downscale, image folder, test split,
 // per-split cap, bounded instant-ngp scenes.
 void BindDatasetFlags(CLI::App* command, DatasetOptions* dataset);
+
+// --size N: square images of a procedural scene (width and height).
+void BindSquareSizeFlag(CLI::App* command, ProceduralSceneOptions* scene);
 
 }  // namespace clnerf
 

@@ -260,9 +260,7 @@ CLI::App* BindDemo(CLI::App* parent, DemoArgs* a) {
   a->fit.train.iterations = 600;
   c->add_option("--out", a->out, "Output directory")->capture_default_str();
   c->add_option("--iters", a->fit.train.iterations, "Training steps")->capture_default_str();
-  c->add_option_function<int>(
-       "--size", [a](int size) { a->scene.width = a->scene.height = size; }, "Image size (pixels)")
-      ->default_str(std::to_string(a->scene.width));
+  BindSquareSizeFlag(c, &a->scene);
   c->add_option_function<uint64_t>(
        "--seed", [a](uint64_t seed) { a->scene.seed = a->fit.train.seed = seed; }, "Random seed (scene and training)")
       ->default_str(std::to_string(a->scene.seed));

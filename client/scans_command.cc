@@ -6,6 +6,7 @@
 
 #include "absl/strings/str_format.h"
 #include "client/commands.h"
+#include "client/core_flags.h"
 #include "client/verb_set.h"
 #include "core/data/procedural_scene.h"
 #include "spdlog/spdlog.h"
@@ -20,9 +21,7 @@ CLI::App* BindScans(CLI::App* parent, ScansArgs* a) {
   po.num_test_views = 8;
   c->add_option("--out", a->out, "Output directory")->capture_default_str();
   c->add_option("--scans", po.num_time_steps, "Number of scans (time steps)")->capture_default_str();
-  c->add_option_function<int>(
-       "--size", [a](int size) { a->scene.width = a->scene.height = size; }, "Image size (pixels)")
-      ->default_str(std::to_string(po.width));
+  BindSquareSizeFlag(c, &po);
   c->add_option("--train-views", po.num_train_views, "Training views per scan")->capture_default_str();
   c->add_option("--test-views", po.num_test_views, "Held-out views per scan")->capture_default_str();
   c->add_option("--seed", po.seed, "Random seed")->capture_default_str();

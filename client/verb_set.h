@@ -73,28 +73,25 @@ void BindRemoteFlags(CLI::App* command, RemoteOptions* options);
 // --threads (0 = all cores) bound onto `threads`.
 CLI::Option* BindThreadsFlag(CLI::App* command, int* threads);
 
-// An enum flag from its names: `--init warm|reinit` bound onto an InitMode.
-// Any other value is refused with the list of names.
+// An enum flag spelled by the core's own names: `--init warm|reinit` bound
+// onto an InitMode through InitModeName. `values` lists the choices; any
+// other word is refused with the list.
 template <class Enum>
-CLI::Option* BindEnumFlag(CLI::App* command, const std::string& name, Enum* value,
-                          const std::vector<std::pair<std::string, Enum>>& names, const std::string& help) {
-  std::vector<std::string> keys;
-  std::string current;
-  for (const auto& [n, e] : names) {
-    keys.push_back(n);
-    if (e == *value) current = n;
-  }
+CLI::Option* BindEnumFlag(CLI::App* command, const std::string& flag, Enum* value, std::vector<Enum> values,
+                          const char* (*name)(Enum), const std::string& help) {
+  std::vector<std::string> names;
+  for (Enum e : values) names.push_back(name(e));
   return command
       ->add_option_function<std::string>(
-          name,
-          [value, names](const std::string& given) {
-            for (const auto& [n, e] : names) {
-              if (n == given) *value = e;
+          flag,
+          [value, values, name](const std::string& given) {
+            for (Enum e : values) {
+              if (given == name(e)) *value = e;
             }
           },
           help)
-      ->check(CLI::IsMember(keys))
-      ->default_str(current);
+      ->check(CLI::IsMember(names))
+      ->default_str(name(*value));
 }
 
 }  // namespace clnerf

@@ -138,12 +138,18 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
       }
     } else if (k == "init") {
       s = Get(*it, k.c_str(), &str);
-      if (s.ok() && str != "warm" && str != "reinit") return absl::InvalidArgumentError("config 'init' must be warm|reinit");
-      if (s.ok()) o->update.init = str == "warm" ? InitMode::kWarm : InitMode::kReinit;
+      if (s.ok()) {
+        auto m = ParseInitMode(str);
+        if (!m.ok()) return m.status();
+        o->update.init = *m;
+      }
     } else if (k == "replay") {
       s = Get(*it, k.c_str(), &str);
-      if (s.ok() && str != "offline" && str != "online") return absl::InvalidArgumentError("config 'replay' must be offline|online");
-      if (s.ok()) o->update.replay = str == "offline" ? ReplayMode::kOffline : ReplayMode::kOnline;
+      if (s.ok()) {
+        auto m = ParseReplayMode(str);
+        if (!m.ok()) return m.status();
+        o->update.replay = *m;
+      }
     } else if (k == "gate") {
       s = ApplyGate(*it, &o->gate);
     } else {

@@ -26,6 +26,11 @@ TEST(ServerOptionsTest, BadConfigIsRejectedWithTheKey) {
   EXPECT_FALSE(ApplyConfigJson(R"({"max_queue": "three"})", &o).ok());
   EXPECT_FALSE(ApplyConfigJson("not json", &o).ok());
   EXPECT_FALSE(ApplyConfigJson(R"({"gate": {"nope": 1}})", &o).ok());
+  EXPECT_EQ(ApplyConfigJson(R"({"init": "cold"})", &o).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(ApplyConfigJson(R"({"replay": "1"})", &o).code(), absl::StatusCode::kInvalidArgument);
+  ASSERT_TRUE(ApplyConfigJson(R"({"init": "reinit", "replay": "online"})", &o).ok());
+  EXPECT_EQ(o.update.init, InitMode::kReinit);
+  EXPECT_EQ(o.update.replay, ReplayMode::kOnline);
   EXPECT_EQ(ApplyConfigFile("/nonexistent/server.json", &o).code(), absl::StatusCode::kNotFound);
   ServerOptions bad;
   bad.max_queue = 0;

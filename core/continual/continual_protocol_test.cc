@@ -1,5 +1,6 @@
 #include "core/continual/continual_protocol.h"
 
+#include "core/continual/continual_update.h"
 #include "gtest/gtest.h"
 
 namespace clnerf {
@@ -43,6 +44,15 @@ TEST(ContinualProtocolTest, MalformedMatricesAreRejected) {
   EXPECT_FALSE(SummarizeForgetting({{30}, {28}}).ok());          // Row 1 too short.
   EXPECT_FALSE(SummarizeForgetting({{30, 1}, {28, 25}}).ok());   // Row 0 too long.
   EXPECT_FALSE(SummarizeForgetting({{30}, {NAN, 25}}).ok());
+}
+
+TEST(ContinualProtocolTest, ModeNamesRoundTripAndUnknownNamesAreRefused) {
+  for (InitMode m : {InitMode::kWarm, InitMode::kReinit}) EXPECT_EQ(*ParseInitMode(InitModeName(m)), m);
+  for (ReplayMode m : {ReplayMode::kOffline, ReplayMode::kOnline}) EXPECT_EQ(*ParseReplayMode(ReplayModeName(m)), m);
+  EXPECT_STREQ(InitModeName(InitMode::kWarm), "warm");
+  EXPECT_STREQ(ReplayModeName(ReplayMode::kOffline), "offline");
+  EXPECT_EQ(ParseInitMode("cold").status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(ParseReplayMode("").status().code(), absl::StatusCode::kInvalidArgument);
 }
 
 }  // namespace

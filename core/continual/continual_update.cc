@@ -39,6 +39,22 @@ const char* ContinualMethodName(ContinualMethod m) {
   return "?";
 }
 
+absl::StatusOr<InitMode> ParseInitMode(const std::string& name) {
+  if (name == "warm") return InitMode::kWarm;
+  if (name == "reinit") return InitMode::kReinit;
+  return absl::InvalidArgumentError(absl::StrFormat("unknown init mode '%s' (warm, reinit)", name));
+}
+
+const char* InitModeName(InitMode m) { return m == InitMode::kWarm ? "warm" : "reinit"; }
+
+absl::StatusOr<ReplayMode> ParseReplayMode(const std::string& name) {
+  if (name == "offline") return ReplayMode::kOffline;
+  if (name == "online") return ReplayMode::kOnline;
+  return absl::InvalidArgumentError(absl::StrFormat("unknown replay mode '%s' (offline, online)", name));
+}
+
+const char* ReplayModeName(ReplayMode m) { return m == ReplayMode::kOffline ? "offline" : "online"; }
+
 const char* UpdatePhaseName(UpdatePhase p) {
   switch (p) {
     case UpdatePhase::kPreparingReplay: return "preparing replay";

@@ -42,6 +42,12 @@ enum class ReplayMode { kOffline, kOnline };
 
 absl::StatusOr<ContinualMethod> ParseContinualMethod(const std::string& name);
 const char* ContinualMethodName(ContinualMethod m);
+// "warm" | "reinit" and "offline" | "online", as flags and config files
+// spell them.
+absl::StatusOr<InitMode> ParseInitMode(const std::string& name);
+const char* InitModeName(InitMode m);
+absl::StatusOr<ReplayMode> ParseReplayMode(const std::string& name);
+const char* ReplayModeName(ReplayMode m);
 
 struct UpdateOptions {
   ContinualMethod method = ContinualMethod::kCLNeRF;
