@@ -24,12 +24,28 @@ bool IsFile(const fs::path& p) {
   return fs::is_regular_file(p, ec);
 }
 
-// A transforms_train.json written by instant-ngp / nerfstudio tools carries
-// "fl_x" instead of Blender's "camera_angle_x".
+// A transforms_train.json written by instant-ngp / nerfstudio tools (their
+// colmap2nerf, ns-process-data and the like) carries calibration or scene keys
+// that a NeRF-synthetic (Blender) file never has: pixel focal lengths,
+// principal point, image size, distortion, aabb_scale, a point cloud. Such
+// tools often write Blender's "camera_angle_x" as well, so its presence says
+// nothing. Blender = none of these keys, at the top level or in the first frame.
 bool LooksLikeNgp(const fs::path& json_path) {
   std::ifstream in(json_path);
   const nlohmann::json doc = nlohmann::json::parse(in, nullptr, /*allow_exceptions=*/false);
-  return doc.is_object() && doc.contains("fl_x") && !doc.contains("camera_angle_x");
+  if (!doc.is_object()) return false;
+  static const char* const kNgpKeys[] = {"fl_x", "fl_y", "cx", "cy", "w", "h", "k1", "k2", "p1", "p2",
+                                         "camera_model", "aabb_scale", "scale", "offset", "ply_file_path"};
+  const auto has_ngp_key = [](const nlohmann::json& obj) {
+    if (!obj.is_object()) return false;
+    for (const char* key : kNgpKeys) {
+      if (obj.contains(key)) return true;
+    }
+    return false;
+  };
+  if (has_ngp_key(doc)) return true;
+  const auto frames = doc.find("frames");
+  return frames != doc.end() && frames->is_array() && !frames->empty() && has_ngp_key(frames->front());
 }
 
 bool HasColmapModel(const fs::path& dir) {

@@ -6,7 +6,10 @@
 //
 // Detection order (first match wins):
 //   1. transforms_train.json -> kBlender (or kInstantNgp when that file carries
-//      instant-ngp intrinsics, i.e. "fl_x" and no "camera_angle_x"),
+//      any key a NeRF-synthetic file never has: fl_x/fl_y, cx/cy, w/h,
+//      distortion, camera_model, aabb_scale, scale/offset or ply_file_path,
+//      at the top level or in its first frame; "camera_angle_x", which
+//      colmap2nerf-style tools also write, decides nothing),
 //   2. transforms.json       -> kInstantNgp,
 //   3. sparse/0/ or sparse/ with cameras.{bin,txt} -> kColmap (preferred
 //      over LLFF when both are present, as in LLFF's and mip-NeRF 360's

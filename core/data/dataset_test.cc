@@ -69,6 +69,17 @@ TEST_F(DatasetTest, DetectsEachFormat) {
   // instant-ngp style per-split files.
   WriteJson("transforms_train.json", {{"fl_x", 10}, {"frames", json::array()}});
   EXPECT_EQ(*DetectDatasetFormat(dir_.string()), DatasetFormat::kInstantNgp);
+  // colmap2nerf writes Blender's camera_angle_x beside fl_x: still instant-ngp
+  // (read as Blender, a real capture became a white-backed object box).
+  WriteJson("transforms_train.json",
+            {{"camera_angle_x", 0.7}, {"fl_x", 10}, {"aabb_scale", 32}, {"frames", json::array()}});
+  EXPECT_EQ(*DetectDatasetFormat(dir_.string()), DatasetFormat::kInstantNgp);
+  WriteJson("transforms_train.json", {{"camera_angle_x", 0.7}, {"aabb_scale", 16}, {"frames", json::array()}});
+  EXPECT_EQ(*DetectDatasetFormat(dir_.string()), DatasetFormat::kInstantNgp);
+  // Per-frame intrinsics count too.
+  WriteJson("transforms_train.json",
+            {{"camera_angle_x", 0.7}, {"frames", {{{"file_path", "a.png"}, {"fl_x", 10}, {"w", 4}}}}});
+  EXPECT_EQ(*DetectDatasetFormat(dir_.string()), DatasetFormat::kInstantNgp);
   EXPECT_STREQ(DatasetFormatName(DatasetFormat::kColmap), "colmap");
 }
 

@@ -4,6 +4,8 @@
 #include <cctype>
 #include <cmath>
 
+#include "absl/strings/match.h"
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 
 namespace clnerf {
@@ -41,7 +43,28 @@ absl::StatusOr<ImageFolder> FindImageFolder(const fs::path& dir, const std::stri
     if (!p.empty()) return ImageFolder{p, 1.0f};
   }
   const fs::path p = FindBesideOrAbove(dir, "images");
-  return ImageFolder{p.empty() ? (dir / "images").lexically_normal() : p, downscale};
+  if (!p.empty()) return ImageFolder{p, downscale};
+  // No images/: the largest of the shrunk copies that exist (images_N with the
+  // smallest N), as LLFF scenes are often shared with only images_8/ or
+  // images_4/. Its images are already N times smaller than the calibration.
+  for (const fs::path& base : {dir, dir / ".."}) {
+    int best = 0;
+    std::error_code ec;
+    for (const fs::directory_entry& e : fs::directory_iterator(base.lexically_normal(), ec)) {
+      const std::string name = e.path().filename().string();
+      int m = 0;
+      if (!e.is_directory(ec) || !absl::StartsWith(name, "images_") ||
+          !absl::SimpleAtoi(name.substr(7), &m) || m < 1) {
+        continue;
+      }
+      if (best == 0 || m < best) best = m;
+    }
+    if (best > 0) {
+      return ImageFolder{(base / absl::StrCat("images_", best)).lexically_normal(),
+                         std::max(1.0f, downscale / float(best))};
+    }
+  }
+  return ImageFolder{(dir / "images").lexically_normal(), downscale};
 }
 
 absl::StatusOr<std::vector<std::string>> ListImageFiles(const fs::path& folder) {

@@ -33,8 +33,11 @@ struct ImageFolder {
 //    NOT_FOUND when it does not exist. The whole `downscale` still applies.
 //  * otherwise, when `downscale` is an integer N >= 2 and images_N exists in
 //    `dir` or in `dir`/.., that folder, with a residual downscale of 1;
-//  * otherwise images/ in `dir`, else in `dir`/.., with the whole `downscale`
-//    (`dir`/images, possibly missing, when neither exists).
+//  * otherwise images/ in `dir`, else in `dir`/.., with the whole `downscale`;
+//  * otherwise (no images/ at all) the images_M with the smallest M in `dir`,
+//    else in `dir`/.., with a residual downscale of max(1, downscale / M): a
+//    capture shared with only images_8/ loads without --images-dir;
+//  * otherwise `dir`/images, which does not exist.
 absl::StatusOr<ImageFolder> FindImageFolder(const std::filesystem::path& dir,
                                             const std::string& images_dir, float downscale);
 

@@ -71,6 +71,34 @@ TEST_F(ImageFolderTest, PicksImagesNBesideOrAboveTheModel) {
   EXPECT_NE(f.status().message().find("images_9"), std::string::npos) << f.status();
 }
 
+TEST_F(ImageFolderTest, WithoutImagesFolderTakesTheLargestShrunkCopy) {
+  const fs::path scene = root_ / "scene";
+  fs::create_directories(scene / "images_8");
+  fs::create_directories(scene / "images_4");
+  std::ofstream(scene / "images_2") << "a file, not a folder";
+  absl::StatusOr<ImageFolder> f = FindImageFolder(scene, "", 1.0f);
+  ASSERT_TRUE(f.ok()) << f.status();
+  EXPECT_EQ(f->path, (scene / "images_4").lexically_normal());
+  EXPECT_FLOAT_EQ(f->residual_downscale, 1.0f);
+  // A requested downscale beyond the folder's own is what is left to do.
+  f = FindImageFolder(scene, "", 8.0f);
+  ASSERT_TRUE(f.ok());
+  EXPECT_EQ(f->path, (scene / "images_8").lexically_normal());  // images_8 exists: exact.
+  f = FindImageFolder(scene, "", 6.0f);
+  ASSERT_TRUE(f.ok());
+  EXPECT_EQ(f->path, (scene / "images_4").lexically_normal());
+  EXPECT_FLOAT_EQ(f->residual_downscale, 1.5f);
+  // From a model folder one level down.
+  f = FindImageFolder(scene / "source", "", 1.0f);
+  ASSERT_TRUE(f.ok());
+  EXPECT_EQ(f->path, (scene / "images_4").lexically_normal());
+  // images/ still wins when it exists.
+  fs::create_directories(scene / "images");
+  f = FindImageFolder(scene, "", 1.0f);
+  ASSERT_TRUE(f.ok());
+  EXPECT_EQ(f->path, (scene / "images").lexically_normal());
+}
+
 TEST_F(ImageFolderTest, ListsImageFilesSorted) {
   const fs::path dir = root_ / "scene" / "images";
   fs::create_directories(dir / "sub.png");  // A folder, not a file.

@@ -252,6 +252,23 @@ void AddBackdrop(const ProceduralSceneOptions& options, ProceduralWorld* world) 
   }
 }
 
+// The room shell (ProceduralLayout::kRoom) around the rug and its objects.
+void AddRoom(const ProceduralSceneOptions& options, ProceduralWorld* world) {
+  Rng rng(Mix(options.seed, 0x200Dull));
+  const float rc = options.camera_radius;
+  world->room_half = Eigen::Vector2f(0.9f * rc, 0.8f * rc);
+  world->room_floor_z = world->floor_z - world->floor_thickness;
+  world->room_ceiling_z = world->room_floor_z + 2.5f;
+  const float hy = world->room_half.y(), hx = world->room_half.x();
+  // Door on the wall x = -hx: 0.9 wide, 2.0 tall, somewhere along y.
+  const float dy = rng.Uniform(-hy + 0.3f, hy - 1.2f);
+  world->door = Eigen::Vector4f(dy, world->room_floor_z, dy + 0.9f, world->room_floor_z + 2.0f);
+  // Picture on the wall y = +hy: 1.0 x 0.7, at eye height, along x.
+  const float px = rng.Uniform(-hx + 0.3f, hx - 1.3f);
+  world->picture = Eigen::Vector4f(px, world->room_floor_z + 1.2f, px + 1.0f, world->room_floor_z + 1.9f);
+  world->room_phase = rng.Uniform(0.0f, 1.0f);
+}
+
 // --- Ray casting ---------------------------------------------------------------
 
 struct Hit {
@@ -298,6 +315,43 @@ Eigen::Vector3f GroundAlbedo(const ProceduralWorld& world, const Eigen::Vector3f
   const float r = p.head<2>().norm();
   const float fade = SmoothStep(0.3f * world.backdrop_radius, 0.9f * world.backdrop_radius, r);
   return Lerp(Lerp(grass, sand, m), haze, fade);
+}
+
+bool InRect(const Eigen::Vector4f& r, float u, float v) { return u >= r[0] && u <= r[2] && v >= r[1] && v <= r[3]; }
+
+// Albedo of the room shell at `p` on the face with (inward or outward) normal
+// `n`: nearly white walls and ceiling, a skirting board, a plank floor, the
+// door and the picture.
+Eigen::Vector3f RoomAlbedo(const ProceduralWorld& world, const Eigen::Vector3f& p, const Eigen::Vector3f& n) {
+  if (std::abs(n.z()) > 0.5f) {
+    if (p.z() > 0.5f * (world.room_floor_z + world.room_ceiling_z)) return Eigen::Vector3f(0.93f, 0.93f, 0.92f);
+    // Planks 0.25 wide along x, each its own shade, with a dark seam.
+    const float u = p.y() / 0.25f + world.room_phase;
+    const int plank = int(std::floor(u));
+    const float f = u - float(plank);
+    const float shade = 0.08f * (HashToUnit(SplitMix(uint64_t(int64_t(plank) + 4096))) - 0.5f);
+    const float seam = (f < 0.04f || f > 0.96f) ? -0.18f : 0.0f;
+    const float grain = 0.02f * std::sin(23.0f * p.x() + 3.0f * float(plank));
+    return (Eigen::Vector3f(0.63f, 0.47f, 0.32f) + Eigen::Vector3f::Constant(shade + seam + grain))
+        .cwiseMax(0.0f)
+        .cwiseMin(1.0f);
+  }
+  const float z = p.z();
+  if (z < world.room_floor_z + 0.1f) return Eigen::Vector3f(0.55f, 0.53f, 0.5f);  // Skirting board.
+  if (std::abs(n.x()) > 0.5f && p.x() < 0 && InRect(world.door, p.y(), z)) {
+    const float inset = std::min({p.y() - world.door[0], world.door[2] - p.y(), world.door[3] - z});
+    return inset < 0.06f ? Eigen::Vector3f(0.35f, 0.26f, 0.18f) : Eigen::Vector3f(0.58f, 0.42f, 0.29f);
+  }
+  if (std::abs(n.y()) > 0.5f && p.y() > 0 && InRect(world.picture, p.x(), z)) {
+    const Eigen::Vector4f& r = world.picture;
+    const float u = (p.x() - r[0]) / (r[2] - r[0]), v = (z - r[1]) / (r[3] - r[1]);
+    if (u < 0.05f || u > 0.95f || v < 0.07f || v > 0.93f) return Eigen::Vector3f(0.15f, 0.12f, 0.1f);
+    const float m = 0.5f + 0.5f * std::sin(14.0f * u + 5.0f * std::sin(6.0f * v));
+    return Lerp(Eigen::Vector3f(0.2f, 0.35f, 0.6f), Eigen::Vector3f(0.9f, 0.7f, 0.3f), m);
+  }
+  // Paint: white with a barely visible low-frequency variation.
+  const float wobble = 0.01f * std::sin(0.7f * (p.x() + p.y()) + 0.9f * z);
+  return Eigen::Vector3f(0.9f, 0.89f, 0.86f) + Eigen::Vector3f::Constant(wobble);
 }
 
 // Nearest t > t_min where the ray enters the sphere (or leaves it, if the
@@ -422,10 +476,25 @@ bool CastRay(const ProceduralWorld& world, const Eigen::Vector3f& o, const Eigen
       return true;
     }
   }
+  bool room_hit = false;
+  if (world.room_half.x() > 0 && !any_hit) {
+    // The shell, seen from inside; it casts no shadows (the light is inside).
+    const Eigen::Vector3f lo(-world.room_half.x(), -world.room_half.y(), world.room_floor_z);
+    const Eigen::Vector3f hi(world.room_half.x(), world.room_half.y(), world.room_ceiling_z);
+    if (IntersectBox(o, d, lo, hi, kTMin, &t, &n) && t < best) {
+      best = t;
+      best_obj = nullptr;
+      best_n = n;
+      floor_hit = ground_hit = false;
+      room_hit = true;
+    }
+  }
   if (best == kInf) return false;
   hit->t = best;
   hit->normal = best_n;
-  if (ground_hit) {
+  if (room_hit) {
+    hit->albedo = RoomAlbedo(world, o + best * d, best_n);
+  } else if (ground_hit) {
     hit->albedo = GroundAlbedo(world, o + best * d);
   } else if (floor_hit) {
     if (best_n.z() > 0.5f) {
@@ -465,8 +534,9 @@ bool BoxContains(const Eigen::Vector3f& p, const Eigen::Vector3f& lo, const Eige
   return (p.array() >= lo.array()).all() && (p.array() <= hi.array()).all();
 }
 
-Camera LookAtCamera(const ProceduralSceneOptions& opt, float azimuth, float elevation,
-                    int time_step) {
+// A camera at `pos` looking along `forward` (unit) with the world's z up.
+Camera CameraLookingAlong(const ProceduralSceneOptions& opt, const Eigen::Vector3f& pos,
+                          const Eigen::Vector3f& forward, int time_step) {
   Camera cam;
   cam.intrinsics.width = opt.width;
   cam.intrinsics.height = opt.height;
@@ -474,8 +544,6 @@ Camera LookAtCamera(const ProceduralSceneOptions& opt, float azimuth, float elev
   cam.intrinsics.fy = cam.intrinsics.fx;
   cam.intrinsics.cx = 0.5f * float(opt.width);
   cam.intrinsics.cy = 0.5f * float(opt.height);
-  const Eigen::Vector3f pos = opt.camera_radius * DirectionFromAngles(azimuth, elevation);
-  const Eigen::Vector3f forward = (-pos).normalized();
   const Eigen::Vector3f right = forward.cross(Eigen::Vector3f::UnitZ()).normalized();
   const Eigen::Vector3f up = right.cross(forward);
   Pose gl;  // Blender/OpenGL: x right, y up, looks along -z.
@@ -488,7 +556,32 @@ Camera LookAtCamera(const ProceduralSceneOptions& opt, float azimuth, float elev
   return cam;
 }
 
+Camera LookAtCamera(const ProceduralSceneOptions& opt, float azimuth, float elevation,
+                    int time_step) {
+  const Eigen::Vector3f pos = opt.camera_radius * DirectionFromAngles(azimuth, elevation);
+  return CameraLookingAlong(opt, pos, (-pos).normalized(), time_step);
+}
+
 }  // namespace
+
+const char* ProceduralLayoutName(ProceduralLayout layout) {
+  switch (layout) {
+    case ProceduralLayout::kOrbit: return "orbit";
+    case ProceduralLayout::kForwardFacing: return "forward";
+    case ProceduralLayout::kRoom: return "room";
+  }
+  return "unknown";
+}
+
+absl::Status ParseProceduralLayout(const std::string& name, ProceduralLayout* layout) {
+  for (ProceduralLayout l : {ProceduralLayout::kOrbit, ProceduralLayout::kForwardFacing, ProceduralLayout::kRoom}) {
+    if (name == ProceduralLayoutName(l)) {
+      *layout = l;
+      return absl::OkStatus();
+    }
+  }
+  return absl::InvalidArgumentError(absl::StrCat("unknown procedural layout '", name, "' (orbit, forward or room)"));
+}
 
 absl::Status ProceduralSceneOptions::Validate() const {
   if (width < 1 || width > 4096 || height < 1 || height > 4096) {
@@ -519,8 +612,8 @@ absl::Status ProceduralSceneOptions::Validate() const {
   if (samples_per_axis < 1 || samples_per_axis > 8) {
     return absl::InvalidArgumentError("samples_per_axis must be in [1, 8]");
   }
-  if (backdrop && camera_radius > 20.0f) {
-    return absl::InvalidArgumentError("backdrop scenes need camera_radius <= 20");
+  if ((backdrop || layout != ProceduralLayout::kOrbit) && camera_radius > 20.0f) {
+    return absl::InvalidArgumentError("backdrop, forward and room scenes need camera_radius <= 20");
   }
   return absl::OkStatus();
 }
@@ -539,6 +632,10 @@ bool ProceduralWorld::Occupied(const Eigen::Vector3f& p) const {
       }
     }
   }
+  if (room_half.x() > 0 && (std::abs(p.x()) > room_half.x() || std::abs(p.y()) > room_half.y() ||
+                            p.z() < room_floor_z || p.z() > room_ceiling_z)) {
+    return true;
+  }
   return backdrop_radius > 0 && p.z() <= ground_z && p.norm() < backdrop_radius;
 }
 
@@ -550,7 +647,11 @@ ProceduralWorld ProceduralWorldAt(const ProceduralSceneOptions& options, int tim
   }
   world.light = LightAt(options.seed, 0);
   if (options.thin_structures) AddThinStructures(options.seed, &world);
-  if (options.backdrop) AddBackdrop(options, &world);
+  if (options.layout == ProceduralLayout::kRoom) {
+    AddRoom(options, &world);
+  } else if (options.backdrop || options.layout == ProceduralLayout::kForwardFacing) {
+    AddBackdrop(options, &world);
+  }
   for (int s = 1; s <= time_step; ++s) {
     if (options.change_geometry) ApplyGeometryChange(options.seed, s, &world);
   }
@@ -564,6 +665,41 @@ std::vector<Camera> ProceduralCameras(const ProceduralSceneOptions& options, int
   std::vector<Camera> cams;
   cams.reserve(std::max(n, 0));
   Rng rng(Mix(options.seed, uint64_t(time_step), test_split ? 0x7E57ull : 0x7A1Eull));
+  if (options.layout == ProceduralLayout::kForwardFacing) {
+    // A jittered grid on the plane x = -R (test cameras offset by half a
+    // cell), looking along +x, pitched 8 degrees down, within 3 degrees.
+    const float R = options.camera_radius;
+    const int cols = std::max(1, int(std::ceil(std::sqrt(1.5f * float(std::max(n, 1))))));
+    const int rows = std::max(1, (n + cols - 1) / cols);
+    for (int i = 0; i < n; ++i) {
+      const float off = test_split ? 0.5f : 0.0f;
+      const float u = (float(i % cols) + off + 0.5f) / float(cols) - 0.5f;
+      const float v = (float(i / cols) + off + 0.5f) / float(rows) - 0.5f;
+      const float jitter = test_split ? 0.0f : 0.2f;
+      const Eigen::Vector3f pos(-R, 0.3f * R * (u + jitter * rng.Uniform(-0.5f, 0.5f) / cols),
+                                0.3f + 0.2f * R * (v + jitter * rng.Uniform(-0.5f, 0.5f) / rows));
+      const float yaw = rng.Uniform(-3.0f, 3.0f) * kPi / 180;
+      const float pitch = (-8.0f + rng.Uniform(-3.0f, 3.0f)) * kPi / 180;
+      cams.push_back(CameraLookingAlong(options, pos, DirectionFromAngles(yaw, pitch), time_step));
+    }
+    return cams;
+  }
+  if (options.layout == ProceduralLayout::kRoom) {
+    // One loop around the rug at eye height, looking around: along the path,
+    // outwards at the walls, across at the objects, and the other way.
+    const float R = options.camera_radius, floor_z = -0.5f - 0.04f;
+    const float phase = 2.39996323f * float(time_step) + (test_split ? kPi / std::max(n, 1) + 0.4f : 0.0f);
+    for (int i = 0; i < n; ++i) {
+      const float a = phase + 2 * kPi * (float(i) + 0.5f) / float(std::max(n, 1));
+      const Eigen::Vector3f pos(0.5f * R * std::cos(a), 0.45f * R * std::sin(a),
+                                floor_z + 1.4f + rng.Uniform(-0.1f, 0.1f));
+      static const float kLook[4] = {0.5f * kPi, 0.0f, kPi, -0.5f * kPi};
+      const float yaw = a + kLook[(i + (test_split ? 1 : 0)) % 4] + rng.Uniform(-0.35f, 0.35f);
+      const float pitch = rng.Uniform(-22.0f, 2.0f) * kPi / 180;
+      cams.push_back(CameraLookingAlong(options, pos, DirectionFromAngles(yaw, pitch), time_step));
+    }
+    return cams;
+  }
   const float min_el = options.min_elevation_deg * kPi / 180;
   const float max_el = options.max_elevation_deg * kPi / 180;
   // Rotate the ring per time step (golden angle) so every step sees new poses.
@@ -666,8 +802,8 @@ absl::StatusOr<ProceduralDataset> GenerateProceduralDataset(
   scene.background = Eigen::Vector3f::Ones();
   scene.world_scale_hint = 1.0f / 3.0f;
   scene.world_offset_hint = Eigen::Vector3f::Zero();
-  if (options.backdrop) {
-    // Every ray hits the backdrop (alpha = 1); the content reaches far
+  if (options.backdrop || options.layout != ProceduralLayout::kOrbit) {
+    // Every ray hits the backdrop or the room (alpha = 1); the content reaches far
     // beyond any box, so the scene is a real-capture-like unbounded one.
     scene.kind = SceneKind::kUnbounded;
     scene.background = Eigen::Vector3f::Zero();

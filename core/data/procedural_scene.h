@@ -52,6 +52,31 @@
 
 namespace clnerf {
 
+// Where the cameras are and what surrounds the objects.
+enum class ProceduralLayout {
+  // Cameras on an upper-hemisphere spiral looking at the origin (an object
+  // capture, like NeRF-synthetic); `backdrop` optional.
+  kOrbit,
+  // An LLFF-style forward-facing rig: cameras on a small plane (a grid
+  // 0.3 camera_radius wide, 0.2 tall) at camera_radius from the origin, their
+  // optical axes parallel within a few degrees, all looking across the
+  // objects at the backdrop (implied), so content lies at 2 to 20 camera
+  // baselines. Test cameras sit between the train ones.
+  kForwardFacing,
+  // A room walkthrough: the objects on their rug inside a closed room (walls
+  // 0.9 x 0.8 camera_radius from the centre, floor, ceiling 2.5 units above
+  // the floor) with nearly white, textureless walls and ceiling, a plank
+  // floor, a door and one picture. Cameras walk a loop of radius 0.5
+  // camera_radius at eye height, looking around (outwards, sideways and at
+  // the objects), never at one point. The shell casts no shadows (the light
+  // is inside). Unbounded, black background; every ray hits the shell.
+  kRoom,
+};
+
+// "orbit", "forward" or "room"; Parse returns INVALID_ARGUMENT for others.
+const char* ProceduralLayoutName(ProceduralLayout layout);
+absl::Status ParseProceduralLayout(const std::string& name, ProceduralLayout* layout);
+
 struct ProceduralSceneOptions {
   // Scene name stored in Scene::name.
   std::string name = "procedural";
@@ -100,7 +125,10 @@ struct ProceduralSceneOptions {
   // one arch (two posts and a lintel). Placed from the seed and the objects
   // at time step 0, and the same at every time step.
   bool thin_structures = false;
-  // Both flags false reproduce the original scenes bit for bit.
+  // Camera rig and surroundings (see ProceduralLayout). kForwardFacing and
+  // kRoom scenes are kUnbounded with a black background and no hints.
+  ProceduralLayout layout = ProceduralLayout::kOrbit;
+  // Both flags false and kOrbit reproduce the original scenes bit for bit.
 
   absl::Status Validate() const;
 };
@@ -144,11 +172,23 @@ struct ProceduralWorld {
   float ground_z = 0.0f;
   float backdrop_phase = 0.0f;  // Seeded offsets of the backdrop pattern.
   float backdrop_hue = 0.0f;
+  // Room shell (ProceduralLayout::kRoom): the inside of the box
+  // [-room_half.x, room_half.x] x [-room_half.y, room_half.y] x
+  // [room_floor_z, room_ceiling_z]; room_half.x == 0 means no room. The door
+  // and the picture are rectangles on the walls (x = -room_half.x and
+  // y = room_half.y), given as (u0, v0, u1, v1) in the wall's (along, z).
+  Eigen::Vector2f room_half = Eigen::Vector2f::Zero();
+  float room_floor_z = 0.0f;
+  float room_ceiling_z = 0.0f;
+  Eigen::Vector4f door = Eigen::Vector4f::Zero();
+  Eigen::Vector4f picture = Eigen::Vector4f::Zero();
+  float room_phase = 0.0f;  // Seeded offset of the plank pattern.
 
   // True if world point `p` is inside an object, a rod, a pillar, the floor
   // slab or (with a backdrop) below the ground plane inside the backdrop
-  // sphere: the ground-truth occupancy, e.g. for occupancy-grid tests. The
-  // backdrop sphere itself is a surface and occupies nothing.
+  // sphere, or (with a room) outside the room's inner box: the ground-truth
+  // occupancy, e.g. for occupancy-grid tests. The backdrop sphere itself is a
+  // surface and occupies nothing.
   bool Occupied(const Eigen::Vector3f& p) const;
 };
 

@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "absl/strings/str_cat.h"
+#include "core/data/content_sweep.h"
 #include "core/data/contraction.h"
 #include "Eigen/Eigenvalues"
 #include "Eigen/Dense"
@@ -101,15 +102,23 @@ Normalization ComputeNormalization(const Scene& scene) {
   // hold the cameras and the subject.
   n.bound = kContractedBound;
   if (views.empty()) return n;
-  n.center = FocusPoint(views, scene.content_points);
+  // Files without points (a transforms.json, an upload) get points from the
+  // images themselves, so every format of one capture is placed alike.
+  std::vector<Eigen::Vector3f> estimated;
+  const std::vector<Eigen::Vector3f>* points = &scene.content_points;
+  if (points->empty()) {
+    estimated = EstimateContentPoints(views);
+    points = &estimated;
+  }
+  n.center = FocusPoint(views, *points);
   float radius = 0;
   for (const View& v : views) radius = std::max(radius, InfNorm(v.camera.position() - n.center));
-  if (!scene.content_points.empty()) {
+  if (!points->empty()) {
     // The median content point, so a far backdrop in the sparse points does
     // not shrink the subject; farther content lives in the contracted shell.
     std::vector<float> r;
-    r.reserve(scene.content_points.size());
-    for (const Eigen::Vector3f& p : scene.content_points) {
+    r.reserve(points->size());
+    for (const Eigen::Vector3f& p : *points) {
       if (p.allFinite()) r.push_back(InfNorm(p - n.center));
     }
     if (!r.empty()) {

@@ -77,7 +77,12 @@ struct Scene {
 //                cameras' look-at point when their axes converge, else the
 //                median content point, else the mean camera position; scale
 //                puts every camera and the median content point inside the
-//                inner cube [-1, 1]^3 (10 % margin). Loader hints (instant-ngp
+//                inner cube [-1, 1]^3 (10 % margin). Content points are the
+//                loader's (COLMAP's sparse points, LLFF's bounds); when it has
+//                none and the views have images they are estimated from the
+//                images (content_sweep.h), so a transforms.json or an upload
+//                of a forward-facing capture or a walkthrough is placed as its
+//                COLMAP model would be. Loader hints (instant-ngp
 //                scale/offset/aabb_scale) are not used, so an upload through
 //                the service, which carries no hints, normalises the same way.
 Normalization ComputeNormalization(const Scene& scene);

@@ -61,7 +61,8 @@ absl::StatusOr<EvalResult> EvaluateViews(const NgpModel& model, const std::vecto
     if (!m.ok()) return m.status();
     result.views.push_back({v.name, v.camera.time_step, m->psnr, m->ssim, secs});
     if (!options.save_dir.empty()) {
-      std::string stem = std::filesystem::path(v.name).filename().string();
+      // "r_0" and "r_0.png" both become 0000_r_0.png (not r_0.png.png).
+      const std::string stem = std::filesystem::path(v.name).stem().string();
       const std::string path = absl::StrFormat("%s/%04d_%s.png", options.save_dir, int(k), stem);
       if (absl::Status s = WriteImage(path, r->rgb); !s.ok()) return s;
     }

@@ -17,7 +17,7 @@ namespace clnerf {
 
 struct EvalOptions {
   RenderOptions render;
-  std::string save_dir;  // When set, writes <save_dir>/<index>_<name>.png renders.
+  std::string save_dir;  // When set, writes <save_dir>/<index>_<name without extension>.png renders.
   int max_views = 0;     // 0 = all views; otherwise an evenly spaced subset.
   absl::Status Validate() const;
 };
