@@ -230,7 +230,7 @@ std::vector<Eigen::Vector3f> EstimateContentPoints(const std::vector<View>& view
             best = k;
           }
         }
-        if (best <= 0 || best >= nd - 1 || 2 * seen < nd) continue;
+        if (best <= 0 || best >= nd - 1 || 8 * seen < nd) continue;
         if (best_s < o.min_score || best_s - sum / seen < o.min_margin) continue;
         const Eigen::Vector3f world =
             ref.camera.position() + depth[best] * (ref.camera.c2w.leftCols<3>() * dir[i]);

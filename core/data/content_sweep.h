@@ -46,10 +46,13 @@ struct ContentSweepOptions {
   int neighbours = 4;
   // Neighbours look within this angle of the reference's optical axis.
   float max_axis_angle_deg = 35.0f;
-  // Depth planes, uniform in inverse depth.
-  int num_depths = 160;
+  // Depth planes, uniform in inverse depth. Measured (procedural forward
+  // rig, 96 px): 160 planes from 0.03 extents were ~28 px of disparity apart
+  // at the widest baseline and matched nothing; 256 from 0.1 extents match
+  // on flower_4, beer_2, the procedural forward rig and room in < 1 s.
+  int num_depths = 256;
   // The swept range, in multiples of the camera extent.
-  float near_over_extent = 0.03f;
+  float near_over_extent = 0.1f;
   float far_over_extent = 100.0f;
   // ZNCC window half-size, pixels of the shrunk image.
   int patch_radius = 2;

@@ -40,11 +40,43 @@ Eigen::Vector3f LookAtCenter(const std::vector<View>& views) {
   return a.ldlt().solve(b);
 }
 
+// The capture's own axes (see ComputeNormalization in scene.h).
+Eigen::Matrix3f CanonicalRotation(const std::vector<View>& views) {
+  Eigen::Vector3f up = Eigen::Vector3f::Zero(), right = Eigen::Vector3f::Zero(), mean = Eigen::Vector3f::Zero();
+  for (const View& v : views) {
+    up -= v.camera.c2w.col(1);  // OpenCV y points down.
+    right += v.camera.c2w.col(0);
+    mean += v.camera.position();
+  }
+  if (views.empty() || !(up.norm() > 0.3f * float(views.size()))) return Eigen::Matrix3f::Identity();
+  const Eigen::Vector3f z = up.normalized();
+  mean /= float(views.size());
+  // Main horizontal axis of the camera positions.
+  Eigen::Matrix3f cov = Eigen::Matrix3f::Zero();
+  const Eigen::Matrix3f flat = Eigen::Matrix3f::Identity() - z * z.transpose();
+  for (const View& v : views) {
+    const Eigen::Vector3f d = flat * (v.camera.position() - mean);
+    cov += d * d.transpose();
+  }
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3f> eig(cov);
+  Eigen::Vector3f x = flat * eig.eigenvectors().col(2);
+  if (!(x.norm() > 1e-3f) || !(eig.eigenvalues()(2) > 1e-12f)) x = flat * right;
+  if (!(x.norm() > 1e-3f)) x = flat * (std::abs(z.x()) < 0.9f ? Eigen::Vector3f::UnitX() : Eigen::Vector3f::UnitY());
+  x.normalize();
+  if (x.dot(right) < 0) x = -x;
+  Eigen::Matrix3f r;
+  r.row(0) = x;
+  r.row(1) = z.cross(x);
+  r.row(2) = z;
+  return r.allFinite() ? r : Eigen::Matrix3f::Identity();
+}
+
 // Where the cameras look: the look-at point when their optical axes
 // converge (inward-facing captures) in front of most of them; else the median
 // content point (forward-facing captures with sparse points or depth
 // bounds); else the mean camera position.
-Eigen::Vector3f FocusPoint(const std::vector<View>& views, const std::vector<Eigen::Vector3f>& points) {
+Eigen::Vector3f FocusPoint(const std::vector<View>& views, const std::vector<Eigen::Vector3f>& points,
+                           const Eigen::Matrix3f& rotation) {
   Eigen::Matrix3f a = Eigen::Matrix3f::Zero();
   for (const View& v : views) {
     const Eigen::Vector3f d = v.camera.c2w.col(2).normalized();
@@ -59,9 +91,11 @@ Eigen::Vector3f FocusPoint(const std::vector<View>& views, const std::vector<Eig
     for (const View& v : views) in_front += (c - v.camera.position()).dot(v.camera.c2w.col(2)) > 0;
     if (c.allFinite() && 2 * in_front > int(views.size())) return c;
   }
+  // The per-axis median, taken in the capture's own axes (`rotation`) so that
+  // it does not depend on the frame the files used.
   std::vector<Eigen::Vector3f> pts;
   for (const Eigen::Vector3f& p : points) {
-    if (p.allFinite()) pts.push_back(p);
+    if (p.allFinite()) pts.push_back(rotation * p);
   }
   if (!pts.empty()) {
     Eigen::Vector3f median;
@@ -71,7 +105,7 @@ Eigen::Vector3f FocusPoint(const std::vector<View>& views, const std::vector<Eig
       std::nth_element(c.begin(), c.begin() + c.size() / 2, c.end());
       median[k] = c[c.size() / 2];
     }
-    return median;
+    return rotation.transpose() * median;
   }
   Eigen::Vector3f mean = Eigen::Vector3f::Zero();
   for (const View& v : views) mean += v.camera.position();
@@ -110,16 +144,17 @@ Normalization ComputeNormalization(const Scene& scene) {
     estimated = EstimateContentPoints(views);
     points = &estimated;
   }
-  n.center = FocusPoint(views, *points);
+  n.rotation = CanonicalRotation(views);
+  n.center = FocusPoint(views, *points, n.rotation);
   float radius = 0;
-  for (const View& v : views) radius = std::max(radius, InfNorm(v.camera.position() - n.center));
+  for (const View& v : views) radius = std::max(radius, InfNorm(n.rotation * (v.camera.position() - n.center)));
   if (!points->empty()) {
     // The median content point, so a far backdrop in the sparse points does
     // not shrink the subject; farther content lives in the contracted shell.
     std::vector<float> r;
     r.reserve(points->size());
     for (const Eigen::Vector3f& p : *points) {
-      if (p.allFinite()) r.push_back(InfNorm(p - n.center));
+      if (p.allFinite()) r.push_back(InfNorm(n.rotation * (p - n.center)));
     }
     if (!r.empty()) {
       std::nth_element(r.begin(), r.begin() + r.size() / 2, r.end());

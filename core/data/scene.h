@@ -4,7 +4,7 @@
 // plus what the loader knows about the scene's extent.
 //
 // Normalisation maps world coordinates into the model's box [-bound, bound]^3
-// as x_model = (x_world - center) * scale. It is computed once, by
+// as x_model = rotation (x_world - center) * scale. It is computed once, by
 // ComputeNormalization(), and stored with the model, so renders in world
 // coordinates stay valid for the model's lifetime. Scenes are value types with
 // no internal synchronisation.
@@ -45,8 +45,13 @@ struct Normalization {
   Eigen::Vector3f center = Eigen::Vector3f::Zero();
   float scale = 1.0f;   // world -> model multiplier.
   float bound = 0.5f;   // model box half-size s: content lives in [-s, s]^3.
-  Eigen::Vector3f ToModel(const Eigen::Vector3f& w) const { return (w - center) * scale; }
-  Eigen::Vector3f ToWorld(const Eigen::Vector3f& m) const { return m / scale + center; }
+  // World -> model axes (a proper rotation; rows are the model's x, y, z in
+  // world coordinates). Identity for bounded scenes; for unbounded ones the
+  // capture's own frame (up = the cameras' mean up), so the axis-aligned
+  // contraction cube sits the same way whatever frame the files used.
+  Eigen::Matrix3f rotation = Eigen::Matrix3f::Identity();
+  Eigen::Vector3f ToModel(const Eigen::Vector3f& w) const { return rotation * (w - center) * scale; }
+  Eigen::Vector3f ToWorld(const Eigen::Vector3f& m) const { return rotation.transpose() * m / scale + center; }
 };
 
 struct Scene {
@@ -85,6 +90,11 @@ struct Scene {
 //                COLMAP model would be. Loader hints (instant-ngp
 //                scale/offset/aabb_scale) are not used, so an upload through
 //                the service, which carries no hints, normalises the same way.
+//                rotation: z = the cameras' mean up vector, x = the main
+//                horizontal axis of the camera positions (sign: along the
+//                cameras' mean right vector), so one capture in any file
+//                format (COLMAP's arbitrary frame, colmap2nerf's z-up one)
+//                gets the same box; identity when the cameras give no up.
 Normalization ComputeNormalization(const Scene& scene);
 
 // Checks every view: valid camera, image size matches intrinsics, mask size

@@ -106,6 +106,7 @@ bool NgpModel::AllFinite() const {
 
 Camera NgpModel::ToModelCamera(const Camera& world) const {
   Camera c = world;
+  c.c2w.leftCols<3>() = norm_.rotation * world.c2w.leftCols<3>();
   c.c2w.col(3) = norm_.ToModel(world.c2w.col(3));
   return c;
 }

@@ -1,5 +1,7 @@
 #include "core/io/checkpoint.h"
 
+#include "Eigen/LU"
+
 #include <zlib.h>
 
 #include <fcntl.h>
@@ -53,7 +55,7 @@ static_assert(sizeof(NetworkOptions) == 8 * sizeof(int), "update the checkpoint 
 static_assert(sizeof(OccupancyGridOptions) == 3 * sizeof(int) + 2 * sizeof(float),
               "update the checkpoint format (OGOP)");
 static_assert(sizeof(MarchOptions) == sizeof(int) + 3 * sizeof(float), "update the checkpoint format (MROP)");
-static_assert(sizeof(Normalization) == 5 * sizeof(float), "update the checkpoint format (MODL)");
+static_assert(sizeof(Normalization) == 14 * sizeof(float), "update the checkpoint format (MODL)");
 
 constexpr uint32_t Tag(const char (&s)[5]) {
   return uint32_t(uint8_t(s[0])) | uint32_t(uint8_t(s[1])) << 8 | uint32_t(uint8_t(s[2])) << 16 |
@@ -497,7 +499,8 @@ absl::Status ReadModelSection(const std::vector<RawSection>& sections, uint32_t 
                               CheckpointHeader* h) {
   auto payload = Single(sections, kTagModel, source);
   if (!payload.ok()) return payload.status();
-  constexpr size_t kSize = 4 + 3 * 4 + 4 + 4 + 3 * 4 + 4;
+  // Version 4 appends the rotation (9 floats, row-major).
+  const size_t kSize = 4 + 3 * 4 + 4 + 4 + 3 * 4 + 4 + (version >= 4 ? 9 * 4 : 0);
   if (payload->size() != kSize) return WrongSize(source, kTagModel, payload->size(), kSize);
   Reader r(*payload);
   uint32_t kind_code = 0;
@@ -507,6 +510,12 @@ absl::Status ReadModelSection(const std::vector<RawSection>& sections, uint32_t 
   r.Get(&h->norm.bound);
   for (int i = 0; i < 3; ++i) r.Get(&h->background[i]);
   r.Get(&h->steps);
+  h->norm.rotation.setIdentity();
+  if (version >= 4) {
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 3; ++j) r.Get(&h->norm.rotation(i, j));
+    }
+  }
   if (!DecodeKind(kind_code, &h->kind)) return Corrupt(source, absl::StrCat("unknown scene kind ", kind_code));
   if (version < 2 && h->kind == SceneKind::kUnbounded) {
     return absl::FailedPreconditionError(absl::StrCat(
@@ -592,6 +601,11 @@ absl::Status ValidateHeader(const CheckpointHeader& h, const std::string& source
   if (!(norm.bound > 0 && norm.bound <= kMaxBound) || !(norm.scale > 0) || !std::isfinite(norm.scale)) {
     return Corrupt(source, absl::StrFormat("invalid normalisation (scale %g, bound %g)", norm.scale, norm.bound));
   }
+  if (!norm.rotation.allFinite() ||
+      !(norm.rotation * norm.rotation.transpose()).isApprox(Eigen::Matrix3f::Identity(), 1e-3f) ||
+      !(std::abs(norm.rotation.determinant() - 1.0f) < 1e-3f)) {
+    return Corrupt(source, "invalid normalisation rotation (not a proper rotation matrix)");
+  }
   if (!norm.center.allFinite() || norm.center.cwiseAbs().maxCoeff() > kMaxCameraCoordinate) {
     return Corrupt(source, absl::StrFormat("invalid scene centre (%g, %g, %g)", norm.center.x(), norm.center.y(),
                                            norm.center.z()));
@@ -659,6 +673,9 @@ absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const Che
   w.Put(norm.bound);
   for (int i = 0; i < 3; ++i) w.Put(model.background()[i]);
   w.Put(uint32_t(model.num_time_steps()));
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 3; ++j) w.Put(norm.rotation(i, j));
+  }
   w.EndSection(at);
 
   at = w.BeginSection(kTagGridOptions);

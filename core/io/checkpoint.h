@@ -36,7 +36,10 @@
 // sections; adding a field to an options struct means adding a new section
 // (or bumping the version), never changing the payload of an existing one.
 //
-// Format version 3 (this build writes it; it also reads versions 1 and 2) has
+// Format version 4 (this build writes it; it also reads versions 1 to 3)
+// appends the normalisation's rotation (9 float32, row-major) to MODL; older
+// files load with the identity, which is what they were trained with.
+// Format version 3 has
 // the sections MODL HGOP NTOP OGOP MROP PENC PGRD PMLP PEMB OCCP META XSEC*
 // (version 1: no PENC, and OCCG with the raw occupancy state instead of OCCP):
 //  * parameters may be stored as IEEE binary16 (CheckpointOptions::
@@ -90,8 +93,9 @@ namespace clnerf {
 
 // The format version this build writes, and the newest it reads. Versions 2
 // and 3 also mark checkpoints whose unbounded scenes (SceneKind::kUnbounded)
-// use contracted unbounded space; version 3 stores occupancy as bits only.
-inline constexpr uint32_t kCheckpointFormatVersion = 3;
+// use contracted unbounded space; version 3 stores occupancy as bits only;
+// version 4 adds the normalisation's rotation to MODL (older: identity).
+inline constexpr uint32_t kCheckpointFormatVersion = 4;
 // The oldest format version this build reads (bounded scenes only).
 inline constexpr uint32_t kOldestReadableCheckpointFormatVersion = 1;
 // The eight magic bytes at the start of every checkpoint.

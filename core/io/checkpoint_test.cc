@@ -21,6 +21,7 @@
 #include <string>
 #include <vector>
 
+#include "Eigen/Geometry"
 #include "core/io/half.h"
 #include "core/render/renderer.h"
 #include "gtest/gtest.h"
@@ -690,6 +691,56 @@ TEST(CheckpointTest, InconsistentContentIsRejected) {
 }
 
 // ---------------------------------------------------------------------------
+// Format version 3: MODL without the rotation that version 4 appends.
+
+std::vector<Section> SplitV3Sections(const std::string& bytes) {
+  std::vector<Section> sections = SplitSections(bytes);
+  Section* modl = Find(&sections, "MODL");
+  modl->payload.resize(modl->payload.size() - 9 * sizeof(float));
+  return sections;
+}
+
+TEST(CheckpointTest, ReadsVersionThreeWithTheIdentityRotationAndKeepsVersionFours) {
+  ModelOptions options = TinyOptions();
+  options.march.cone_angle = 1.0f / 256;
+  NgpModel model = MakeModel(options, 1, 17, SceneKind::kUnbounded);
+  // A version-3 file: no rotation, which is what its model was trained with.
+  absl::StatusOr<LoadedCheckpoint> v3 = DeserializeCheckpoint(BuildFile(SplitV3Sections(Serialize(model)), 3));
+  ASSERT_TRUE(v3.ok()) << v3.status();
+  EXPECT_EQ(v3->format_version, 3u);
+  EXPECT_TRUE(v3->model.normalization().rotation.isIdentity());
+  // A version-3 MODL under a version-4 header is the wrong size.
+  EXPECT_EQ(DeserializeCheckpoint(BuildFile(SplitV3Sections(Serialize(model)), 4)).status().code(),
+            absl::StatusCode::kDataLoss);
+
+  // Version 4 keeps a rotation bit for bit.
+  Normalization norm = model.normalization();
+  norm.rotation = Eigen::AngleAxisf(0.7f, Eigen::Vector3f(1, 2, 3).normalized()).toRotationMatrix();
+  absl::StatusOr<NgpModel> rotated = NgpModel::FromParts(model.options(), norm, model.kind(), model.background(),
+                                                         model.num_time_steps(), model.params());
+  ASSERT_TRUE(rotated.ok()) << rotated.status();
+  absl::StatusOr<LoadedCheckpoint> v4 = DeserializeCheckpoint(Serialize(*rotated));
+  ASSERT_TRUE(v4.ok()) << v4.status();
+  EXPECT_EQ(v4->model.normalization().rotation, norm.rotation);
+
+  // A forged rotation (a reflection, or a non-rotation) is corrupt data.
+  std::vector<Section> sections = SplitSections(Serialize(*rotated));
+  Section* modl = Find(&sections, "MODL");
+  const size_t at = modl->payload.size() - 9 * sizeof(float);
+  for (float f : {-1.0f, 2.0f}) {
+    std::vector<Section> forged = sections;
+    Section* m = Find(&forged, "MODL");
+    const float x = LoadLE<float>(m->payload, at) * f;
+    std::memcpy(&m->payload[at], &x, sizeof(x));
+    absl::StatusOr<LoadedCheckpoint> bad = DeserializeCheckpoint(BuildFile(forged), "forged");
+    ASSERT_FALSE(bad.ok());
+    EXPECT_EQ(bad.status().code(), absl::StatusCode::kDataLoss) << bad.status();
+    EXPECT_NE(bad.status().message().find("rotation"), std::string::npos) << bad.status();
+  }
+  (void)modl;
+}
+
+// ---------------------------------------------------------------------------
 // Format version 1.
 
 // A version-1 file of `model`, built from the documented version-1 layout:
@@ -697,7 +748,7 @@ TEST(CheckpointTest, InconsistentContentIsRejected) {
 // OCCG (threshold | cells | float32 density[] | uint8 visible[] | bits[]).
 std::string BuildV1File(const NgpModel& model) {
   std::vector<Section> v1;
-  for (const Section& s : SplitSections(Serialize(model))) {
+  for (const Section& s : SplitV3Sections(Serialize(model))) {
     if (s.tag == Tag("PENC")) continue;
     if (s.tag != Tag("OCCP")) {
       v1.push_back(s);
@@ -758,7 +809,7 @@ TEST(CheckpointTest, ReadsVersionOneBoundedScenes) {
 // one 8-bit log2 density code per cell (0: zero, 1: below reference / 4,
 // else round(8 * log2(d / ref)) + 18).
 std::string BuildV2File(const NgpModel& model) {
-  std::vector<Section> v2 = SplitSections(Serialize(model));
+  std::vector<Section> v2 = SplitV3Sections(Serialize(model));
   const OccupancyGrid& occ = model.occupancy();
   const size_t cells = occ.num_cells();
   const float ref = occ.threshold() > 0 ? occ.threshold() : 1.0f;
