@@ -269,6 +269,16 @@ CLI::App* BindDemo(CLI::App* parent, DemoArgs* a) {
   c->add_flag("--backdrop", a->scene.backdrop,
               "Unbounded scene: ground plane, pillars and a far backdrop, trained in contracted space "
               "(the scene folder written is Blender format, which loads back as a bounded scene)");
+  c->add_option_function<std::string>(
+       "--layout",
+       [a](const std::string& name) {
+         if (absl::Status s = ParseProceduralLayout(name, &a->scene.layout); !s.ok()) {
+           throw CLI::ValidationError("--layout", std::string(s.message()));
+         }
+       },
+       "Camera rig: orbit (an object capture), forward (an LLFF-style forward-facing rig) or room (a walkthrough "
+       "of a room with bare walls); forward and room are unbounded")
+      ->default_str(ProceduralLayoutName(a->scene.layout));
   return c;
 }
 
