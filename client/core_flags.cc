@@ -39,6 +39,16 @@ void BindFitFlags(CLI::App* c, FitOptions* fo) {
                 "Fade the occlusion penalty to 0 over this fraction of training (0 = constant)")
       ->capture_default_str();
   c->add_flag("--random-background", t.random_background, "Real captures: train on random background colours");
+  BindEnumFlag(c, "--sampler", &fo->model.sampler, {SamplerKind::kAuto, SamplerKind::kOccupancy, SamplerKind::kProposal},
+               SamplerKindName,
+               "How samples are placed: occupancy-grid marching, proposal fields, or auto (marching for objects, "
+               "proposals for real captures)");
+  ProposalOptions& po = fo->model.proposal;
+  c->add_option("--proposal-samples", po.samples0, "Proposal sampling: first-stage samples per ray")->capture_default_str();
+  c->add_option("--proposal-samples2", po.samples1, "Proposal sampling: second-stage samples per ray (0 = one stage)")
+      ->capture_default_str();
+  c->add_option("--nerf-samples", po.nerf_samples, "Proposal sampling: full-field samples per ray")->capture_default_str();
+  c->add_option("--interlevel", t.interlevel_weight, "Proposal sampling: interlevel-loss weight")->capture_default_str();
   c->add_flag("!--no-embed", fo->model.network.use_embeddings, "Disable per-time-step embeddings");
 }
 

@@ -153,6 +153,9 @@ CLI::App* BindEval(CLI::App* parent, EvalArgs* a) {
   c->add_option("--json", a->json, "Write results as JSON to this file ('-' = stdout)");
   c->add_option("--save-dir", a->eval.save_dir, "Also write the renders here");
   c->add_option("--max-views", a->eval.max_views, "Evaluate an evenly spaced subset (0 = all)")->capture_default_str();
+  c->add_option("--nerf-samples", a->eval.render.nerf_samples,
+                "Proposal models: full-field samples per ray (0 = as trained; fewer is faster)")
+      ->capture_default_str();
   BindThreadsFlag(c, &a->threads);
   BindDatasetFlags(c, &a->dataset);
   return c;

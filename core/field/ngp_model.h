@@ -12,6 +12,7 @@
 
 #include <cstdint>
 #include <random>
+#include <string>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -19,16 +20,29 @@
 #include "core/field/hash_grid.h"
 #include "core/field/network.h"
 #include "core/field/occupancy_grid.h"
+#include "core/field/proposal_field.h"
 #include "core/field/ray_marcher.h"
 #include "core/data/scene.h"
 
 namespace clnerf {
+
+// How a ray's samples are placed: by marching the occupancy grid (every
+// occupied step is evaluated; right for objects, whose empty space the grid
+// prunes cleanly) or by the proposal fields (a fixed few dozen samples per
+// ray; right for real places, whose walls, floors and backgrounds leave thick
+// occupied shells). kAuto is resolved when the model is created; it picks
+// marching today (see ResolveSampler in ngp_model.cc for the measurements).
+enum class SamplerKind { kAuto = 0, kOccupancy = 1, kProposal = 2 };
+const char* SamplerKindName(SamplerKind kind);
+absl::Status ParseSamplerKind(const std::string& name, SamplerKind* kind);
 
 struct ModelOptions {
   HashGridOptions grid;
   NetworkOptions network;
   OccupancyGridOptions occupancy;
   MarchOptions march;
+  SamplerKind sampler = SamplerKind::kAuto;
+  ProposalOptions proposal;  // Used when the sampler is kProposal.
   absl::Status Validate() const;
 };
 
@@ -37,6 +51,7 @@ struct ModelParams {
   std::vector<float> grid;  // Hash tables (HashGrid layout).
   std::vector<float> mlp;   // Both MLPs (Network layout).
   std::vector<float> emb;   // Embedding rows, one per time step.
+  std::vector<float> proposal;  // Proposal fields, concatenated (empty without proposals).
 };
 
 class NgpModel {
@@ -58,6 +73,11 @@ class NgpModel {
   const ModelParams& params() const { return params_; }
   ModelParams& mutable_params() { return params_; }
   int num_time_steps() const { return num_time_steps_; }
+  // True when samples are placed by the proposal fields (the sampler
+  // resolved at creation; never kAuto).
+  bool uses_proposals() const { return options_.sampler == SamplerKind::kProposal; }
+  const ProposalField& proposal_field(int k) const { return proposal_fields_[k]; }
+  size_t proposal_offset(int k) const { return k == 0 ? 0 : proposal_fields_[0].num_params(); }
 
   // Appends one embedding row (for a new time step) initialised from `seed`.
   void AddTimeStep(uint64_t seed);
@@ -70,6 +90,7 @@ class NgpModel {
   // Bytes of the deployed model: parameters + occupancy bits + embeddings.
   size_t num_bytes() const;
   size_t num_params() const;
+  size_t num_proposal_params() const;
   // False if any parameter is NaN/Inf.
   bool AllFinite() const;
 
@@ -116,6 +137,7 @@ class NgpModel {
   HashGrid grid_;
   Network network_;
   OccupancyGrid occupancy_;
+  std::vector<ProposalField> proposal_fields_;
   ModelParams params_;
   int num_time_steps_ = 1;
 };

@@ -56,6 +56,10 @@ static_assert(sizeof(OccupancyGridOptions) == 3 * sizeof(int) + 2 * sizeof(float
               "update the checkpoint format (OGOP)");
 static_assert(sizeof(MarchOptions) == sizeof(int) + 3 * sizeof(float), "update the checkpoint format (MROP)");
 static_assert(sizeof(Normalization) == 14 * sizeof(float), "update the checkpoint format (MODL)");
+static_assert(sizeof(ProposalFieldOptions) == 5 * sizeof(int), "update the checkpoint format (SMOP)");
+static_assert(sizeof(ProposalOptions) == 3 * sizeof(int) + sizeof(float) + 2 * sizeof(ProposalFieldOptions),
+              "update the checkpoint format (SMOP)");
+constexpr size_t kSamplerOptionsSize = 4 + 3 * 4 + 4 + 2 * 5 * 4;
 
 constexpr uint32_t Tag(const char (&s)[5]) {
   return uint32_t(uint8_t(s[0])) | uint32_t(uint8_t(s[1])) << 8 | uint32_t(uint8_t(s[2])) << 16 |
@@ -75,6 +79,8 @@ constexpr uint32_t kTagMlpParams = Tag("PMLP");         // float32[] or binary16
 constexpr uint32_t kTagEmbParams = Tag("PEMB");         // float32[] or binary16[] embedding rows.
 constexpr uint32_t kTagOccupancyV1 = Tag("OCCG");       // v1: occupancy grid state, raw.
 constexpr uint32_t kTagOccupancy = Tag("OCCP");         // v2: occupancy grid state, packed.
+constexpr uint32_t kTagSamplerOptions = Tag("SMOP");   // v5: sampler kind + ProposalOptions.
+constexpr uint32_t kTagProposalParams = Tag("PPRP");   // v5: float32[] or binary16[] proposal fields.
 constexpr uint32_t kTagMetadata = Tag("META");          // CheckpointExtras::metadata.
 constexpr uint32_t kTagExtraSection = Tag("XSEC");      // One CheckpointExtras::sections entry.
 
@@ -103,6 +109,9 @@ bool KnownTag(uint32_t tag, uint32_t version) {
     case kTagParamEncoding:
     case kTagOccupancy:
       return version >= 2;
+    case kTagSamplerOptions:
+    case kTagProposalParams:
+      return version >= 5;
   }
   return false;
 }
@@ -319,6 +328,11 @@ absl::Status CheckModelConsistent(const NgpModel& model) {
         "(grid %d, mlp %d, emb %d)",
         p.grid.size(), p.mlp.size(), p.emb.size(), model.grid().num_params(), model.network().num_mlp_params(),
         want_emb));
+  }
+  if (p.proposal.size() != model.num_proposal_params()) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "cannot checkpoint model: proposal block has %d parameters, its layout %d", p.proposal.size(),
+        model.num_proposal_params()));
   }
   const OccupancyGrid& occ = model.occupancy();
   const size_t cells = occ.num_cells();
@@ -580,6 +594,41 @@ absl::Status ReadOptionSections(const std::vector<RawSection>& sections, const s
   return absl::OkStatus();
 }
 
+// SMOP (version 5): the sampler and the proposal fields' options.
+absl::Status ReadSamplerSection(const std::vector<RawSection>& sections, const std::string& source,
+                                ModelOptions* options) {
+  auto payload = Single(sections, kTagSamplerOptions, source);
+  if (!payload.ok()) return payload.status();
+  if (payload->size() != kSamplerOptionsSize) {
+    return WrongSize(source, kTagSamplerOptions, payload->size(), kSamplerOptionsSize);
+  }
+  Reader r(*payload);
+  uint32_t kind = 0;
+  r.Get(&kind);
+  if (kind != uint32_t(SamplerKind::kOccupancy) && kind != uint32_t(SamplerKind::kProposal)) {
+    return Corrupt(source, absl::StrCat("unknown sampler kind ", kind));
+  }
+  options->sampler = SamplerKind(kind);
+  ProposalOptions& po = options->proposal;
+  r.I32(&po.samples0);
+  r.I32(&po.samples1);
+  r.I32(&po.nerf_samples);
+  r.Get(&po.histogram_padding);
+  for (ProposalFieldOptions* f : {&po.field0, &po.field1}) {
+    r.I32(&f->levels);
+    r.I32(&f->log2_table_size);
+    r.I32(&f->base_resolution);
+    r.I32(&f->finest_resolution);
+    r.I32(&f->hidden);
+  }
+  for (const ProposalFieldOptions* f : {&po.field0, &po.field1}) {
+    if (f->finest_resolution > kMaxGridResolution || f->levels > kMaxLayers) {
+      return Corrupt(source, "proposal options exceed the sanity limits for checkpoints");
+    }
+  }
+  return absl::OkStatus();
+}
+
 // Step 7: the header must describe a sane model before any layout is built.
 absl::Status ValidateHeader(const CheckpointHeader& h, const std::string& source) {
   const ModelOptions& options = h.options;
@@ -632,7 +681,8 @@ absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const Che
   // Loading refuses non-finite parameters, so never write them.
   for (const auto& [name, block] : {std::pair<const char*, const std::vector<float>*>{"grid", &model.params().grid},
                                     {"mlp", &model.params().mlp},
-                                    {"embedding", &model.params().emb}}) {
+                                    {"embedding", &model.params().emb},
+                                    {"proposal", &model.params().proposal}}) {
     for (size_t i = 0; i < block->size(); ++i) {
       const float x = (*block)[i];
       if (!std::isfinite(x)) {
@@ -653,7 +703,7 @@ absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const Che
   const ModelParams& p = model.params();
   const OccupancyGrid& occ = model.occupancy();
 
-  size_t estimate = 1024 + (p.grid.size() + p.mlp.size() + p.emb.size()) * sizeof(float) +
+  size_t estimate = 1024 + (p.grid.size() + p.mlp.size() + p.emb.size() + p.proposal.size()) * sizeof(float) +
                     occ.num_cells() * (sizeof(float) + 1) + occ.bits().size() * sizeof(uint64_t);
   for (const auto& [k, v] : extras.metadata) estimate += 16 + k.size() + v.size();
   for (const auto& [n, d] : extras.sections) estimate += 32 + n.size() + d.size();
@@ -712,12 +762,32 @@ absl::StatusOr<std::string> SerializeCheckpoint(const NgpModel& model, const Che
   w.Put(o.march.near);
   w.EndSection(at);
 
+  // SMOP (version 5): uint32 sampler kind (1 occupancy, 2 proposal) |
+  // int32 samples0 samples1 nerf_samples | float32 histogram_padding |
+  // per proposal field (two, even when one is used): int32 levels
+  // log2_table_size base_resolution finest_resolution hidden.
+  at = w.BeginSection(kTagSamplerOptions);
+  w.Put(uint32_t(o.sampler));
+  w.I32(o.proposal.samples0);
+  w.I32(o.proposal.samples1);
+  w.I32(o.proposal.nerf_samples);
+  w.Put(o.proposal.histogram_padding);
+  for (const ProposalFieldOptions* f : {&o.proposal.field0, &o.proposal.field1}) {
+    w.I32(f->levels);
+    w.I32(f->log2_table_size);
+    w.I32(f->base_resolution);
+    w.I32(f->finest_resolution);
+    w.I32(f->hidden);
+  }
+  w.EndSection(at);
+
   at = w.BeginSection(kTagParamEncoding);
   w.Put(uint32_t(options.fp16_params ? ParamEncoding::kFloat16 : ParamEncoding::kFloat32));
   w.EndSection(at);
   for (const auto& [tag, block] : {std::pair<uint32_t, const std::vector<float>*>{kTagGridParams, &p.grid},
                                    {kTagMlpParams, &p.mlp},
-                                   {kTagEmbParams, &p.emb}}) {
+                                   {kTagEmbParams, &p.emb},
+                                   {kTagProposalParams, &p.proposal}}) {
     at = w.BeginSection(tag);
     if (options.fp16_params) {
       for (float x : *block) w.Put(FloatToHalf(x));
@@ -853,6 +923,11 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
   CheckpointHeader head;
   if (absl::Status s = ReadModelSection(sections, version, source, &head); !s.ok()) return s;
   if (absl::Status s = ReadOptionSections(sections, source, &head.options); !s.ok()) return s;
+  if (version >= 5) {
+    if (absl::Status s = ReadSamplerSection(sections, source, &head.options); !s.ok()) return s;
+  } else {
+    head.options.sampler = SamplerKind::kOccupancy;  // What versions 1 to 4 were trained with.
+  }
   if (absl::Status s = ValidateHeader(head, source); !s.ok()) return s;
   const ModelOptions& options = head.options;
   const Normalization& norm = head.norm;
@@ -884,6 +959,18 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
     auto payload = Single(sections, tag, source);
     if (!payload.ok()) return payload.status();
     if (absl::Status s = ReadParams(*payload, tag, count, fp16, source, out); !s.ok()) return s;
+  }
+
+  if (version >= 5) {
+    size_t count = 0;
+    if (options.sampler == SamplerKind::kProposal) {
+      for (int k = 0; k < options.proposal.num_stages(); ++k) count += ProposalField(options.proposal.field(k)).num_params();
+    }
+    auto payload = Single(sections, kTagProposalParams, source);
+    if (!payload.ok()) return payload.status();
+    if (absl::Status s = ReadParams(*payload, kTagProposalParams, count, fp16, source, &params.proposal); !s.ok()) {
+      return s;
+    }
   }
 
   // 9. Occupancy state. The cascade count depends only on the bound: ask a

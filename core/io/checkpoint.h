@@ -36,7 +36,12 @@
 // sections; adding a field to an options struct means adding a new section
 // (or bumping the version), never changing the payload of an existing one.
 //
-// Format version 4 (this build writes it; it also reads versions 1 to 3)
+// Format version 5 (this build writes it; it also reads versions 1 to 4)
+// adds SMOP (the sampler: occupancy marching or proposal fields, and the
+// proposal options) and PPRP (the proposal fields' parameters, empty for
+// occupancy models, encoded like the other blocks); older files load as
+// occupancy models, which is what they were trained with.
+// Format version 4
 // appends the normalisation's rotation (9 float32, row-major) to MODL; older
 // files load with the identity, which is what they were trained with.
 // Format version 3 has
@@ -95,7 +100,7 @@ namespace clnerf {
 // and 3 also mark checkpoints whose unbounded scenes (SceneKind::kUnbounded)
 // use contracted unbounded space; version 3 stores occupancy as bits only;
 // version 4 adds the normalisation's rotation to MODL (older: identity).
-inline constexpr uint32_t kCheckpointFormatVersion = 4;
+inline constexpr uint32_t kCheckpointFormatVersion = 5;
 // The oldest format version this build reads (bounded scenes only).
 inline constexpr uint32_t kOldestReadableCheckpointFormatVersion = 1;
 // The eight magic bytes at the start of every checkpoint.

@@ -132,6 +132,28 @@ ModelOptions TinyOptions(bool use_embeddings = true) {
   o.march.steps_per_diagonal = 96.0f;
   o.march.cone_angle = 0.0f;
   o.march.near = 0.07f;
+  // Occupancy marching unless a test asks for proposals (auto would pick
+  // proposals for the unbounded fixtures, and files before version 5 hold
+  // occupancy models).
+  // (Files before version 5 do not store the proposal options: they load
+  // with the defaults, which these fixtures keep.)
+  o.sampler = SamplerKind::kOccupancy;
+  return o;
+}
+
+ModelOptions TinyProposalOptions() {
+  ModelOptions o = TinyOptions();
+  o.sampler = SamplerKind::kProposal;
+  o.proposal.samples0 = 12;
+  o.proposal.samples1 = 10;
+  o.proposal.nerf_samples = 8;
+  for (ProposalFieldOptions* f : {&o.proposal.field0, &o.proposal.field1}) {
+    f->levels = 3;
+    f->log2_table_size = 10;
+    f->base_resolution = 4;
+    f->finest_resolution = 16;
+    f->hidden = 8;
+  }
   return o;
 }
 
@@ -208,6 +230,14 @@ void ExpectBitEqual(const NgpModel& a, const NgpModel& b, bool exact_density = f
   EXPECT_EQ(oa.network.appearance_dim, ob.network.appearance_dim);
   EXPECT_EQ(oa.network.geometry_dim, ob.network.geometry_dim);
   EXPECT_EQ(oa.network.use_embeddings, ob.network.use_embeddings);
+  EXPECT_EQ(oa.sampler, ob.sampler);
+  EXPECT_EQ(oa.proposal.samples0, ob.proposal.samples0);
+  EXPECT_EQ(oa.proposal.samples1, ob.proposal.samples1);
+  EXPECT_EQ(oa.proposal.nerf_samples, ob.proposal.nerf_samples);
+  EXPECT_TRUE(SameBits(oa.proposal.histogram_padding, ob.proposal.histogram_padding));
+  EXPECT_EQ(oa.proposal.field1.finest_resolution, ob.proposal.field1.finest_resolution);
+  EXPECT_EQ(oa.proposal.field0.hidden, ob.proposal.field0.hidden);
+  EXPECT_TRUE(SameBits(a.params().proposal, b.params().proposal));
   EXPECT_EQ(oa.occupancy.resolution, ob.occupancy.resolution);
   EXPECT_EQ(oa.occupancy.update_interval, ob.occupancy.update_interval);
   EXPECT_EQ(oa.occupancy.warmup_iterations, ob.occupancy.warmup_iterations);
@@ -306,8 +336,8 @@ TEST(CheckpointTest, LayoutMatchesDocumentation) {
   const std::vector<Section> sections = SplitSections(bytes);
   std::vector<std::string> tags;
   for (const Section& s : sections) tags.push_back(std::string(reinterpret_cast<const char*>(&s.tag), 4));
-  EXPECT_EQ(tags, (std::vector<std::string>{"MODL", "HGOP", "NTOP", "OGOP", "MROP", "PENC", "PGRD", "PMLP",
-                                            "PEMB", "OCCP", "META"}));
+  EXPECT_EQ(tags, (std::vector<std::string>{"MODL", "HGOP", "NTOP", "OGOP", "MROP", "SMOP", "PENC", "PGRD", "PMLP",
+                                            "PEMB", "PPRP", "OCCP", "META"}));
   // The raw parameter blocks are stored verbatim (encoding 0: float32).
   std::vector<Section> copy = sections;
   EXPECT_EQ(Find(&copy, "PENC")->payload, LE<uint32_t>(0));
@@ -465,6 +495,66 @@ TEST(CheckpointTest, LoadedModelRendersIdenticalPixels) {
     EXPECT_GT(a->samples, 0);
     const auto [lo, hi] = std::minmax_element(a->rgb.rgb.begin(), a->rgb.rgb.end());
     EXPECT_GT(*hi - *lo, 0.01f);
+  }
+}
+
+std::vector<Section> SplitV4Sections(const std::string& bytes);
+
+// Proposal models (format 5): the sampler, the proposal options and the
+// proposal fields round-trip bit for bit and render the same pixels; a
+// version-4 file loads as an occupancy model; forged sampler sections are
+// refused.
+TEST(CheckpointTest, ProposalModelRoundTripsAndRendersIdenticalPixels) {
+  NgpModel model = MakeModel(TinyProposalOptions(), 2, 29, SceneKind::kUnbounded);
+  ASSERT_TRUE(model.uses_proposals());
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  for (float& v : model.mutable_params().proposal) v = u(rng);
+  ExpectRoundTrip(model);
+  absl::StatusOr<LoadedCheckpoint> loaded = DeserializeCheckpoint(Serialize(model));
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  EXPECT_TRUE(loaded->model.uses_proposals());
+  const Camera camera = TestCamera(model.normalization(), 20.0f);
+  absl::StatusOr<RenderedView> a = RenderView(model, camera, RenderOptions());
+  absl::StatusOr<RenderedView> b = RenderView(loaded->model, camera, RenderOptions());
+  ASSERT_TRUE(a.ok() && b.ok());
+  EXPECT_TRUE(SameBits(a->rgb.rgb, b->rgb.rgb));
+  EXPECT_GT(a->samples, 0);
+
+  // Version 4 had no sampler: its files are occupancy models.
+  const NgpModel occupancy = MakeModel(TinyOptions(), 1, 31, SceneKind::kUnbounded);
+  absl::StatusOr<LoadedCheckpoint> v4 = DeserializeCheckpoint(BuildFile(SplitV4Sections(Serialize(occupancy)), 4));
+  ASSERT_TRUE(v4.ok()) << v4.status();
+  EXPECT_FALSE(v4->model.uses_proposals());
+  EXPECT_EQ(v4->model.options().sampler, SamplerKind::kOccupancy);
+  // A version-5 file without its sampler section is incomplete.
+  EXPECT_EQ(DeserializeCheckpoint(BuildFile(SplitV4Sections(Serialize(model)))).status().code(),
+            absl::StatusCode::kDataLoss);
+
+  const std::vector<Section> sections = SplitSections(Serialize(model));
+  {
+    std::vector<Section> forged = sections;
+    StoreLE<uint32_t>(&Find(&forged, "SMOP")->payload, 0, 7);  // No such sampler.
+    const absl::Status st = DeserializeCheckpoint(BuildFile(forged)).status();
+    EXPECT_EQ(st.code(), absl::StatusCode::kDataLoss) << st;
+  }
+  {
+    std::vector<Section> forged = sections;
+    StoreLE<uint32_t>(&Find(&forged, "SMOP")->payload, 12, 0);  // nerf_samples 0.
+    const absl::Status st = DeserializeCheckpoint(BuildFile(forged)).status();
+    EXPECT_EQ(st.code(), absl::StatusCode::kDataLoss) << st;
+  }
+  {
+    std::vector<Section> forged = sections;
+    Find(&forged, "PPRP")->payload.resize(Find(&forged, "PPRP")->payload.size() - 4);  // One parameter short.
+    const absl::Status st = DeserializeCheckpoint(BuildFile(forged)).status();
+    EXPECT_EQ(st.code(), absl::StatusCode::kDataLoss) << st;
+  }
+  {
+    std::vector<Section> forged = sections;
+    StoreLE<float>(&Find(&forged, "PPRP")->payload, 8, std::numeric_limits<float>::quiet_NaN());
+    const absl::Status st = DeserializeCheckpoint(BuildFile(forged)).status();
+    EXPECT_EQ(st.code(), absl::StatusCode::kDataLoss) << st;
   }
 }
 
@@ -693,8 +783,19 @@ TEST(CheckpointTest, InconsistentContentIsRejected) {
 // ---------------------------------------------------------------------------
 // Format version 3: MODL without the rotation that version 4 appends.
 
-std::vector<Section> SplitV3Sections(const std::string& bytes) {
+// A version-4 file: no sampler section and no proposal block.
+std::vector<Section> SplitV4Sections(const std::string& bytes) {
   std::vector<Section> sections = SplitSections(bytes);
+  std::vector<Section> out;
+  for (const Section& s : sections) {
+    const std::string tag(reinterpret_cast<const char*>(&s.tag), 4);
+    if (tag != "SMOP" && tag != "PPRP") out.push_back(s);
+  }
+  return out;
+}
+
+std::vector<Section> SplitV3Sections(const std::string& bytes) {
+  std::vector<Section> sections = SplitV4Sections(bytes);
   Section* modl = Find(&sections, "MODL");
   modl->payload.resize(modl->payload.size() - 9 * sizeof(float));
   return sections;

@@ -8,6 +8,7 @@
 
 #include "absl/strings/str_format.h"
 #include "core/field/field.h"
+#include "core/field/proposal_sampler.h"
 #include "core/field/ray_marcher.h"
 #include "core/render/volume_rendering.h"
 
@@ -15,6 +16,9 @@ namespace clnerf {
 
 absl::Status RenderOptions::Validate() const {
   if (block_rays < 1) return absl::InvalidArgumentError("render: block_rays must be >= 1");
+  if (nerf_samples < 0 || nerf_samples > kMaxProposalSamples) {
+    return absl::InvalidArgumentError("render: nerf_samples must be in [0, 1024]");
+  }
   if (threads < 0) return absl::InvalidArgumentError("render: threads must be >= 0");
   return absl::OkStatus();
 }
@@ -31,7 +35,7 @@ struct RayState {
 
 // Renders one block of rays with a private workspace.
 long long RenderBlock(const FieldEvaluator& field, const float* origins, const float* dirs, int n, int time_step,
-                      float min_weight, float* rgb_out, float* opacity_out, float* depth_out) {
+                      float min_weight, int nerf_samples, float* rgb_out, float* opacity_out, float* depth_out) {
   const NgpModel& model = field.model();
   std::vector<RayState> st(n);
   // Scratch reused across blocks and calls on the same thread.
@@ -53,15 +57,48 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
   long long evaluated = 0;
   int alive = n;
   const int max_samples = kMaxMarchSamples;  // A safety bound no real model reaches.
+  const bool proposals = model.uses_proposals();
+  // Proposal models: every ray's samples are placed up front, then consumed
+  // front to back in waves like marched ones, so rays that terminate early
+  // skip the rest of theirs.
+  thread_local ProposalContext prop;
+  thread_local std::vector<RaySample> placed;
+  thread_local std::vector<int> placed_seg, placed_ray, next_placed;
+  if (proposals) {
+    placed.clear();
+    placed_seg.assign(1, 0);
+    placed_ray.clear();
+    ProposalSampler(field).Place(origins, dirs, n, /*seed=*/0, nullptr, /*anneal=*/1.0f, &prop, &placed, &placed_seg,
+                                 &placed_ray, nerf_samples);
+    next_placed.assign(n, -1);
+    for (int r = 0; r < n; ++r) st[r].alive = false;
+    for (size_t k = 0; k < placed_ray.size(); ++k) {
+      next_placed[placed_ray[k]] = int(k);
+      st[placed_ray[k]].alive = true;
+      st[placed_ray[k]].samples = placed_seg[k];  // Cursor into `placed`.
+    }
+  }
   for (;;) {
     // Samples per live ray this wave: the wave's total stays near kWaveBudget
     // so activations stay in cache; few live rays march further per wave.
     constexpr int kWaveBudget = 4096;
+    constexpr int kProposalWave = 16;
     const int wave = std::clamp(kWaveBudget / std::max(alive, 1), 2, 64);
     samples.clear();
     seg.assign(1, 0);
     seg_ray.clear();
-    for (int r = 0; r < n; ++r) {
+    for (int r = 0; r < n && proposals; ++r) {
+      RayState& s = st[r];
+      if (!s.alive) continue;
+      const int end = placed_seg[next_placed[r] + 1];
+      const int take = std::min(kProposalWave, end - s.samples);
+      samples.insert(samples.end(), placed.begin() + s.samples, placed.begin() + s.samples + take);
+      s.samples += take;
+      if (s.samples >= end) s.alive = false;
+      seg.push_back(int(samples.size()));
+      seg_ray.push_back(r);
+    }
+    for (int r = 0; r < n && !proposals; ++r) {
       RayState& s = st[r];
       if (!s.alive) continue;
       const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
@@ -128,7 +165,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
         s.rgb[0] += w[j] * fc.ws.rgb(0, i);
         s.rgb[1] += w[j] * fc.ws.rgb(1, i);
         s.rgb[2] += w[j] * fc.ws.rgb(2, i);
-        s.depth += w[j] * samples[j].t;
+        s.depth += w[j] * samples[j].t;  // Proposal samples: t is the interval midpoint.
       }
     }
   }
@@ -148,7 +185,9 @@ long long RenderRays(const NgpModel& model, const float* origins, const float* d
                      const RenderOptions& options, float* rgb, float* opacity, float* depth) {
   const int t = time_step < 0 ? model.num_time_steps() - 1 : std::min(time_step, model.num_time_steps() - 1);
   const FieldEvaluator field(model);
-  const int block = options.block_rays;
+  // Proposal blocks evaluate all their samples at once: keep them small
+  // enough for the activations to stay in cache.
+  const int block = model.uses_proposals() ? std::min(options.block_rays, 128) : options.block_rays;
   const int nblocks = (n + block - 1) / block;
   long long total = 0;
   const int threads = options.threads > 0 ? options.threads : omp_get_max_threads();
@@ -162,6 +201,7 @@ long long RenderRays(const NgpModel& model, const float* origins, const float* d
     }
     const int begin = b * block, m = std::min(block, n - begin);
     total += RenderBlock(field, origins + 3 * size_t(begin), dirs + 3 * size_t(begin), m, t, options.min_weight,
+                         options.nerf_samples,
                          rgb + 3 * size_t(begin), opacity ? opacity + begin : nullptr,
                          depth ? depth + begin : nullptr);
   }

@@ -26,6 +26,9 @@ struct RenderOptions {
   int block_rays = 512;     // Rays per parallel task.
   int threads = 0;          // OpenMP threads; 0 = all available.
   float min_weight = 2e-5f; // Samples with smaller weight skip the colour MLP.
+  // Proposal models: full-field samples per ray (0 = the model's, which it
+  // was trained with). Fewer is faster and less accurate.
+  int nerf_samples = 0;
   // Polled before each block of rays (from the rendering threads, so it must
   // be thread-safe); once it returns true the remaining blocks are skipped
   // and RenderView returns CANCELLED. Empty = never stop. Used for renders

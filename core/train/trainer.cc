@@ -9,6 +9,7 @@
 #include "absl/strings/str_format.h"
 #include "core/data/contraction.h"
 #include "core/field/field.h"
+#include "core/field/proposal_sampler.h"
 #include "core/render/volume_rendering.h"
 #include "spdlog/spdlog.h"
 
@@ -34,6 +35,9 @@ absl::Status TrainOptions::Validate() const {
     return absl::InvalidArgumentError("train: near_density_distance must be finite and >= 0");
   }
   if (threads < 0) return absl::InvalidArgumentError("train: threads must be >= 0");
+  if (!(interlevel_weight >= 0) || !std::isfinite(interlevel_weight)) {
+    return absl::InvalidArgumentError("train: interlevel_weight must be finite and >= 0");
+  }
   if (max_bad_batches < 0 || inject_nan_gradient_at_step < 0) {
     return absl::InvalidArgumentError("train: max_bad_batches and inject_nan_gradient_at_step must be >= 0");
   }
@@ -63,6 +67,13 @@ struct Trainer::ThreadScratch {
   std::vector<float> gsigma, gt, gdt, gw, grgb, gmid, gwidth, gdrgb, gdsigma, t_final;
   std::vector<float> grad_mlp, grad_emb;
   std::vector<float> store_pos, store_dfeat;  // For the grid backward phase.
+  // Proposal models: placement state, MLP gradients (full proposal layout,
+  // only the MLP ranges used), grid-backward store, per-ray used counts.
+  ProposalContext prop;
+  ProposalGridStore prop_store;
+  std::vector<float> grad_prop, nerf_w;
+  std::vector<uint32_t> ray_ids;
+  std::vector<int> used;
   double sq_err = 0, loss = 0;
   long long samples_marched = 0, samples_used = 0;
 };
@@ -95,6 +106,8 @@ Trainer::Trainer(NgpModel* model, RaySampler* sampler, const TrainOptions& optio
   adam_.ResizeBlock(0, model->params().grid.size());
   adam_.ResizeBlock(1, model->params().mlp.size());
   adam_.ResizeBlock(2, model->params().emb.size());
+  adam_.ResizeBlock(3, model->params().proposal.size());
+  grad_prop_.assign(model->params().proposal.size(), 0.0f);
   for (int i = 0; i < threads_; ++i) scratch_.push_back(std::make_unique<ThreadScratch>());
   model->mutable_occupancy().MarkInvisible(sampler->Cameras(), model->options().march.near);
 }
@@ -105,6 +118,15 @@ float Trainer::CurrentLearningRate() const {
   const float lr = options_.learning_rate, lo = lr * options_.lr_final_ratio;
   const float p = options_.iterations > 0 ? std::min(1.0f, float(step_) / options_.iterations) : 1.0f;
   return lo + 0.5f * (lr - lo) * (1.0f + std::cos(float(M_PI) * p));
+}
+
+float Trainer::ProposalAnneal() const {
+  int n = options_.proposal_anneal_iterations;
+  if (n < 0) n = std::min(1000, options_.iterations / 4);
+  if (n <= 0) return 1.0f;
+  const float x = std::min(1.0f, float(step_) / float(n));
+  constexpr float kSlope = 10.0f;  // nerfacto's proposal_weights_anneal_slope.
+  return kSlope * x / ((kSlope - 1.0f) * x + 1.0f);
 }
 
 float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const float* ray_bg,
@@ -137,6 +159,14 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
     s.grad_emb.assign(model.params().emb.size(), 0.0f);
     s.store_pos.clear();
     s.store_dfeat.clear();
+    if (model.uses_proposals()) {
+      s.grad_prop.resize(model.params().proposal.size());
+      for (int k = 0; k < model.options().proposal.num_stages(); ++k) {
+        const ProposalField& pf = model.proposal_field(k);
+        std::fill_n(s.grad_prop.begin() + model.proposal_offset(k) + pf.mlp_offset(), pf.mlp_size(), 0.0f);
+      }
+      s.prop_store.Clear();
+    }
     s.sq_err = s.loss = 0;
     s.samples_marched = s.samples_used = 0;
   }
@@ -144,6 +174,12 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
   // average, and only rays still above the termination threshold march on,
   // so samples behind early termination are rarely marched or evaluated.
   const int first_wave = std::clamp(int(1.5 * mean_used_per_ray_) + 8, 16, mo.max_samples);
+  const bool proposals = model.uses_proposals();
+  const ProposalSampler proposer(field);
+  const float anneal = ProposalAnneal();
+  const uint64_t seed = batch_seed_;
+  const float interlevel_scale =
+      proposals ? options_.interlevel_weight * inv_n / float(model.options().proposal.nerf_samples) : 0.0f;
 #pragma omp parallel num_threads(threads_)
   {
     ThreadScratch& s = *scratch_[omp_get_thread_num()];
@@ -171,7 +207,15 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         W.samples.clear();
         W.seg.assign(1, 0);
         W.seg_ray.clear();
-        for (int i = 0; i < nr; ++i) {
+        if (proposals) {
+          // One wave: the proposal fields place every ray's samples at once.
+          if (wv > 0) break;
+          s.ray_ids.resize(nr);
+          for (int i = 0; i < nr; ++i) s.ray_ids[i] = uint32_t(r0 + i);
+          proposer.Place(&batch.origin[3 * size_t(r0)], &batch.dir[3 * size_t(r0)], nr, seed, s.ray_ids.data(), anneal,
+                         &s.prop, &W.samples, &W.seg, &W.seg_ray);
+        }
+        for (int i = 0; i < nr && !proposals; ++i) {
           if (!s.ray_alive[i]) continue;
           const size_t before = W.samples.size();
           s.ray_t[i] = model.March(origin(i), dir(i), s.ray_t[i], s.ray_t1[i], budget, &W.samples);
@@ -270,12 +314,14 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         for (int k = 0; k < 3; ++k) s.grgb[3 * size_t(j) + k] = W.fc.ws.rgb(k, c);
       }
       // 4. Loss and compositing backward per ray.
+      s.used.assign(nr, 0);
       for (int i = 0; i < nr; ++i) {
         const int r = r0 + i;
         const int a = s.gseg[i], n_i = s.gseg[i + 1] - a;
         s.t_final[i] = 1.0f;
         const int used =
             n_i > 0 ? CompositeWeights(&s.gsigma[a], &s.gdt[a], n_i, kMinTransmittance, &s.gw[a], &s.t_final[i]) : 0;
+        s.used[i] = used;
         const float* rgb = &s.grgb[3 * size_t(a)];
         float c[3];
         const float* bgr = ray_bg ? &ray_bg[3 * size_t(r)] : bg.data();
@@ -315,7 +361,9 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
           const Eigen::Vector3f o3 = origin(i), d3 = dir(i);
           const Eigen::Vector3f q0 = model.contracted() ? Contract(o3) : o3;
           for (int j = a; j < a + used; ++j) {
-            const float tm = s.gt[j] + 0.5f * s.gdt[j];
+            // Marched samples sit at their interval's start, proposal
+            // samples at its midpoint.
+            const float tm = proposals ? s.gt[j] : s.gt[j] + 0.5f * s.gdt[j];
             if (model.contracted()) {
               const Eigen::Vector3f x = o3 + tm * d3;
               s.gmid[j] = (Contract(x) - q0).norm() * inv_box;
@@ -329,6 +377,19 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
                     DistortionLoss(&s.gdt[a], &s.gw[a], &s.gmid[a], &s.gwidth[a], used, dist_reg * inv_n,
                                    &s.gdsigma[a]);
         }
+      }
+      // 4b. Interlevel loss: the proposal histograms must cover the full
+      // field's weights (constants here).
+      if (proposals && s.prop.num_rays > 0) {
+        const int nf = s.prop.n_final;
+        s.nerf_w.assign(size_t(s.prop.num_rays) * nf, 0.0f);
+        for (int q = 0; q < s.prop.num_rays; ++q) {
+          const int i = s.prop.ray_of[q];
+          const int a = s.gseg[i];
+          for (int j = 0; j < std::min(s.used[i], nf); ++j) s.nerf_w[size_t(q) * nf + j] = s.gw[a + j];
+        }
+        s.loss += proposer.InterlevelBackward(s.nerf_w.data(), interlevel_scale, &s.prop, s.grad_prop.data(),
+                                              &s.prop_store);
       }
       // 5. Scatter the gradients back to the waves; field backward per wave;
       // stash grid-input gradients for phase 2.
@@ -366,6 +427,34 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
       }
     }
   }
+  // Proposal fields: hash-grid backward with (stage, level) pairs split over
+  // threads (disjoint ranges), then the per-thread MLP gradients.
+  if (proposals) {
+    const int stages = model.options().proposal.num_stages();
+    std::vector<std::pair<int, int>> tasks;
+    for (int k = 0; k < stages; ++k) {
+      for (int l = 0; l < model.proposal_field(k).grid().num_levels(); ++l) tasks.emplace_back(k, l);
+    }
+#pragma omp parallel for schedule(dynamic) num_threads(threads_)
+    for (int q = 0; q < int(tasks.size()); ++q) {
+      const auto [k, l] = tasks[q];
+      const HashGrid& pg = model.proposal_field(k).grid();
+      for (const auto& sp : scratch_) {
+        const int n = int(sp->prop_store.pos[k].size() / 3);
+        pg.BackwardLevel(l, sp->prop_store.pos[k].data(), sp->prop_store.d_feat[k].data(), n,
+                         grad_prop_.data() + model.proposal_offset(k), nullptr, nullptr);
+      }
+    }
+    for (int k = 0; k < stages; ++k) {
+      const ProposalField& pf = model.proposal_field(k);
+      const size_t begin = model.proposal_offset(k) + pf.mlp_offset(), end = begin + pf.mlp_size();
+      for (size_t i = begin; i < end; ++i) grad_prop_[i] = 0.0f;
+      for (const auto& sp : scratch_) {
+        if (sp->grad_prop.size() != grad_prop_.size()) continue;
+        for (size_t i = begin; i < end; ++i) grad_prop_[i] += sp->grad_prop[i];
+      }
+    }
+  }
   // Reduce the small per-thread gradients in a fixed order (deterministic).
   grad_mlp_.assign(model.params().mlp.size(), 0.0f);
   grad_emb_.assign(model.params().emb.size(), 0.0f);
@@ -385,12 +474,16 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
 
 float Trainer::ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* g) {
   std::fill(grad_grid_.begin(), grad_grid_.end(), 0.0f);
+  std::fill(grad_prop_.begin(), grad_prop_.end(), 0.0f);
+  batch_seed_ = 0;  // Proposal placement at bin centres: the same batch gives the same loss.
   float loss = ForwardBackward(batch, jitter.data(), /*ray_bg=*/nullptr, /*track_touched=*/false);
   if (options_.ewc != nullptr) loss += ApplyEwc(/*track_touched=*/false);
   g->grid = grad_grid_;
   g->mlp = grad_mlp_;
   g->emb = grad_emb_;
+  g->proposal = grad_prop_;
   std::fill(grad_grid_.begin(), grad_grid_.end(), 0.0f);
+  std::fill(grad_prop_.begin(), grad_prop_.end(), 0.0f);
   return loss;
 }
 
@@ -448,7 +541,7 @@ absl::Status Trainer::Step() {
   const auto start = std::chrono::steady_clock::now();
   NgpModel& model = *model_;
   const int mo_interval = model.options().occupancy.update_interval;
-  if (step_ % mo_interval == 0) model.UpdateOccupancy(step_, &rng_);
+  if (step_ % mo_interval == 0 && !model.uses_proposals()) model.UpdateOccupancy(step_, &rng_);
 
   RayBatch batch;
   sampler_->SetProgress(options_.iterations > 0 ? float(step_) / options_.iterations : 1.0f);
@@ -456,6 +549,7 @@ absl::Status Trainer::Step() {
   std::vector<float> jitter(batch.size());
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
   for (float& j : jitter) j = u(rng_);
+  if (model.uses_proposals()) batch_seed_ = rng_() | 1;  // Marching models keep their random stream.
   std::vector<float> ray_bg;
   if (options_.random_background && model.kind() == SceneKind::kUnbounded) {
     ray_bg.resize(3 * size_t(batch.size()));
@@ -469,6 +563,7 @@ absl::Status Trainer::Step() {
 
   const int L = int(touched_lists_.size());
   auto clear_grid_grads = [this, L]() {
+    std::fill(grad_prop_.begin(), grad_prop_.end(), 0.0f);
 #pragma omp parallel for schedule(dynamic) num_threads(threads_)
     for (int l = 0; l < L; ++l) ClearLevelGradients(l);
   };
@@ -477,6 +572,7 @@ absl::Status Trainer::Step() {
   if (!std::isfinite(loss)) bad = absl::StrFormat("loss is %f", loss);
   else if (!AllFinite(grad_mlp_)) bad = "MLP gradient has NaN/Inf";
   else if (!AllFinite(grad_emb_)) bad = "embedding gradient has NaN/Inf";
+  else if (!AllFinite(grad_prop_)) bad = "proposal-field gradient has NaN/Inf";
   else {
     int grid_bad = 0;
 #pragma omp parallel for schedule(dynamic) reduction(+ : grid_bad) num_threads(threads_)
@@ -516,7 +612,11 @@ absl::Status Trainer::Step() {
   const std::vector<float> mlp_before = p.mlp, emb_before = p.emb;
   adam_.UpdateDense(1, lr, next, p.mlp.data(), grad_mlp_.data(), p.mlp.size());
   adam_.UpdateDense(2, lr, next, p.emb.data(), grad_emb_.data(), p.emb.size());
-  bool finite = AllFinite(p.mlp) && AllFinite(p.emb);
+  if (!p.proposal.empty()) {
+    adam_.UpdateDense(3, lr, next, p.proposal.data(), grad_prop_.data(), p.proposal.size());
+    std::fill(grad_prop_.begin(), grad_prop_.end(), 0.0f);
+  }
+  bool finite = AllFinite(p.mlp) && AllFinite(p.emb) && AllFinite(p.proposal);
   if (finite) {
     // Sparse grid update, one level per task (levels own disjoint entries);
     // gradients are cleared in the same pass.

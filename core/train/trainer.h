@@ -8,7 +8,10 @@
 // composite sigma front to back and drop samples behind early termination ->
 // colour MLP on the rest -> loss -> backward through compositing, both MLPs
 // and (in a second phase, one thread per subset of levels, so no atomics) the
-// hash grid -> Adam (lazy on the grid).
+// hash grid -> Adam (lazy on the grid). Models with proposal sampling
+// (NgpModel::uses_proposals) place each ray's samples with the proposal
+// fields instead of marching, add the interlevel loss and update the proposal
+// fields with dense Adam (core/field/proposal_sampler.h).
 //
 // Stability: the loss, every gradient and every updated parameter are checked
 // for NaN/Inf; a bad step is not applied and Step() returns INTERNAL naming
@@ -74,6 +77,12 @@ struct TrainOptions {
   // dark pixels with transparency and must become opaque; this is what lets
   // rays terminate early. Rendering still uses the model's background.
   bool random_background = false;
+  // Proposal models (NgpModel::uses_proposals): weight of the interlevel
+  // loss, and how many steps the proposal weights are annealed over before
+  // resampling (w^a with a rising from 0 to 1 as nerfacto does; < 0 = auto:
+  // a quarter of `iterations`, at most 1000).
+  float interlevel_weight = 1.0f;
+  int proposal_anneal_iterations = -1;
   AdamOptions adam;
   uint64_t seed = 0;
   int threads = 0;                // OpenMP threads; 0 = all cores.
@@ -131,7 +140,7 @@ class Trainer {
   // Loss and gradients of one fixed batch without updating anything (used by
   // gradient checks). Gradients are returned in the same layout as params.
   struct Gradients {
-    std::vector<float> grid, mlp, emb;
+    std::vector<float> grid, mlp, emb, proposal;
   };
   float ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* grads);
 
@@ -139,6 +148,8 @@ class Trainer {
   struct ThreadScratch;
   // ray_bg: 3 per ray, or nullptr for the model's background.
   float ForwardBackward(const RayBatch& batch, const float* jitter, const float* ray_bg, bool compute_grid_touch);
+  // The exponent on proposal weights before resampling at the current step.
+  float ProposalAnneal() const;
   // Adds the EWC penalty's gradient (marking grid entries touched) and
   // returns its loss.
   float ApplyEwc(bool track_touched);
@@ -167,6 +178,8 @@ class Trainer {
   std::vector<uint8_t> touched_;
   std::vector<std::vector<uint32_t>> touched_lists_;  // Per level.
   std::vector<float> grad_mlp_, grad_emb_;
+  std::vector<float> grad_prop_;  // Proposal fields (dense).
+  uint64_t batch_seed_ = 1;       // Proposal placement stream of the current batch (non-zero).
   std::vector<std::unique_ptr<ThreadScratch>> scratch_;
   // Batch statistics from the last ForwardBackward.
   double batch_mse_ = 0;

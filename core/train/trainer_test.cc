@@ -16,6 +16,8 @@
 #include "Eigen/Core"
 #include "Eigen/Dense"
 #include "core/data/contraction.h"
+#include "core/field/field.h"
+#include "core/field/proposal_sampler.h"
 #include "core/field/ray_marcher.h"
 #include "core/render/renderer.h"
 #include "core/train/ray_sampler.h"
@@ -41,12 +43,24 @@ ModelOptions TinyOptions() {
   o.occupancy.resolution = 16;
   o.march.steps_per_diagonal = 64;  // <= 64 samples per ray.
   o.march.near = 0.05f;
+  o.proposal.samples0 = 16;
+  o.proposal.samples1 = 12;
+  o.proposal.nerf_samples = 16;
+  for (ProposalFieldOptions* f : {&o.proposal.field0, &o.proposal.field1}) {
+    f->levels = 3;
+    f->log2_table_size = 10;
+    f->base_resolution = 4;
+    f->finest_resolution = 16;
+    f->hidden = 8;
+  }
   return o;
 }
 
-NgpModel TinyModel(uint64_t seed, int time_steps = 2, SceneKind kind = SceneKind::kBounded) {
+NgpModel TinyModel(uint64_t seed, int time_steps = 2, SceneKind kind = SceneKind::kBounded,
+                   SamplerKind sampler = SamplerKind::kOccupancy) {
   Normalization norm;
   ModelOptions o = TinyOptions();
+  o.sampler = sampler;
   if (kind == SceneKind::kUnbounded) {
     norm.bound = kContractedBound;
     // The contracted cube is 4 units wide: keep rays at <= ~50 samples.
@@ -139,6 +153,13 @@ std::vector<std::vector<double>> Transmittances(const NgpModel& model, const Ray
     const Eigen::Vector3f o(&batch.origin[3 * r]), d(&batch.dir[3 * r]);
     float t0, t1;
     if (!model.RayInterval(o, d, &t0, &t1)) continue;
+    if (model.uses_proposals()) {  // Bin-centre placement, as ComputeLossAndGradients uses.
+      const FieldEvaluator field(model);
+      ProposalContext ctx;
+      std::vector<int> seg = {0}, ray;
+      ProposalSampler(field).Place(o.data(), d.data(), 1, 0, nullptr, 1.0f, &ctx, &samples[r], &seg, &ray);
+      continue;
+    }
     const float t = t0 + jitter[r] * model.StepAt(o, d, t0);
     model.March(o, d, t, t1, mo.max_samples, &samples[r]);
   }
@@ -184,9 +205,10 @@ struct Block {
 // marching, and the distortion loss (on by default there).
 // `near_reg` is the occlusion penalty's weight (0: off; `near_distance`
 // its reach); the test then also checks that the term changes the loss.
-void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.0f, float near_distance = 0.2f) {
+void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.0f, float near_distance = 0.2f,
+                       SamplerKind sampler_kind = SamplerKind::kOccupancy) {
   SerialEigen serial;
-  NgpModel model = TinyModel(3, 2, contracted ? SceneKind::kUnbounded : SceneKind::kBounded);
+  NgpModel model = TinyModel(3, 2, contracted ? SceneKind::kUnbounded : SceneKind::kBounded, sampler_kind);
   ModelParams& p = model.mutable_params();
   // Grid values of O(0.1) instead of 1e-4, so that the grid features (and
   // the MLP weights that read them) matter.
@@ -205,9 +227,15 @@ void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.
   NoSampler sampler;
   TrainOptions to;
   to.threads = 1;
+  to.proposal_anneal_iterations = 0;  // Proposal weights unannealed, as the renderer uses them.
   to.opacity_reg = 0.01f;  // Entropy gradient comparable to the MSE one.
   to.near_density_reg = near_reg;
   to.near_density_distance = near_distance;
+  // The interlevel loss reads the full field's weights as constants (stop
+  // gradient, by design): a finite difference of the full field's parameters
+  // would see it move, the gradient would not. Its own gradient is checked in
+  // proposal_sampler_test.cc.
+  to.interlevel_weight = 0.0f;
   Trainer trainer(&model, &sampler, to);
   ASSERT_EQ(model.occupancy().num_occupied(), model.occupancy().num_cells());
 
@@ -358,6 +386,17 @@ TEST(TrainerGradientTest, ContractedSceneWithEarlyTerminationMatchesFiniteDiffer
   CheckLossGradient(/*opaque=*/true, /*contracted=*/true);
 }
 
+// Proposal sampling: the full field's gradient with the interlevel loss in
+// the total (its own gradient reaches only the proposal fields, checked in
+// proposal_sampler_test.cc).
+TEST(TrainerGradientTest, ProposalSampledSceneMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/false, /*contracted=*/true, 0.0f, 0.2f, SamplerKind::kProposal);
+}
+
+TEST(TrainerGradientTest, ProposalSampledSceneWithEarlyTerminationMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/true, /*contracted=*/true, 0.0f, 0.2f, SamplerKind::kProposal);
+}
+
 // The occlusion penalty near the cameras (sigma * dt of samples within the
 // given distance of the ray origin), on a bounded and a contracted scene.
 TEST(TrainerGradientTest, NearDensityPenaltyMatchesFiniteDifferences) {
@@ -373,15 +412,19 @@ TEST(TrainerGradientTest, ContractedSceneWithNearDensityPenaltyMatchesFiniteDiff
 // renderer's, for bounded and contracted scenes.
 TEST(FieldCallersTest, TrainerAndRendererAgreeOnEveryRay) {
   SerialEigen serial;
-  for (SceneKind kind : {SceneKind::kBounded, SceneKind::kUnbounded}) {
-    SCOPED_TRACE(kind == SceneKind::kBounded ? "bounded" : "contracted");
-    NgpModel model = TinyModel(5, 2, kind);
+  for (const auto [kind, sampler_kind] : {std::pair{SceneKind::kBounded, SamplerKind::kOccupancy},
+                                          std::pair{SceneKind::kUnbounded, SamplerKind::kOccupancy},
+                                          std::pair{SceneKind::kUnbounded, SamplerKind::kProposal}}) {
+    SCOPED_TRACE(std::string(kind == SceneKind::kBounded ? "bounded " : "contracted ") +
+                 SamplerKindName(sampler_kind));
+    NgpModel model = TinyModel(5, 2, kind, sampler_kind);
     std::mt19937_64 rng(6);
     std::uniform_real_distribution<float> u(0.0f, 1.0f);
     for (float& v : model.mutable_params().grid) v = u(rng) - 0.5f;
     NoSampler sampler;
     TrainOptions to;
     to.threads = 1;
+    to.proposal_anneal_iterations = 0;
     Trainer trainer(&model, &sampler, to);
     const RayBatch batch = MakeBatch(12, 7);
     const std::vector<float> jitter(batch.size(), 0.0f);  // The renderer starts at t0.
