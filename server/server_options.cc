@@ -150,6 +150,9 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
         if (!m.ok()) return m.status();
         o->update.replay = *m;
       }
+    } else if (k == "sampler") {  // auto | occupancy | proposal (core/field/ngp_model.h).
+      s = Get(*it, k.c_str(), &str);
+      if (s.ok()) s = ParseSamplerKind(str, &o->update.model.sampler);
     } else if (k == "gate") {
       s = ApplyGate(*it, &o->gate);
     } else {

@@ -31,6 +31,9 @@ TEST(ServerOptionsTest, BadConfigIsRejectedWithTheKey) {
   ASSERT_TRUE(ApplyConfigJson(R"({"init": "reinit", "replay": "online"})", &o).ok());
   EXPECT_EQ(o.update.init, InitMode::kReinit);
   EXPECT_EQ(o.update.replay, ReplayMode::kOnline);
+  EXPECT_EQ(ApplyConfigJson(R"({"sampler": "grid"})", &o).code(), absl::StatusCode::kInvalidArgument);
+  ASSERT_TRUE(ApplyConfigJson(R"({"sampler": "proposal"})", &o).ok());
+  EXPECT_EQ(o.update.model.sampler, SamplerKind::kProposal);
   EXPECT_EQ(ApplyConfigFile("/nonexistent/server.json", &o).code(), absl::StatusCode::kNotFound);
   ServerOptions bad;
   bad.max_queue = 0;

@@ -59,7 +59,7 @@ absl::StatusOr<EvalResult> EvaluateViews(const NgpModel& model, const std::vecto
     if (!r.ok()) return r.status();
     absl::StatusOr<ImageMetrics> m = ComputeImageMetrics(r->rgb, v.image);
     if (!m.ok()) return m.status();
-    result.views.push_back({v.name, v.camera.time_step, m->psnr, m->ssim, secs});
+    result.views.push_back({v.name, v.camera.time_step, m->psnr, m->ssim, secs, m->psnr_cc});
     if (!options.save_dir.empty()) {
       // "r_0" and "r_0.png" both become 0000_r_0.png (not r_0.png.png).
       const std::string stem = std::filesystem::path(v.name).stem().string();
@@ -70,11 +70,13 @@ absl::StatusOr<EvalResult> EvaluateViews(const NgpModel& model, const std::vecto
   for (const ViewScore& s : result.views) {
     result.psnr += s.psnr;
     result.ssim += s.ssim;
+    result.psnr_cc += s.psnr_cc;
     result.mean_render_seconds += s.render_seconds;
   }
   const double n = double(result.views.size());
   result.psnr /= n;
   result.ssim /= n;
+  result.psnr_cc /= n;
   result.mean_render_seconds /= n;
   return result;
 }

@@ -27,10 +27,15 @@ struct ViewScore {
   int time_step = 0;
   double psnr = 0, ssim = 0;
   double render_seconds = 0;
+  double psnr_cc = 0;  // Colour-corrected PSNR (metrics.h).
 };
 
 struct EvalResult {
-  double psnr = 0, ssim = 0;  // Means over views.
+  // Means over views. psnr_cc: colour-corrected PSNR (a per-view affine
+  // colour fit, metrics.h). Protocol: every view is rendered with its scan's
+  // time-step embedding (test views have no per-image embedding of their
+  // own), the same for every method.
+  double psnr = 0, ssim = 0, psnr_cc = 0;
   double mean_render_seconds = 0;
   std::vector<ViewScore> views;
 };

@@ -1,11 +1,13 @@
 #include "core/render/metrics.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <limits>
 #include <string>
 
 #include "absl/strings/str_cat.h"
+#include "Eigen/Dense"
 
 namespace clnerf {
 namespace {
@@ -168,7 +170,7 @@ absl::Status CheckComparableImages(const Image& a, const Image& b) {
 absl::StatusOr<ImageMetrics> ComputeImageMetrics(const Image& prediction, const Image& target) {
   absl::Status s = CheckComparableImages(prediction, target);
   if (!s.ok()) return s;
-  return ImageMetrics{Psnr(prediction, target), Ssim(prediction, target)};
+  return ImageMetrics{Psnr(prediction, target), Ssim(prediction, target), ColourCorrectedPsnr(prediction, target)};
 }
 
 absl::StatusOr<std::vector<ImageMetrics>> ComputeImageMetricsBatch(
@@ -187,20 +189,62 @@ absl::StatusOr<std::vector<ImageMetrics>> ComputeImageMetricsBatch(
   for (long i = 0; i < n; ++i) {
     out[i].psnr = Psnr(predictions[i], targets[i]);
     out[i].ssim = Ssim(predictions[i], targets[i]);
+    out[i].psnr_cc = ColourCorrectedPsnr(predictions[i], targets[i]);
   }
   return out;
 }
 
 ImageMetrics MeanMetrics(const std::vector<ImageMetrics>& per_image) {
-  if (per_image.empty()) return ImageMetrics{kNaN, kNaN};
+  if (per_image.empty()) return ImageMetrics{kNaN, kNaN, kNaN};
   ImageMetrics mean;
   for (const ImageMetrics& m : per_image) {
     mean.psnr += m.psnr;
     mean.ssim += m.ssim;
+    mean.psnr_cc += m.psnr_cc;
   }
   mean.psnr /= double(per_image.size());
   mean.ssim /= double(per_image.size());
+  mean.psnr_cc /= double(per_image.size());
   return mean;
+}
+
+Image ColourCorrect(const Image& prediction, const Image& target) {
+  Image out = prediction;
+  if (prediction.width != target.width || prediction.height != target.height || prediction.rgb.empty() ||
+      prediction.rgb.size() != target.rgb.size()) {
+    return out;
+  }
+  const size_t n = prediction.rgb.size() / 3;
+  // Normal equations of target_c ~ A_c [r g b 1].
+  Eigen::Matrix4d ata = Eigen::Matrix4d::Zero();
+  Eigen::Matrix<double, 4, 3> atb = Eigen::Matrix<double, 4, 3>::Zero();
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::Vector4d x(prediction.rgb[3 * i], prediction.rgb[3 * i + 1], prediction.rgb[3 * i + 2], 1.0);
+    const Eigen::RowVector3d y(target.rgb[3 * i], target.rgb[3 * i + 1], target.rgb[3 * i + 2]);
+    ata.noalias() += x * x.transpose();
+    atb.noalias() += x * y;
+  }
+  Eigen::Matrix<double, 4, 3> a;
+  const Eigen::LDLT<Eigen::Matrix4d> ldlt(ata + 1e-9 * double(n) * Eigen::Matrix4d::Identity());
+  a = ldlt.solve(atb);
+  if (!a.allFinite()) {  // Best constant per channel.
+    a.setZero();
+    a.row(3) = atb.row(3) / double(n);
+  }
+  for (size_t i = 0; i < n; ++i) {
+    const Eigen::RowVector4d x(prediction.rgb[3 * i], prediction.rgb[3 * i + 1], prediction.rgb[3 * i + 2], 1.0);
+    const Eigen::RowVector3d y = x * a;
+    for (int c = 0; c < 3; ++c) out.rgb[3 * i + c] = float(std::clamp(y[c], 0.0, 1.0));
+  }
+  return out;
+}
+
+double ColourCorrectedPsnr(const Image& prediction, const Image& target) {
+  if (prediction.width != target.width || prediction.height != target.height || prediction.rgb.empty() ||
+      prediction.rgb.size() != target.rgb.size()) {
+    return std::numeric_limits<double>::quiet_NaN();
+  }
+  return Psnr(ColourCorrect(prediction, target), target);
 }
 
 }  // namespace clnerf

@@ -42,6 +42,7 @@ inline constexpr int kSsimWindowSize = 11;
 struct ImageMetrics {
   double psnr = 0.0;  // dB; +infinity for identical images.
   double ssim = 0.0;  // In [-1, 1]; 1 for identical images.
+  double psnr_cc = 0.0;  // Colour-corrected PSNR (ColourCorrectedPsnr).
 };
 
 // Mean squared error over all pixels and channels. NaN if sizes differ/empty.
@@ -56,6 +57,19 @@ double Psnr(const Image& a, const Image& b);
 // SSIM (see above). Symmetric in its arguments. Precondition: same size, both
 // sides >= kSsimWindowSize (else NaN).
 double Ssim(const Image& a, const Image& b);
+
+// Colour-corrected PSNR: the PSNR after mapping the prediction's colours
+// through the affine map (3x4, least squares over all pixels, in double)
+// that best fits them to the target's, clamped to [0, 1]: what multinerf's
+// eval reports beside the raw PSNR, so a gap that is only exposure or white
+// balance (phone videos change both from frame to frame; a test view has no
+// trained per-image embedding) can be told from a gap in geometry or
+// texture. It is >= the raw PSNR up to the clamp. Precondition as Psnr (else
+// NaN); an ill-conditioned fit (e.g. a constant prediction) falls back to the
+// best constant per channel.
+double ColourCorrectedPsnr(const Image& prediction, const Image& target);
+// The corrected prediction itself.
+Image ColourCorrect(const Image& prediction, const Image& target);
 
 // Returns OK if `a` and `b` can be compared: same size, well-formed pixel
 // buffers, and at least kSsimWindowSize pixels on each side. INVALID_ARGUMENT

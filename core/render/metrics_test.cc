@@ -3,6 +3,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <random>
 #include <vector>
 
 #include "gtest/gtest.h"
@@ -243,6 +244,54 @@ TEST(MetricsTest, BatchAndMean) {
   auto err = ComputeImageMetricsBatch(preds, bad);
   ASSERT_FALSE(err.ok());
   EXPECT_NE(err.status().message().find("image 3"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace clnerf
+
+namespace clnerf {
+namespace {
+
+Image NoiseImage(int w, int h, uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<float> u(0.1f, 0.9f);
+  Image im(w, h);
+  for (float& v : im.rgb) v = u(rng);
+  return im;
+}
+
+TEST(ColourCorrectedPsnrTest, UndoesAnExposureAndWhiteBalanceChange) {
+  const Image truth = NoiseImage(24, 20, 3);
+  // The prediction is the truth under a different exposure and white
+  // balance (an affine map per pixel, inside [0, 1]).
+  Image pred = truth;
+  for (size_t i = 0; i < pred.rgb.size() / 3; ++i) {
+    const float r = truth.rgb[3 * i], g = truth.rgb[3 * i + 1], b = truth.rgb[3 * i + 2];
+    pred.rgb[3 * i] = 0.8f * r + 0.05f;
+    pred.rgb[3 * i + 1] = 0.7f * g + 0.1f * r + 0.02f;
+    pred.rgb[3 * i + 2] = 0.9f * b - 0.05f * g + 0.08f;
+  }
+  const double raw = Psnr(pred, truth);
+  const double cc = ColourCorrectedPsnr(pred, truth);
+  EXPECT_LT(raw, 30.0);
+  EXPECT_GT(cc, 60.0);  // Exactly affine: only float rounding is left.
+  // A prediction wrong in content is not rescued.
+  const Image other = NoiseImage(24, 20, 4);
+  EXPECT_LT(ColourCorrectedPsnr(other, truth), raw);
+  EXPECT_GE(ColourCorrectedPsnr(other, truth), Psnr(other, truth) - 1e-6);
+  // A constant prediction gets the best constant per channel: the truth's mean.
+  const Image flat(24, 20, 0.5f);
+  Image mean(24, 20);
+  double m[3] = {0, 0, 0};
+  for (size_t i = 0; i < truth.rgb.size(); ++i) m[i % 3] += truth.rgb[i];
+  for (size_t i = 0; i < mean.rgb.size(); ++i) mean.rgb[i] = float(m[i % 3] / (truth.rgb.size() / 3));
+  EXPECT_NEAR(ColourCorrectedPsnr(flat, truth), Psnr(mean, truth), 1e-3);
+  // Mismatched sizes: NaN, as Psnr.
+  EXPECT_TRUE(std::isnan(ColourCorrectedPsnr(NoiseImage(8, 8, 1), truth)));
+  // The checked metrics carry it.
+  absl::StatusOr<ImageMetrics> im = ComputeImageMetrics(pred, truth);
+  ASSERT_TRUE(im.ok());
+  EXPECT_NEAR(im->psnr_cc, cc, 1e-9);
 }
 
 }  // namespace
