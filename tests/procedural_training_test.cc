@@ -1,5 +1,6 @@
 // End-to-end training on procedural scenes with what object scenes like lego
-// lack (ProceduralSceneOptions::backdrop and ::thin_structures): each trains
+// lack (ProceduralSceneOptions::backdrop, ::thin_structures and the room
+// walkthrough layout): each trains
 // for a few hundred steps at small size, with the capacity derived from the
 // scene, to held-out scores that a broken version cannot reach.
 //
@@ -135,6 +136,44 @@ TEST(ProceduralTrainingTest, UnboundedBackdropSceneTrainsInContractedSpace) {
   EXPECT_GT(ev->ssim, 0.35);
   EXPECT_GT(sky_psnr, black_sky_psnr + 12.0) << "black backdrop " << black_sky_psnr;
   EXPECT_GT(sky_psnr, 17.0);
+}
+
+// A room walkthrough (ProceduralLayout::kRoom): cameras inside a closed room
+// with white, textureless walls and ceiling, a plank floor, a door, a
+// picture and the objects on their rug, looking around. Unbounded (every ray
+// hits the shell), no normalisation hints: the box comes from the cameras and
+// the images' own content points (content_sweep.h).
+TEST(ProceduralTrainingTest, RoomWalkthroughTrainsToHeldOutViews) {
+  ProceduralSceneOptions po;
+  po.width = po.height = 48;
+  po.num_train_views = 100;
+  po.num_test_views = 6;
+  po.seed = 5;
+  po.layout = ProceduralLayout::kRoom;
+  absl::StatusOr<Scene> scene = GenerateProceduralScene(po);
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  ASSERT_EQ(scene->kind, SceneKind::kUnbounded);
+
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<FitResult> fit = FitScene(*scene, SmallFit(300), nullptr);
+  ASSERT_TRUE(fit.ok()) << fit.status();
+  const double fit_seconds = SecondsSince(t0);
+  ASSERT_TRUE(fit->model->AllFinite());
+  EvalOptions eo;
+  eo.render.threads = 2;
+  absl::StatusOr<EvalResult> ev = EvaluateViews(*fit->model, scene->test, eo);
+  ASSERT_TRUE(ev.ok()) << ev.status();
+  const double baseline = ConstantColourPsnr(scene->train, scene->test);
+  RecordProperty("psnr", std::to_string(ev->psnr));
+  RecordProperty("baseline_psnr", std::to_string(baseline));
+  RecordProperty("fit_seconds", std::to_string(fit_seconds));
+  // Measured (2 cores shared with another training run): seed 5 24.14 dB
+  // (SSIM 0.704) vs the constant-colour baseline 15.93 dB; seeds 3 and 9:
+  // 24.25 / 27.08 dB (SSIM 0.677 / 0.728), baselines 16.02 / 15.96; fit
+  // 32-35 s. A room read as an object (white background, the box around the
+  // camera loop's centre) stays near the baseline.
+  EXPECT_GT(ev->psnr, baseline + 5.0) << "baseline " << baseline;
+  EXPECT_GT(ev->ssim, 0.5);
 }
 
 TEST(ProceduralTrainingTest, ThinStructuresTrainAndGeneralise) {
