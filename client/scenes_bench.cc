@@ -40,6 +40,7 @@
 #include "client/progress_bar.h"
 #include "core/io/checkpoint.h"
 #include "core/data/dataset.h"
+#include "core/data/procedural_scene.h"
 #include "core/render/evaluate.h"
 #include "core/train/fit.h"
 #include "nlohmann/json.hpp"
@@ -203,7 +204,9 @@ void Plot(const fs::path& out) {
 CLI::App* BindBenchScenes(CLI::App* parent, BenchScenesArgs* a) {
   CLI::App* c = parent->add_subcommand(
       "scenes", "Scene suite: train (default flags) and evaluate each dataset; table, CSV and charts");
-  c->add_option("dirs", a->dirs, "Dataset directories")->required();
+  c->add_option("dirs", a->dirs,
+                "Dataset directories, or procedural:orbit, procedural:forward, procedural:room (generated, 96 px)")
+      ->required();
   c->add_option("--out", a->out, "Output directory (models, JSON, CSV, markdown, PNG charts)")->capture_default_str();
   c->add_option("--iters", a->fit.train.iterations, "Training steps per run (as `train`)")->capture_default_str();
   c->add_flag("--capacity-sweep", a->capacity_sweep,
@@ -215,6 +218,32 @@ CLI::App* BindBenchScenes(CLI::App* parent, BenchScenesArgs* a) {
   c->add_flag("--force", a->force, "Re-run configurations whose results are already in --out");
   return c;
 }
+
+namespace {
+// "procedural:<layout>" (orbit, forward or room) names a generated scene:
+// 96x96 pixels, 100 training and 8 held-out views, seed 0.
+constexpr char kProceduralPrefix[] = "procedural:";
+
+bool IsProcedural(const std::string& dir) { return dir.rfind(kProceduralPrefix, 0) == 0; }
+
+absl::StatusOr<Scene> LoadBenchScene(const std::string& dir) {
+  if (!IsProcedural(dir)) return LoadScene(dir, DatasetOptions{});
+  ProceduralSceneOptions po;
+  if (absl::Status s = ParseProceduralLayout(dir.substr(sizeof(kProceduralPrefix) - 1), &po.layout); !s.ok()) {
+    return s;
+  }
+  po.width = po.height = 96;
+  po.num_train_views = 100;
+  po.num_test_views = 8;
+  po.name = absl::StrFormat("procedural_%s", ProceduralLayoutName(po.layout));
+  return GenerateProceduralScene(po);
+}
+
+std::string BenchSceneName(const std::string& dir) {
+  if (IsProcedural(dir)) return absl::StrFormat("procedural_%s", dir.substr(sizeof(kProceduralPrefix) - 1));
+  return DatasetName(dir);
+}
+}  // namespace
 
 int RunBenchScenes(const BenchScenesArgs& a) {
   SetThreads(a.fit.train.threads);
@@ -230,8 +259,8 @@ int RunBenchScenes(const BenchScenesArgs& a) {
   int failures = 0;
   for (const std::string& dir : a.dirs) {
     // Scene::name as LoadScene sets it, known before loading (for resuming).
-    std::string name = DatasetName(dir);
-    for (int k = 2; names.count(name); ++k) name = absl::StrFormat("%s_%d", DatasetName(dir), k);
+    std::string name = BenchSceneName(dir);
+    for (int k = 2; names.count(name); ++k) name = absl::StrFormat("%s_%d", BenchSceneName(dir), k);
     names.insert(name);
     std::optional<Scene> scene;  // Loaded only when something has to be trained.
     auto run = [&](int log2_table, const std::string& stem) -> absl::StatusOr<json> {
@@ -241,7 +270,7 @@ int RunBenchScenes(const BenchScenesArgs& a) {
         return *c;
       }
       if (!scene) {
-        absl::StatusOr<Scene> s = LoadScene(dir, DatasetOptions{});
+        absl::StatusOr<Scene> s = LoadBenchScene(dir);
         if (!s.ok()) return s.status();
         spdlog::info("loaded '{}': {} train, {} val, {} test views", s->name, s->train.size(), s->val.size(),
                      s->test.size());
