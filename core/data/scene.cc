@@ -136,14 +136,14 @@ Normalization ComputeNormalization(const Scene& scene) {
   // hold the cameras and the subject.
   n.bound = kContractedBound;
   if (views.empty()) return n;
-  // Files without points (a transforms.json, an upload) get points from the
-  // images themselves, so every format of one capture is placed alike.
-  std::vector<Eigen::Vector3f> estimated;
-  const std::vector<Eigen::Vector3f>* points = &scene.content_points;
-  if (points->empty()) {
-    estimated = EstimateContentPoints(views);
-    points = &estimated;
-  }
+  // Content points come from the images themselves (plane-sweep stereo),
+  // whatever the files carry, so every format of one capture is placed
+  // alike: a transforms.json or an upload has no points, COLMAP has its
+  // sparse points, and LLFF only near/far bounds, which put a room
+  // walkthrough's box up to a unit off (capture_writer_test.cc). The files'
+  // own points are the fallback when the images match nothing.
+  std::vector<Eigen::Vector3f> estimated = EstimateContentPoints(views);
+  const std::vector<Eigen::Vector3f>* points = estimated.empty() ? &scene.content_points : &estimated;
   n.rotation = CanonicalRotation(views);
   n.center = FocusPoint(views, *points, n.rotation);
   float radius = 0;

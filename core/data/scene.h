@@ -67,8 +67,10 @@ struct Scene {
   Eigen::Vector3f world_offset_hint = Eigen::Vector3f::Zero();
   // World-space points on the scene's content (COLMAP's sparse points, or
   // points on each camera's axis at LLFF's near bound and at the geometric
-  // mean of its bounds); empty when the loader has none. Used only to place and
-  // size the model's box (ComputeNormalization).
+  // mean of its bounds); empty when the loader has none. ComputeNormalization
+  // places and sizes the model's box from points estimated from the images
+  // (so every format of a capture gives one box) and falls back to these
+  // when the images match nothing.
   std::vector<Eigen::Vector3f> content_points;
 
   int num_time_steps() const;  // 1 + max time step over all views (0 if none).
