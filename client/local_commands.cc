@@ -15,6 +15,7 @@
 #include "client/verb_set.h"
 #include "client/progress_bar.h"
 #include "core/io/checkpoint.h"
+#include "core/data/capture_writer.h"
 #include "core/data/dataset.h"
 #include "core/render/evaluate.h"
 #include "core/train/fit.h"
@@ -272,7 +273,8 @@ CLI::App* BindDemo(CLI::App* parent, DemoArgs* a) {
   c->add_flag("--thin", a->scene.thin_structures, "Add thin rods (about a pixel wide) to the scene");
   c->add_flag("--backdrop", a->scene.backdrop,
               "Unbounded scene: ground plane, pillars and a far backdrop, trained in contracted space "
-              "(the scene folder written is Blender format, which loads back as a bounded scene)");
+              "(scene/ is Blender format, which loads back as a bounded scene; scene_ngp/, scene_colmap/ and "
+              "scene_llff/ hold the same capture as a real one)");
   c->add_option_function<std::string>(
        "--layout",
        [a](const std::string& name) {
@@ -297,6 +299,15 @@ int RunDemo(const DemoArgs& a) {
   absl::StatusOr<ProceduralDataset> data = GenerateProceduralDataset(po);
   if (!data.ok()) return Fail(data.status());
   if (absl::Status s = WriteBlenderDataset(*data, a.out + "/scene"); !s.ok()) return Fail(s);
+  if (data->scene.kind == SceneKind::kUnbounded) {
+    // A real-capture-like scene also goes out in the formats real captures
+    // come in, each of which loads back as this unbounded capture.
+    for (CaptureFormat f : {CaptureFormat::kNgp, CaptureFormat::kColmap, CaptureFormat::kLlff}) {
+      const std::string dir = absl::StrFormat("%s/scene_%s", a.out, CaptureFormatName(f));
+      if (absl::Status s = WriteCapture(data->scene, f, dir); !s.ok()) return Fail(s);
+    }
+    spdlog::info("wrote the capture as {0}/scene_ngp (transforms.json), {0}/scene_colmap and {0}/scene_llff", a.out);
+  }
   absl::StatusOr<FitResult> fit = TrainWithProgress(data->scene, a.fit);
   if (!fit.ok()) return Fail(fit.status());
   const std::string model_path = a.out + "/model.clnerf";
