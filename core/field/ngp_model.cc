@@ -49,10 +49,8 @@ namespace {
 // kAuto is occupancy marching for now: proposals won on fox_8 (+0.8 dB) but
 // lost on beer_2 (-0.9 dB), flower_4 (-0.8 dB at 500 steps) and the
 // procedural backdrop scene at 250 steps, and trained at half the steps per
-// second (docs/proposal_sampling.md). SceneKind stays a parameter so the rule
-// can change per kind once proposals win across scenes.
-ModelOptions ResolveSampler(ModelOptions o, SceneKind kind) {
-  (void)kind;
+// second (docs/proposal_sampling.md).
+ModelOptions ResolveSampler(ModelOptions o) {
   if (o.sampler == SamplerKind::kAuto) o.sampler = SamplerKind::kOccupancy;
   return o;
 }
@@ -60,7 +58,7 @@ ModelOptions ResolveSampler(ModelOptions o, SceneKind kind) {
 
 NgpModel::NgpModel(const ModelOptions& options, const Normalization& norm, SceneKind kind,
                    const Eigen::Vector3f& background, int num_time_steps)
-    : options_(ResolveSampler(options, kind)),
+    : options_(ResolveSampler(options)),
       norm_(norm),
       kind_(kind),
       background_(background),
@@ -141,11 +139,14 @@ size_t NgpModel::num_params() const {
   return params_.grid.size() + params_.mlp.size() + params_.emb.size() + params_.proposal.size();
 }
 
-size_t NgpModel::num_proposal_params() const {
+size_t ProposalParamCount(const ModelOptions& options) {
+  if (options.sampler != SamplerKind::kProposal) return 0;
   size_t n = 0;
-  for (const ProposalField& f : proposal_fields_) n += f.num_params();
+  for (int k = 0; k < options.proposal.num_stages(); ++k) n += ProposalField(options.proposal.field(k)).num_params();
   return n;
 }
+
+size_t NgpModel::num_proposal_params() const { return ProposalParamCount(options_); }
 
 size_t NgpModel::num_bytes() const {
   return num_params() * sizeof(float) + occupancy_.bits().size() * sizeof(uint64_t);

@@ -46,6 +46,11 @@ struct ModelOptions {
   absl::Status Validate() const;
 };
 
+// Floats of the proposal block (ModelParams::proposal) of a model built with
+// `options`: 0 unless its sampler is kProposal. Checkpoint loading sizes the
+// block with it before a model exists.
+size_t ProposalParamCount(const ModelOptions& options);
+
 // Trainable parameters, in three flat blocks.
 struct ModelParams {
   std::vector<float> grid;  // Hash tables (HashGrid layout).

@@ -92,10 +92,10 @@ float ProposalSampler::Interlevel(const float* c, const float* w, int m, const f
   for (int j = 0; j < m; ++j) {
     // lo: last proposal interval starting at or before c_j; hi: first one
     // ending after c_{j+1} (nerfstudio's searchsorted(side="right")), both
-    // clamped to [0, n - 1].
+    // kept in [0, n - 1] by the loops.
     while (lo + 1 < n && cp[lo + 1] <= c[j]) ++lo;
     while (hi < n - 1 && cp[hi + 1] <= c[j + 1]) ++hi;
-    const int a = std::min(lo, n - 1), b = std::max(std::min(hi, n - 1), a);
+    const int a = lo, b = std::max(hi, lo);
     const float outer = (*cum)[b + 1] - (*cum)[a];
     const float excess = w[j] - outer;
     if (excess <= 0.0f) continue;

@@ -962,13 +962,11 @@ absl::StatusOr<LoadedCheckpoint> DeserializeCheckpoint(std::string_view bytes, s
   }
 
   if (version >= 5) {
-    size_t count = 0;
-    if (options.sampler == SamplerKind::kProposal) {
-      for (int k = 0; k < options.proposal.num_stages(); ++k) count += ProposalField(options.proposal.field(k)).num_params();
-    }
     auto payload = Single(sections, kTagProposalParams, source);
     if (!payload.ok()) return payload.status();
-    if (absl::Status s = ReadParams(*payload, kTagProposalParams, count, fp16, source, &params.proposal); !s.ok()) {
+    if (absl::Status s = ReadParams(*payload, kTagProposalParams, ProposalParamCount(options), fp16, source,
+                                    &params.proposal);
+        !s.ok()) {
       return s;
     }
   }
