@@ -94,7 +94,7 @@ TEST_F(ServerFixture, UploadTrainPublishRenderAnyTimeStep) {
 
 TEST_F(ServerFixture, RendersDuringAnUpdateNeverFailAndSeeMonotonicVersions) {
   const std::string store = TempDir("srv_concurrent");
-  StartServer(TinyServerOptions(store, 60));
+  StartServer(TinyServerOptions(store));
   const Scene scene = TinyScans(2);
   ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
   v1::UploadScanResponse ack;
