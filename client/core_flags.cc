@@ -41,14 +41,22 @@ void BindFitFlags(CLI::App* c, FitOptions* fo) {
   c->add_flag("--random-background", t.random_background, "Real captures: train on random background colours");
   BindEnumFlag(c, "--sampler", &fo->model.sampler, {SamplerKind::kAuto, SamplerKind::kOccupancy, SamplerKind::kProposal},
                SamplerKindName,
-               "How samples are placed: occupancy-grid marching, proposal fields, or auto (marching for objects, "
-               "proposals for real captures)");
+               "How samples are placed: occupancy-grid marching, proposal fields, or auto (occupancy marching; "
+               "see docs/proposal_sampling.md)");
   ProposalOptions& po = fo->model.proposal;
   c->add_option("--proposal-samples", po.samples0, "Proposal sampling: first-stage samples per ray")->capture_default_str();
   c->add_option("--proposal-samples2", po.samples1, "Proposal sampling: second-stage samples per ray (0 = one stage)")
       ->capture_default_str();
   c->add_option("--nerf-samples", po.nerf_samples, "Proposal sampling: full-field samples per ray")->capture_default_str();
   c->add_option("--interlevel", t.interlevel_weight, "Proposal sampling: interlevel-loss weight")->capture_default_str();
+  c->add_option("--depth-weight", t.depth_weight,
+                "Sparse-depth loss weight (captures with points: COLMAP points3D, ply_file_path)")
+      ->capture_default_str();
+  c->add_option("--depth-sigma", t.depth_sigma, "Sparse-depth loss: Gaussian width in model units")
+      ->capture_default_str();
+  c->add_option("--depth-fraction", fo->depth_fraction,
+                "Share of each batch drawn from pixels with a known depth (0 = no depth supervision)")
+      ->capture_default_str();
   c->add_flag("!--no-embed", fo->model.network.use_embeddings, "Disable per-time-step embeddings");
 }
 
@@ -62,6 +70,8 @@ void BindDatasetFlags(CLI::App* c, DatasetOptions* d) {
   c->add_option("--max-images", d->max_images_per_split, "Keep at most this many views per split (0 = all)")
       ->capture_default_str();
   c->add_flag("--ngp-bounded", d->ngp_bounded, "transforms.json: a bounded object scene (white background)");
+  c->add_flag("!--no-sparse-depth", d->sparse_depth,
+              "Do not attach depth targets from the capture's points (COLMAP points3D, ply_file_path)");
 }
 
 void BindSquareSizeFlag(CLI::App* c, ProceduralSceneOptions* scene) {

@@ -16,6 +16,7 @@
 #include "client/progress_bar.h"
 #include "core/io/checkpoint.h"
 #include "core/data/capture_writer.h"
+#include "core/data/content_sweep.h"
 #include "core/data/dataset.h"
 #include "core/render/evaluate.h"
 #include "core/train/fit.h"
@@ -301,10 +302,16 @@ int RunDemo(const DemoArgs& a) {
   if (absl::Status s = WriteBlenderDataset(*data, a.out + "/scene"); !s.ok()) return Fail(s);
   if (data->scene.kind == SceneKind::kUnbounded) {
     // A real-capture-like scene also goes out in the formats real captures
-    // come in, each of which loads back as this unbounded capture.
+    // come in, each of which loads back as this unbounded capture, with the
+    // sparse points a structure-from-motion run would add (here matched from
+    // the images themselves: content_sweep.h).
+    Scene capture = data->scene;
+    std::vector<View> all = capture.train;
+    all.insert(all.end(), capture.test.begin(), capture.test.end());
+    capture.sparse_points = EstimateContentPoints(all);
     for (CaptureFormat f : {CaptureFormat::kNgp, CaptureFormat::kColmap, CaptureFormat::kLlff}) {
       const std::string dir = absl::StrFormat("%s/scene_%s", a.out, CaptureFormatName(f));
-      if (absl::Status s = WriteCapture(data->scene, f, dir); !s.ok()) return Fail(s);
+      if (absl::Status s = WriteCapture(capture, f, dir); !s.ok()) return Fail(s);
     }
     spdlog::info("wrote the capture as {0}/scene_ngp (transforms.json), {0}/scene_colmap and {0}/scene_llff", a.out);
   }

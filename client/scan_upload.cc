@@ -1,6 +1,7 @@
 #include "proto/wire/wire.h"
 #include "client/scan_upload.h"
 
+#include <algorithm>
 #include <chrono>
 
 #include "absl/strings/str_cat.h"
@@ -15,12 +16,19 @@ constexpr size_t kChunkBytes = size_t(1) << 20;  // The protocol's maximum.
 }  // namespace
 
 absl::StatusOr<EncodedScan> EncodeScan(const std::string& name, SceneKind kind, const std::vector<View>& train,
-                                       const std::vector<View>& test) {
+                                       const std::vector<View>& test, const std::vector<Eigen::Vector3f>& points) {
   EncodedScan out;
   clnerf::v1::ScanHeader* header = out.header.mutable_header();
   header->set_name(name);
   header->set_scene_kind(kind == SceneKind::kBounded ? "bounded" : "unbounded");
   header->set_mask_nonzero_is_exclude(false);
+  const size_t keep = std::min(points.size(), kMaxUploadPoints);
+  header->mutable_points()->Reserve(int(3 * keep));
+  for (size_t k = 0; k < keep; ++k) {
+    const Eigen::Vector3f& p = points[k * points.size() / keep];
+    if (!p.allFinite()) continue;
+    for (int c = 0; c < 3; ++c) header->add_points(p[c]);
+  }
   for (const std::vector<View>* views : {&train, &test}) {
     for (const View& view : *views) {
       absl::StatusOr<std::string> png = EncodePng(view.image);

@@ -26,9 +26,13 @@ struct EncodedScan {
 };
 
 // Encodes `train` as frames and `test` as held-out frames (images as RGB PNG,
-// masks as greyscale PNG with 255 = keep). Errors name the view.
+// masks as greyscale PNG with 255 = keep), and `points` (a sparse point cloud
+// in the views' world frame; thinned evenly to the protocol's 250,000) into
+// the header. Errors name the view.
 absl::StatusOr<EncodedScan> EncodeScan(const std::string& name, SceneKind kind, const std::vector<View>& train,
-                                       const std::vector<View>& test);
+                                       const std::vector<View>& test,
+                                       const std::vector<Eigen::Vector3f>& points = {});
+inline constexpr size_t kMaxUploadPoints = 250000;
 
 struct SendResult {
   grpc::Status status;

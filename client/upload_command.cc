@@ -54,7 +54,7 @@ int RunUpload(const UploadArgs& a) {
   std::vector<View>* test = TestViews(*scene, a.test_split);
 
   const std::string name = a.name.empty() ? scene->name : a.name;
-  absl::StatusOr<EncodedScan> scan = EncodeScan(name, scene->kind, scene->train, *test);
+  absl::StatusOr<EncodedScan> scan = EncodeScan(name, scene->kind, scene->train, *test, scene->sparse_points);
   if (!scan.ok()) return FailRemote(kVerb, scan.status());
   scene->train.clear();  // Only the encoded copy is needed from here on.
   test->clear();

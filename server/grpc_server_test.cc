@@ -92,6 +92,29 @@ TEST_F(ServerFixture, UploadTrainPublishRenderAnyTimeStep) {
   EXPECT_EQ(frames[0].size(), size_t(cam.intrinsics.width * cam.intrinsics.height * 3 * 4));
 }
 
+// A scan's point cloud reaches training: the first scan and a continual
+// update both train with sparse-depth rays and deploy.
+TEST_F(ServerFixture, UploadedPointCloudsBecomeDepthSupervision) {
+  const std::string store = TempDir("srv_points_e2e");
+  StartServer(TinyServerOptions(store));
+  const Scene scene = TinyScans(2);
+  for (int t = 0; t < 2; ++t) {
+    ScanUpload up = UploadOf(scene, t);
+    for (const View& v : scene.train) {
+      if (v.camera.time_step != t) continue;
+      Eigen::Vector3f o, d;
+      v.camera.Ray(0.5f * v.camera.intrinsics.width, 0.5f * v.camera.intrinsics.height, &o, &d);
+      up.points.push_back(o + d.dot(-o) * d);  // The point of the view axis nearest the object's centre.
+    }
+    v1::UploadScanResponse ack;
+    ASSERT_TRUE(Upload(UploadMessages(up), &ack).ok());
+    const v1::Job j = Watch(ack.job_id());
+    ASSERT_EQ(j.phase(), v1::JOB_PHASE_DONE) << j.error();
+    ASSERT_TRUE(j.metrics().count("depth_pixels")) << "scan " << t;
+    EXPECT_GT(j.metrics().at("depth_pixels"), 0.0);
+  }
+}
+
 TEST_F(ServerFixture, RendersDuringAnUpdateNeverFailAndSeeMonotonicVersions) {
   const std::string store = TempDir("srv_concurrent");
   StartServer(TinyServerOptions(store));

@@ -117,6 +117,25 @@ TEST_F(ServerFixture, DeclaredSizesThatOverflowAreInvalidArgument) {
   EXPECT_EQ(StoredScans(store), 0u);
 }
 
+TEST_F(ServerFixture, MalformedPointCloudsAreInvalidArgument) {
+  const std::string store = TempDir("srv_points");
+  StartServer(TinyServerOptions(store));
+  const std::vector<v1::UploadScanRequest> good = UploadMessages(UploadOf(TinyScans(1), 0));
+  struct Case {
+    std::vector<float> points;
+    const char* needle;
+  } cases[] = {{{1.0f, 2.0f}, "not x y z triples"}, {{1.0f, std::nanf(""), 3.0f}, "point 0 is not finite"}};
+  for (const Case& c : cases) {
+    std::vector<v1::UploadScanRequest> msgs = good;
+    for (float v : c.points) msgs[0].mutable_header()->add_points(v);
+    v1::UploadScanResponse ack;
+    grpc::Status s = Upload(msgs, &ack);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+    EXPECT_TRUE(Contains(s.error_message(), c.needle)) << s.error_message();
+  }
+  EXPECT_EQ(StoredScans(store), 0u);
+}
+
 // Rewrites the scene centre of a stored checkpoint to NaN and re-computes
 // the CRC, as a forger (or a buggy writer) would.
 void ForgeNanCentre(const std::string& path) {

@@ -11,6 +11,16 @@ absl::StatusOr<ScanHeaderDecl> HeaderFromProto(const v1::ScanHeader& h) {
   decl.name = h.name();
   decl.scene_kind = h.scene_kind();
   decl.mask_nonzero_is_exclude = h.mask_nonzero_is_exclude();
+  if (h.points_size() % 3 != 0) {
+    return absl::InvalidArgumentError(absl::StrCat("scan header: points holds ", h.points_size(),
+                                                   " numbers, not x y z triples"));
+  }
+  decl.points.reserve(size_t(h.points_size() / 3));
+  for (int i = 0; i < h.points_size(); i += 3) {
+    const Eigen::Vector3f p(h.points(i), h.points(i + 1), h.points(i + 2));
+    if (!p.allFinite()) return absl::InvalidArgumentError(absl::StrCat("scan header: point ", i / 3, " is not finite"));
+    decl.points.push_back(p);
+  }
   if (h.frames_size() == 0) return absl::InvalidArgumentError("scan header lists no training frames");
   const int n = h.frames_size() + h.test_frames_size();
   for (int i = 0; i < n; ++i) {

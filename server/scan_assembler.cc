@@ -31,6 +31,10 @@ absl::Status CheckUploadLimits(const ScanUpload& upload, const UploadLimits& lim
         absl::StrCat("scan is ", upload.num_bytes(), " bytes; the limit is ", limits.max_scan_bytes));
   }
   if (absl::Status s = ValidateName(upload.name, "scan name"); !s.ok()) return s;
+  if (int64_t(upload.points.size()) > limits.max_points) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("scan has ", upload.points.size(), " points; the limit is ", limits.max_points));
+  }
   for (size_t i = 0; i < upload.frames.size(); ++i) {
     if (absl::Status s = ValidateName(upload.frames[i].name, absl::StrCat("frame ", i, " name")); !s.ok()) return s;
   }
@@ -45,6 +49,10 @@ absl::Status ScanAssembler::Begin(ScanHeaderDecl header) {
     return absl::InvalidArgumentError(absl::StrCat("scan has ", n, " frames; the limit is ", limits_.max_frames));
   }
   if (absl::Status s = ValidateName(header.name, "scan name"); !s.ok()) return s;
+  if (int64_t(header.points.size()) > limits_.max_points) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("scan has ", header.points.size(), " points; the limit is ", limits_.max_points));
+  }
   // Each size is checked against the limit before it is added, so the sum
   // never exceeds 2 * max_scan_bytes and cannot overflow.
   int64_t total = 0;
@@ -65,6 +73,7 @@ absl::Status ScanAssembler::Begin(ScanHeaderDecl header) {
   upload_.name = std::move(header.name);
   upload_.scene_kind = std::move(header.scene_kind);
   upload_.mask_nonzero_is_exclude = header.mask_nonzero_is_exclude;
+  upload_.points = std::move(header.points);
   for (DeclaredFrame& f : header.frames) {
     want_image_.push_back(f.image_bytes);
     want_mask_.push_back(f.mask_bytes);

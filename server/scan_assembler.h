@@ -30,6 +30,7 @@ namespace clnerf {
 
 struct UploadLimits {
   int max_frames = 4000;                        // Train + test frames per scan.
+  int max_points = 250000;                      // Sparse points (3 MB, under gRPC's 4 MB message).
   int64_t max_scan_bytes = int64_t(1) << 30;    // Declared image + mask bytes.
   int64_t max_chunk_bytes = int64_t(1) << 20;   // Bytes per chunk message.
   static constexpr size_t kMaxNameBytes = 256;  // Scan and frame names.
@@ -48,6 +49,7 @@ struct ScanHeaderDecl {
   std::string scene_kind;
   bool mask_nonzero_is_exclude = false;
   std::vector<DeclaredFrame> frames;  // Training frames first, then test frames.
+  std::vector<Eigen::Vector3f> points;  // Optional sparse point cloud.
 };
 
 // INVALID_ARGUMENT unless `name` has at most UploadLimits::kMaxNameBytes

@@ -81,6 +81,9 @@ TEST(ScanAssemblerTest, HeaderLimits) {
   ScanHeaderDecl frame_name = Header({{1, 0}});
   frame_name.frames[0].frame.name = "a\rb";
   ExpectInvalid(ScanAssembler(Limits()).Begin(frame_name), "frame 0 name contains control character 0x0d");
+  ScanHeaderDecl cloud = Header({{1, 0}});
+  cloud.points.assign(250001, Eigen::Vector3f::Zero());
+  ExpectInvalid(ScanAssembler(Limits()).Begin(cloud), "250001 points; the limit is 250000");
   ScanAssembler twice(Limits());
   ASSERT_TRUE(twice.Begin(Header({{1, 0}})).ok());
   ExpectInvalid(twice.Begin(Header({{1, 0}})), "only one scan header");

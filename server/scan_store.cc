@@ -1,5 +1,7 @@
 #include "server/scan_store.h"
 
+#include <cstring>
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -12,6 +14,7 @@
 #include "absl/strings/str_format.h"
 #include "core/io/durable_file.h"
 #include "core/data/image.h"
+#include "core/data/sparse_depth.h"
 #include "nlohmann/json.hpp"
 
 namespace clnerf {
@@ -64,6 +67,9 @@ absl::Status FrameError(const ScanFrame& f, size_t i, const absl::Status& s) {
 
 absl::Status ValidateScanUpload(const ScanUpload& scan) {
   if (scan.frames.empty()) return absl::InvalidArgumentError("scan has no frames");
+  for (size_t i = 0; i < scan.points.size(); ++i) {
+    if (!scan.points[i].allFinite()) return absl::InvalidArgumentError(absl::StrCat("point ", i, " is not finite"));
+  }
   int train = 0;
   std::set<std::string> names;
   for (size_t i = 0; i < scan.frames.size(); ++i) {
@@ -127,7 +133,11 @@ absl::Status ScanStore::Save(const ScanRecord& record, const ScanUpload& scan) {
     }
     frames.push_back(std::move(fj));
   }
-  const nlohmann::json j = {{"scan_id", record.scan_id},
+  // Points: raw little-endian float32 x y z.
+  const std::string_view points_bytes(reinterpret_cast<const char*>(scan.points.data()),
+                                      scan.points.size() * sizeof(Eigen::Vector3f));
+  if (!scan.points.empty()) files.emplace_back("points.f32", points_bytes);
+  nlohmann::json j = {{"scan_id", record.scan_id},
                             {"job_id", record.job_id},
                             {"name", record.name},
                             {"scene_kind", record.scene_kind},
@@ -137,6 +147,10 @@ absl::Status ScanStore::Save(const ScanRecord& record, const ScanUpload& scan) {
                             {"num_test_frames", record.num_test_frames},
                             {"num_bytes", record.num_bytes},
                             {"frames", frames}};
+  if (!scan.points.empty()) {
+    j["points"] = "points.f32";
+    j["num_points"] = scan.points.size();
+  }
   const std::string manifest = j.dump(1);
   files.emplace_back("scan.json", manifest);
   absl::Status s = WriteDirectoryAtomically((fs::path(dir_) / record.scan_id).string(), files);
@@ -219,6 +233,22 @@ absl::StatusOr<Scene> ScanStore::Load(const std::string& scan_id, int time_step,
         v.mask = *std::move(m);
       }
       (fj.at("test").get<bool>() ? scene.test : scene.train).push_back(std::move(v));
+    }
+    if (j->contains("points")) {
+      const std::string file = j->at("points");
+      const size_t n = j->at("num_points");
+      absl::StatusOr<std::string> bytes = ReadFileToString((dir / file).string(), "scan points");
+      if (!bytes.ok()) return bytes.status();
+      if (bytes->size() != n * sizeof(Eigen::Vector3f)) {
+        return absl::DataLossError(absl::StrCat("corrupt scan ", scan_id, ": ", file, " holds ", bytes->size(),
+                                                " bytes, not ", n, " points"));
+      }
+      scene.sparse_points.resize(n);
+      std::memcpy(scene.sparse_points.data(), bytes->data(), bytes->size());
+      for (const Eigen::Vector3f& p : scene.sparse_points) {
+        if (!p.allFinite()) return absl::DataLossError(absl::StrCat("corrupt scan ", scan_id, ": a point is not finite"));
+      }
+      AttachSparseDepth(scene.sparse_points, SparseDepthOptions(), &scene.train);
     }
   } catch (const std::exception& e) {
     return absl::DataLossError(absl::StrCat("corrupt scan ", scan_id, ": ", e.what()));

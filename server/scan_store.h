@@ -41,6 +41,9 @@ struct ScanUpload {
   std::string scene_kind;  // "bounded", "unbounded" or "" (inherit / bounded).
   bool mask_nonzero_is_exclude = false;
   std::vector<ScanFrame> frames;
+  // Optional sparse point cloud (world frame); the training views get
+  // sparse-depth targets from it when the scan is loaded.
+  std::vector<Eigen::Vector3f> points;
   // Encoded image + mask bytes. Inline, so header-only users (the upload
   // fuzz target) need not link the store.
   int64_t num_bytes() const {

@@ -55,6 +55,39 @@ TEST(ScanStoreTest, SaveListLoadRemove) {
   EXPECT_EQ((*store)->List()->size(), 1u);
 }
 
+// A scan's point cloud is stored beside its frames and, when the scan is
+// loaded, becomes sparse-depth targets of its training views; a damaged
+// points file is DATA_LOSS, not a silently different prior.
+TEST(ScanStoreTest, PointCloudRoundTripsAndBecomesDepthTargets) {
+  const Scene scene = TinyScans(1, 16, 4, 2);
+  ScanUpload up = UploadOf(scene, 0);
+  // Points 3 units down a few pixel rays of each training view.
+  for (const View& v : scene.train) {
+    for (float f : {0.25f, 0.5f, 0.75f}) {
+      Eigen::Vector3f o, d;
+      v.camera.Ray(f * 16, f * 16, &o, &d);
+      up.points.push_back(o + 3.0f * d);
+    }
+  }
+  const std::string root = TempDir("scanstore_points");
+  auto store = ScanStore::Open(root);
+  ASSERT_TRUE(store.ok());
+  ASSERT_TRUE(ValidateScanUpload(up).ok());
+  ASSERT_TRUE((*store)->Save(Record("scan-000001", up), up).ok());
+  auto loaded = (*store)->Load("scan-000001", 0, std::nullopt);
+  ASSERT_TRUE(loaded.ok()) << loaded.status();
+  ASSERT_EQ(loaded->sparse_points.size(), up.points.size());
+  for (size_t k = 0; k < up.points.size(); ++k) EXPECT_EQ(loaded->sparse_points[k], up.points[k]);
+  for (const View& v : loaded->train) EXPECT_FALSE(v.depth.empty()) << v.name;
+  for (const View& v : loaded->test) EXPECT_TRUE(v.depth.empty()) << v.name;
+  // Truncated points file.
+  std::filesystem::resize_file(root + "/scans/scan-000001/points.f32", 20);
+  EXPECT_EQ((*store)->Load("scan-000001", 0, std::nullopt).status().code(), absl::StatusCode::kDataLoss);
+  // A NaN point is refused at upload.
+  up.points[1].y() = std::nanf("");
+  EXPECT_EQ(ValidateScanUpload(up).code(), absl::StatusCode::kInvalidArgument);
+}
+
 TEST(ScanStoreTest, CrashLeftoversAreIgnoredAndCleaned) {
   const std::string root = TempDir("scanstore_tmp");
   std::filesystem::create_directories(root + "/scans/.tmp-scan-000009");

@@ -94,6 +94,9 @@ inline std::vector<v1::UploadScanRequest> UploadMessages(const ScanUpload& up, s
   v1::ScanHeader* h = msgs[0].mutable_header();
   h->set_name(up.name);
   h->set_scene_kind(up.scene_kind);
+  for (const Eigen::Vector3f& p : up.points) {
+    for (int c = 0; c < 3; ++c) h->add_points(p[c]);
+  }
   std::vector<const ScanFrame*> order;
   for (const ScanFrame& f : up.frames)
     if (!f.test) order.push_back(&f);

@@ -178,6 +178,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
                                       prev ? &prev->memory() : nullptr, options_.gate, options_.train_threads);
   gate.metrics["train_seconds"] = report.train_seconds;
   gate.metrics["replay_prepare_seconds"] = report.replay_prepare_seconds;
+  if (report.depth_pixels > 0) gate.metrics["depth_pixels"] = double(report.depth_pixels);
   gate.metrics["update_seconds"] = SecondsSince(t0);
   jobs_->Update(job_id, [&](JobStatus* j) { j->metrics = gate.metrics; });
   if (!gate.status.ok()) return Finish(job_id, scan_id, JobPhase::kFailed, std::string(gate.status.message()), true);

@@ -7,8 +7,13 @@
 namespace clnerf {
 
 ContinualRaySampler::ContinualRaySampler(std::vector<SamplerView> views, const NgpModel& model,
-                                         const NgpModel* frozen, float meil_new_fraction, float new_share)
-    : views_(std::move(views)), frozen_(frozen), meil_new_fraction_(meil_new_fraction), new_share_(new_share) {
+                                         const NgpModel* frozen, float meil_new_fraction, float new_share,
+                                         float depth_fraction)
+    : views_(std::move(views)),
+      frozen_(frozen),
+      meil_new_fraction_(meil_new_fraction),
+      new_share_(new_share),
+      depth_fraction_(depth_fraction) {
   for (size_t v = 0; v < views_.size(); ++v) {
     model_cameras_.push_back(model.ToModelCamera(views_[v].camera));
     std::vector<uint32_t> valid;
@@ -20,15 +25,25 @@ ContinualRaySampler::ContinualRaySampler(std::vector<SamplerView> views, const N
     valid_.push_back(std::move(valid));
     (views_[v].replay ? replay_views_ : new_views_).push_back(int(v));
     (views_[v].past ? past_views_ : current_views_).push_back(int(v));
+    std::vector<uint32_t> dpix;
+    std::vector<float> dt;
+    if (views_[v].depth != nullptr && views_[v].image != nullptr) {
+      SparseDepthTargets(model_cameras_.back(), model.normalization(), *views_[v].depth, &dpix, &dt);
+    }
+    if (!dpix.empty()) depth_views_.push_back(int(v));
+    depth_pixel_.push_back(std::move(dpix));
+    depth_t_.push_back(std::move(dt));
   }
 }
 
-void ContinualRaySampler::FillRay(int v, std::mt19937_64& r, RayBatch* out, int i, std::vector<int>* online) {
+void ContinualRaySampler::FillRay(int v, std::mt19937_64& r, RayBatch* out, int i, std::vector<int>* online,
+                                  int64_t given_pixel) {
   const SamplerView& view = views_[v];
   const Intrinsics& in = view.camera.intrinsics;
   const std::vector<uint32_t>& valid = valid_[v];
-  const uint32_t pixel =
-      valid.empty() ? uint32_t(r() % (uint64_t(in.width) * in.height)) : valid[r() % valid.size()];
+  const uint32_t pixel = given_pixel >= 0 ? uint32_t(given_pixel)
+                         : valid.empty()  ? uint32_t(r() % (uint64_t(in.width) * in.height))
+                                          : valid[r() % valid.size()];
   PixelRay(model_cameras_[v], pixel, &out->origin[3 * size_t(i)], &out->dir[3 * size_t(i)]);
   out->time_step[i] = view.camera.time_step;
   out->weight[i] = 1.0f;
@@ -50,7 +65,15 @@ void ContinualRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
   // MEIL-NeRF's replay weight rises from 0 to 1 with progress r.
   const float meil_weight = 0.5f * (std::cos(float(M_PI) * (1.0f + progress_)) + 1.0f);
   std::mt19937_64& r = *rng;
-  for (int i = 0; i < n; ++i) {
+  // Sparse-depth rays first (new-scan views with known depths).
+  const int ndepth = depth_views_.empty() ? 0 : int(std::lround(depth_fraction_ * n));
+  for (int i = 0; i < ndepth; ++i) {
+    const int v = depth_views_[r() % depth_views_.size()];
+    const size_t k = r() % depth_pixel_[v].size();
+    FillRay(v, r, out, i, nullptr, depth_pixel_[v][k]);
+    out->depth[i] = depth_t_[v][k];
+  }
+  for (int i = ndepth; i < n; ++i) {
     int v;
     if (shared) {
       v = i < n_new ? current_views_[r() % current_views_.size()] : past_views_[r() % past_views_.size()];

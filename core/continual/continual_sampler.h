@@ -12,6 +12,7 @@
 #ifndef CLNERF_CORE_CONTINUAL_CONTINUAL_SAMPLER_H_
 #define CLNERF_CORE_CONTINUAL_CONTINUAL_SAMPLER_H_
 
+#include <cstdint>
 #include <vector>
 
 #include "core/field/ngp_model.h"
@@ -25,6 +26,8 @@ struct SamplerView {
   const Mask* mask = nullptr;
   bool replay = false;           // Generative replay (label from θ_{t-1}).
   bool past = false;             // From an earlier scan (buffered image or replay).
+  // Sparse-depth targets (the new scan's View::depth; may be null).
+  const std::vector<DepthPoint>* depth = nullptr;
 };
 
 class ContinualRaySampler : public RaySampler {
@@ -34,14 +37,23 @@ class ContinualRaySampler : public RaySampler {
   // Uniform mode with new_share > 0: that fraction of each batch comes from
   // the new scan's views (uniform among them), the rest uniformly from past
   // views; new_share <= 0 is uniform over all views (the paper).
+  // When views carry sparse depth, `depth_fraction` of each batch is drawn
+  // from their depth pixels first (as ImageRaySampler does).
   ContinualRaySampler(std::vector<SamplerView> views, const NgpModel& model, const NgpModel* frozen,
-                      float meil_new_fraction, float new_share = 0.0f);
+                      float meil_new_fraction, float new_share = 0.0f, float depth_fraction = 0.0f);
   void Sample(int n, std::mt19937_64* rng, RayBatch* out) override;
   std::vector<Camera> Cameras() const override { return model_cameras_; }
+  // Pixels with a sparse-depth target over all views.
+  long long num_depth_pixels() const {
+    long long n = 0;
+    for (const auto& p : depth_pixel_) n += (long long)p.size();
+    return n;
+  }
   void SetProgress(float progress) override { progress_ = progress; }
 
  private:
-  void FillRay(int view, std::mt19937_64& r, RayBatch* out, int i, std::vector<int>* online);
+  // pixel < 0: a random unmasked pixel.
+  void FillRay(int view, std::mt19937_64& r, RayBatch* out, int i, std::vector<int>* online, int64_t pixel = -1);
 
   std::vector<SamplerView> views_;
   std::vector<Camera> model_cameras_;
@@ -52,6 +64,10 @@ class ContinualRaySampler : public RaySampler {
   float meil_new_fraction_;
   float new_share_;
   float progress_ = 0;
+  float depth_fraction_ = 0;
+  std::vector<int> depth_views_;
+  std::vector<std::vector<uint32_t>> depth_pixel_;
+  std::vector<std::vector<float>> depth_t_;
 };
 
 }  // namespace clnerf

@@ -69,6 +69,7 @@ absl::Status UpdateOptions::Validate() const {
   if (!(ewc_lambda >= 0) || ewc_batches < 1) return absl::InvalidArgumentError("bad EWC options");
   if (!(warm_lr_scale > 0 && warm_lr_scale <= 1)) return absl::InvalidArgumentError("warm_lr_scale must be in (0, 1]");
   if (!(new_scan_share >= 0 && new_scan_share < 1)) return absl::InvalidArgumentError("new_scan_share must be in [0, 1)");
+  if (!(depth_fraction >= 0 && depth_fraction <= 1)) return absl::InvalidArgumentError("depth_fraction must be in [0, 1]");
   if (!(meil_new_fraction > 0 && meil_new_fraction < 1)) {
     return absl::InvalidArgumentError("meil_new_fraction must be in (0, 1)");
   }
@@ -141,7 +142,9 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
   const bool use_gr = method == ContinualMethod::kCLNeRF || method == ContinualMethod::kCLNeRFNoER ||
                       method == ContinualMethod::kMEIL;
   std::vector<SamplerView> views;
-  for (const View& v : scan.train) views.push_back({v.camera, &v.image, v.mask.empty() ? nullptr : &v.mask, false});
+  for (const View& v : scan.train) {
+    views.push_back({v.camera, &v.image, v.mask.empty() ? nullptr : &v.mask, false, false, &v.depth});
+  }
   rep.new_views = int(scan.train.size());
   std::vector<Image> cache;  // Offline replay labels.
   if (prev != nullptr) {
@@ -190,8 +193,10 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
   }
   const float meil = method == ContinualMethod::kMEIL ? options.meil_new_fraction : 0.0f;
   ContinualRaySampler sampler(std::move(views), *model, prev != nullptr ? prev->model.get() : nullptr, meil,
-                              method == ContinualMethod::kMEIL ? 0.0f : options.new_scan_share);
+                              method == ContinualMethod::kMEIL ? 0.0f : options.new_scan_share,
+                              options.depth_fraction);
 
+  rep.depth_pixels = options.depth_fraction > 0 ? sampler.num_depth_pixels() : 0;
   TrainOptions to = options.train;
   to.seed = seed;
   if (prev != nullptr && options.init == InitMode::kWarm) to.learning_rate *= options.warm_lr_scale;

@@ -32,6 +32,7 @@
 #include "core/field/ngp_model.h"
 #include "core/continual/replay_memory.h"
 #include "core/data/scene.h"
+#include "core/train/ray_sampler.h"
 #include "core/train/trainer.h"
 
 namespace clnerf {
@@ -66,6 +67,9 @@ struct UpdateOptions {
   // 0 = uniform over every view revealed so far (the paper), where the new
   // scan of step t gets only 1/(t+1) of the rays.
   float new_scan_share = 0.0f;
+  // Share of each batch drawn from the new scan's sparse-depth pixels when
+  // it has any (an upload's point cloud; sparse_depth.h). 0 = off.
+  float depth_fraction = ImageRaySampler::kDefaultDepthFraction;
   // Warm start: the new time step's embeddings start as a copy of the last
   // step's (true) or from random values like a fresh model's (false).
   bool copy_embedding = false;
@@ -105,6 +109,7 @@ struct UpdateReport {
   double train_seconds = 0;
   long long samples = 0;
   int skipped_batches = 0;            // NaN/Inf batches skipped by the trainer.
+  long long depth_pixels = 0;         // New-scan pixels with a sparse-depth target.
 };
 
 using UpdateProgressFn = std::function<void(const UpdateProgress&)>;

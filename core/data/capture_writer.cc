@@ -110,6 +110,14 @@ absl::Status WriteCapture(const Scene& scene, CaptureFormat format, const std::s
       frames.push_back(f);
     }
     j["frames"] = frames;
+    if (!scene.sparse_points.empty()) {  // nerfstudio's point-cloud key, an ASCII PLY.
+      std::string ply = absl::StrFormat("ply\nformat ascii 1.0\nelement vertex %d\nproperty float x\nproperty float y\n"
+                                        "property float z\nend_header\n",
+                                        int(scene.sparse_points.size()));
+      for (const Eigen::Vector3f& p : scene.sparse_points) absl::StrAppendFormat(&ply, "%.9g %.9g %.9g\n", p.x(), p.y(), p.z());
+      if (absl::Status s = WriteText(root / "points.ply", ply); !s.ok()) return s;
+      j["ply_file_path"] = "points.ply";
+    }
     return WriteText(root / "transforms.json", j.dump(2));
   }
 
@@ -132,13 +140,22 @@ absl::Status WriteCapture(const Scene& scene, CaptureFormat format, const std::s
                             q.y(), q.z(), t.x(), t.y(), t.z(), int(i + 1), names[i]);
     }
     if (absl::Status s = WriteText(sparse / "cameras.txt", cameras); !s.ok()) return s;
+    if (!scene.sparse_points.empty()) {  // Without tracks: the loaders read only the positions.
+      std::string pts = "# POINT3D_ID, X, Y, Z, R, G, B, ERROR, TRACK[] as (IMAGE_ID, POINT2D_IDX)\n";
+      for (size_t k = 0; k < scene.sparse_points.size(); ++k) {
+        const Eigen::Vector3f& p = scene.sparse_points[k];
+        absl::StrAppendFormat(&pts, "%d %.9g %.9g %.9g 128 128 128 1\n", int(k + 1), p.x(), p.y(), p.z());
+      }
+      if (absl::Status s = WriteText(sparse / "points3D.txt", pts); !s.ok()) return s;
+    }
     return WriteText(sparse / "images.txt", images);
   }
 
   // LLFF: bounds from the images' own content points, per camera.
   std::vector<View> all;
   for (const View* v : views) all.push_back(*v);
-  const std::vector<Eigen::Vector3f> points = EstimateContentPoints(all);
+  const std::vector<Eigen::Vector3f> points =
+      scene.sparse_points.empty() ? EstimateContentPoints(all) : scene.sparse_points;
   std::vector<double> rows;
   for (const View* v : views) {
     const Camera& c = v->camera;

@@ -7,7 +7,10 @@
 //            images/NNNN.png;
 //   kColmap: sparse/0/cameras.txt (one PINHOLE camera per view),
 //            sparse/0/images.txt (world-to-camera quaternion and translation)
-//            and images/NNNN.png, no points;
+//            and images/NNNN.png; sparse/0/points3D.txt (positions, no
+//            tracks) when the scene has sparse_points, which the other
+//            formats then carry too (kNgp: points.ply named by
+//            `ply_file_path`; kLlff: the bounds come from them);
 //   kLlff:   poses_bounds.npy (N x 17 float64: the 3x5 [down, right, back |
 //            centre | h w f] matrix and near/far bounds per view) and
 //            images/NNNN.png. The bounds are the 0.1 and 99.9 percentiles of

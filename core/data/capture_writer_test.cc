@@ -112,6 +112,43 @@ TEST(CaptureWriterTest, EveryFormatNormalisesToTheSameModelFrame) {
   }
 }
 
+TEST(CaptureWriterTest, SparsePointsTravelAsPointsAndBecomeDepthTargets) {
+  Scene capture = Capture(ProceduralLayout::kForwardFacing);
+  // Points 4 units down a few pixels' rays of every view.
+  for (const View& v : capture.train) {
+    for (float f : {0.3f, 0.5f, 0.7f}) {
+      Eigen::Vector3f o, d;
+      v.camera.Ray(f * v.camera.intrinsics.width, 0.5f * v.camera.intrinsics.height, &o, &d);
+      capture.sparse_points.push_back(o + 4.0f * d);
+    }
+  }
+  for (CaptureFormat f : {CaptureFormat::kNgp, CaptureFormat::kColmap, CaptureFormat::kLlff}) {
+    SCOPED_TRACE(CaptureFormatName(f));
+    const fs::path dir = TempDir(std::string("points_") + CaptureFormatName(f));
+    ASSERT_TRUE(WriteCapture(capture, f, dir.string()).ok());
+    absl::StatusOr<Scene> s = LoadScene(dir.string());
+    ASSERT_TRUE(s.ok()) << s.status();
+    if (f == CaptureFormat::kLlff) {  // LLFF keeps only bounds.
+      EXPECT_TRUE(s->sparse_points.empty());
+    } else {
+      ASSERT_EQ(s->sparse_points.size(), capture.sparse_points.size());
+      for (size_t k = 0; k < capture.sparse_points.size(); ++k) {
+        EXPECT_LT((s->sparse_points[k] - capture.sparse_points[k]).norm(), 1e-4f);
+      }
+      size_t with_depth = 0;
+      for (const View& v : s->train) with_depth += !v.depth.empty();
+      EXPECT_GT(with_depth, s->train.size() / 2);
+      // Off: no targets.
+      DatasetOptions off;
+      off.sparse_depth = false;
+      absl::StatusOr<Scene> s2 = LoadScene(dir.string(), off);
+      ASSERT_TRUE(s2.ok());
+      for (const View& v : s2->train) EXPECT_TRUE(v.depth.empty());
+    }
+    fs::remove_all(dir);
+  }
+}
+
 TEST(CaptureWriterTest, LlffRefusesWhatItCannotHold) {
   Scene s = Capture(ProceduralLayout::kForwardFacing);
   s.train[0].camera.intrinsics.cx += 3.0f;

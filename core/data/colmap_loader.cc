@@ -428,6 +428,7 @@ absl::StatusOr<Scene> LoadColmapScene(const std::string& dir, const DatasetOptio
   scene.name = DatasetName(dir);
   scene.kind = SceneKind::kUnbounded;
   scene.background = Eigen::Vector3f::Zero();
+  scene.sparse_points = points;
   scene.content_points = std::move(points);
 
   // Time steps: rank of the image's subfolder among all subfolders.

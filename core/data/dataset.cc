@@ -13,6 +13,7 @@
 #include "core/data/image.h"
 #include "core/data/llff_loader.h"
 #include "core/data/ngp_loader.h"
+#include "core/data/sparse_depth.h"
 
 namespace clnerf {
 namespace {
@@ -110,6 +111,9 @@ absl::StatusOr<Scene> LoadScene(const std::string& dir, const DatasetOptions& op
   if (absl::Status s = ValidateScene(*scene); !s.ok()) {
     return absl::InvalidArgumentError(
         absl::StrCat(dir, " (", DatasetFormatName(*format), "): ", s.message()));
+  }
+  if (opts.sparse_depth && opts.load_images && !scene->sparse_points.empty()) {
+    AttachSparseDepth(scene->sparse_points, SparseDepthOptions(), &scene->train);
   }
   return scene;
 }

@@ -30,6 +30,10 @@ struct DatasetOptions {
   // instant-ngp only: treat the scene as a bounded object scene (kBounded,
   // white background) instead of an unbounded capture.
   bool ngp_bounded = false;
+  // Attach sparse-depth targets (View::depth) to the training views from the
+  // capture's measured points (COLMAP points3D, a transforms.json's
+  // ply_file_path) when it has any; see sparse_depth.h.
+  bool sparse_depth = true;
 
   absl::Status Validate() const;
 };

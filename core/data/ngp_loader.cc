@@ -15,6 +15,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/data/dataset.h"
 #include "core/data/image.h"
+#include "core/data/ply_reader.h"
 #include "core/data/transforms_json.h"
 
 namespace clnerf {
@@ -286,6 +287,19 @@ absl::StatusOr<Scene> LoadNgpScene(const std::string& dir, const DatasetOptions&
       if (absl::Status s = AssignSplits(opts.test_every, &refs); !s.ok()) return s;
     }
     if (absl::Status s = ReadHints(docs.front(), first_file, &scene); !s.ok()) return s;
+    // nerfstudio's point cloud, relative to the JSON, in the JSON's frame.
+    const json& head = docs.front();
+    if (head.contains("ply_file_path")) {
+      if (!head["ply_file_path"].is_string()) {
+        return absl::InvalidArgumentError(absl::StrCat(first_file, ": field 'ply_file_path' must be a string"));
+      }
+      const fs::path ply = fs::path(first_file).parent_path() / head["ply_file_path"].get<std::string>();
+      absl::StatusOr<std::vector<Eigen::Vector3f>> pts = ReadPlyPoints(ply.string());
+      if (!pts.ok()) {
+        return absl::InvalidArgumentError(absl::StrCat(first_file, ": 'ply_file_path': ", pts.status().message()));
+      }
+      scene.sparse_points = *std::move(pts);
+    }
 
     std::vector<View>* outs[3] = {&scene.train, &scene.val, &scene.test};
     for (const FrameRef& ref : refs) {

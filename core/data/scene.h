@@ -11,6 +11,7 @@
 #ifndef CLNERF_CORE_DATA_SCENE_H_
 #define CLNERF_CORE_DATA_SCENE_H_
 
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -21,11 +22,20 @@
 
 namespace clnerf {
 
+// A pixel of a view whose ray meets a known world point (a sparse 3-D point
+// the view sees): the target of sparse-depth supervision (sparse_depth.h).
+struct DepthPoint {
+  uint32_t pixel = 0;  // y * width + x.
+  Eigen::Vector3f world = Eigen::Vector3f::Zero();
+};
+
 struct View {
   std::string name;  // File stem or path relative to the dataset root.
   Camera camera;
   Image image;       // May be empty for camera-only views (replay memory).
   Mask mask;         // Optional; empty means "use every pixel".
+  // Pixels with a known depth (AttachSparseDepth); empty for most captures.
+  std::vector<DepthPoint> depth;
 };
 
 // Shrinks `view` by `factor` (>= 1), as the loaders do. The new size is
@@ -72,6 +82,10 @@ struct Scene {
   // (so every format of a capture gives one box) and falls back to these
   // when the images match nothing.
   std::vector<Eigen::Vector3f> content_points;
+  // Measured world points on the content, for sparse-depth supervision:
+  // COLMAP's points3D, a transforms.json's `ply_file_path` cloud, or an
+  // upload's point cloud. Unlike content_points, never synthetic.
+  std::vector<Eigen::Vector3f> sparse_points;
 
   int num_time_steps() const;  // 1 + max time step over all views (0 if none).
 };

@@ -1,5 +1,6 @@
 #include "core/render/volume_rendering.h"
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -79,6 +80,12 @@ float DistortionLoss(const float* dt, const float* weights, const float* mid, co
     Wl += wi;
     WMl += wi * mi;
   }
+  WeightsToSigmaGradient(dt, weights, g.data(), used, scale, d_sigma);
+  return float(loss);
+}
+
+void WeightsToSigmaGradient(const float* dt, const float* weights, const float* g, int used, float scale,
+                            float* d_sigma) {
   // dw_i/dsigma_k = dt_k (T_{k+1} [i == k] - w_i [i > k]), T_{k+1} = T_k - w_k.
   double suffix = 0;  // sum_{i > k} g_i w_i
   // Transmittances front to back.
@@ -90,6 +97,24 @@ float DistortionLoss(const float* dt, const float* weights, const float* mid, co
     d_sigma[k] += scale * float(dt[k] * (g[k] * T[k + 1] - suffix));
     suffix += double(g[k]) * weights[k];
   }
+}
+
+float SparseDepthLoss(const float* dt, const float* weights, const float* mid, int used, float depth, float sigma,
+                      float scale, float* d_sigma) {
+  if (used <= 0 || !(depth > 0.0f)) return 0.0f;
+  const float s = sigma * std::max(1.0f, depth);
+  const float inv2s2 = 0.5f / (s * s);
+  thread_local std::vector<float> g;
+  g.resize(used);
+  double loss = 0;
+  for (int i = 0; i < used; ++i) {
+    const float e = mid[i] - depth;
+    const float k = std::exp(-e * e * inv2s2) * dt[i];
+    const float w = weights[i] + kSparseDepthEps;
+    loss += -double(std::log(w)) * k;
+    g[i] = -k / w;
+  }
+  WeightsToSigmaGradient(dt, weights, g.data(), used, scale, d_sigma);
   return float(loss);
 }
 

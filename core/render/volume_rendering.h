@@ -40,6 +40,23 @@ void CompositeBackward(const float* sigma, const float* dt, const float* rgb, co
 float DistortionLoss(const float* dt, const float* weights, const float* mid, const float* width, int used,
                      float scale, float* d_sigma);
 
+// Sparse-depth loss of one ray with a known surface at ray distance `depth`
+// (DS-NeRF's ray-distribution loss, in nerfstudio depth-nerfacto's form):
+//   L = sum_i -log(w_i + eps) exp(-(m_i - depth)^2 / (2 s^2)) dt_i,
+// with m_i each sample's ray distance and s = sigma * max(1, depth) (sample
+// spacing grows with distance in contracted space). It rewards weight near
+// the known depth and nothing else. eps = kSparseDepthEps. Returns L and adds
+// scale * dL/dsigma_i to d_sigma.
+inline constexpr float kSparseDepthEps = 1e-4f;
+float SparseDepthLoss(const float* dt, const float* weights, const float* mid, int used, float depth, float sigma,
+                      float scale, float* d_sigma);
+
+// Adds scale * sum_i g_i dw_i/dsigma_k to d_sigma[k] for the weights of
+// CompositeWeights (g_i = dL/dw_i): the shared last step of every loss on a
+// ray's weights.
+void WeightsToSigmaGradient(const float* dt, const float* weights, const float* g, int used, float scale,
+                            float* d_sigma);
+
 }  // namespace clnerf
 
 #endif  // CLNERF_CORE_RENDER_VOLUME_RENDERING_H_

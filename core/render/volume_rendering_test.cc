@@ -296,5 +296,84 @@ TEST(DistortionLossTest, OneCompactSurfaceCostsLessThanFog) {
   EXPECT_LT(l_surface, 0.2f * l_fog);
 }
 
+// Sparse-depth loss in double precision from its definition.
+double ReferenceSparseDepth(const std::vector<double>& sigma, const std::vector<float>& dt,
+                            const std::vector<float>& mid, int used, double depth, double sig) {
+  double T = 1.0, l = 0;
+  const double s = sig * std::max(1.0, depth);
+  for (int i = 0; i < used; ++i) {
+    const double a = 1.0 - std::exp(-sigma[i] * dt[i]);
+    const double w = T * a;
+    T *= 1.0 - a;
+    const double e = mid[i] - depth;
+    l += -std::log(w + kSparseDepthEps) * std::exp(-e * e / (2 * s * s)) * dt[i];
+  }
+  return l;
+}
+
+TEST(SparseDepthLossTest, ValueAndGradientMatchCentralDifferences) {
+  std::mt19937_64 rng(12);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (int trial = 0; trial < 6; ++trial) {
+    const int n = 5 + trial * 4;
+    std::vector<float> sigma(n), dt(n), mid(n);
+    float pos = 0.2f;
+    for (int i = 0; i < n; ++i) {
+      sigma[i] = 0.2f + 15.0f * u(rng);
+      dt[i] = 0.02f + 0.08f * u(rng);
+      mid[i] = pos + 0.5f * dt[i];
+      pos += dt[i];
+    }
+    // Depth inside the samples' span, and (trial 5) beyond 1 where the
+    // width grows.
+    const float depth = trial == 5 ? 1.0f + pos : mid[n / 2] + 0.3f * dt[n / 2];
+    for (float& m : mid) m += trial == 5 ? 1.0f : 0.0f;
+    std::vector<float> w(n);
+    float t_final;
+    const int used = CompositeWeights(sigma.data(), dt.data(), n, 0.0f, w.data(), &t_final);
+    std::vector<float> d_sigma(n, 0.25f);  // Accumulates onto what is there.
+    const float scale = 0.6f, sig = 0.1f;
+    const float loss = SparseDepthLoss(dt.data(), w.data(), mid.data(), used, depth, sig, scale, d_sigma.data());
+    std::vector<double> sd(sigma.begin(), sigma.end());
+    const double ref = ReferenceSparseDepth(sd, dt, mid, used, depth, sig);
+    EXPECT_NEAR(loss, ref, 1e-5 + 1e-4 * std::abs(ref));
+    EXPECT_GT(ref, 0.0);
+    for (int i = 0; i < used; ++i) {
+      const double h = 1e-4 * std::max(1.0, sd[i]);
+      const double s0 = sd[i];
+      sd[i] = s0 + h;
+      const double lp = ReferenceSparseDepth(sd, dt, mid, used, depth, sig);
+      sd[i] = s0 - h;
+      const double lm = ReferenceSparseDepth(sd, dt, mid, used, depth, sig);
+      sd[i] = s0;
+      const double fd = scale * (lp - lm) / (2 * h);
+      EXPECT_NEAR(d_sigma[i] - 0.25f, fd, 2e-5 + 2e-3 * std::abs(fd)) << "trial " << trial << " sample " << i;
+    }
+  }
+}
+
+TEST(SparseDepthLossTest, ASurfaceAtTheKnownDepthCostsLessThanOneElsewhere) {
+  const int n = 20;
+  std::vector<float> dt(n, 0.05f), mid(n), w(n), d(n, 0.0f);
+  for (int i = 0; i < n; ++i) mid[i] = 0.5f + 0.05f * i;
+  const float depth = mid[12];
+  float tf;
+  auto loss_with_surface_at = [&](int k) {
+    std::vector<float> sigma(n, 0.0f);
+    sigma[k] = 60.0f;
+    CompositeWeights(sigma.data(), dt.data(), n, 0.0f, w.data(), &tf);
+    // A Gaussian narrower than the sample spacing: DS-NeRF's loss is a KL
+    // divergence, so with a wide one it prefers weight spread over the
+    // Gaussian to a single surface sample.
+    return SparseDepthLoss(dt.data(), w.data(), mid.data(), n, depth, 0.02f, 1.0f, d.data());
+  };
+  EXPECT_LT(loss_with_surface_at(12), 0.5f * loss_with_surface_at(4));
+  EXPECT_LT(loss_with_surface_at(12), 0.5f * loss_with_surface_at(19));
+  // No known depth: no loss, no gradient.
+  std::fill(d.begin(), d.end(), 0.0f);
+  EXPECT_EQ(SparseDepthLoss(dt.data(), w.data(), mid.data(), n, 0.0f, 0.05f, 1.0f, d.data()), 0.0f);
+  for (float g : d) EXPECT_EQ(g, 0.0f);
+}
+
 }  // namespace
 }  // namespace clnerf

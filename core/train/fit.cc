@@ -11,6 +11,9 @@ absl::Status FitOptions::Validate() const {
     if (!s.ok()) return s;
   }
   if (curve_every < 0 || curve_views < 1) return absl::InvalidArgumentError("fit: bad curve options");
+  if (!(depth_fraction >= 0.0f && depth_fraction <= 1.0f)) {
+    return absl::InvalidArgumentError("fit: depth_fraction must be in [0, 1]");
+  }
   return absl::OkStatus();
 }
 
@@ -41,8 +44,13 @@ absl::StatusOr<FitResult> FitScene(const Scene& scene, const FitOptions& options
 
   std::vector<const View*> views;
   for (const View& v : scene.train) views.push_back(&v);
-  absl::StatusOr<std::unique_ptr<ImageRaySampler>> sampler = ImageRaySampler::Create(views, *result.model);
+  absl::StatusOr<std::unique_ptr<ImageRaySampler>> sampler =
+      ImageRaySampler::Create(views, *result.model, options.depth_fraction);
   if (!sampler.ok()) return sampler.status();
+  if ((*sampler)->num_depth_pixels() > 0 && options.depth_fraction > 0) {
+    spdlog::info("sparse depth: {} pixels with a known depth; {:.0f}% of each batch, weight {:g}",
+                 (*sampler)->num_depth_pixels(), 100.0 * options.depth_fraction, options.train.depth_weight);
+  }
   Trainer trainer(result.model.get(), sampler->get(), options.train);
 
   const std::vector<View>& held_out = scene.test.empty() ? scene.val : scene.test;

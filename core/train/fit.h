@@ -15,6 +15,7 @@
 #include "core/field/capacity.h"
 #include "core/field/ngp_model.h"
 #include "core/data/scene.h"
+#include "core/train/ray_sampler.h"
 #include "core/train/trainer.h"
 
 namespace clnerf {
@@ -28,6 +29,9 @@ struct FitOptions {
   CapacityOverrides overrides;
   int curve_every = 0;            // Evaluate held-out views every N steps (0 = never).
   int curve_views = 8;            // Held-out views used for each curve point.
+  // Share of each batch drawn from sparse-depth pixels when the views have
+  // any (ImageRaySampler); 0 turns sparse-depth supervision off.
+  float depth_fraction = ImageRaySampler::kDefaultDepthFraction;
   absl::Status Validate() const;
 };
 

@@ -2,6 +2,7 @@
 
 #include <omp.h>
 
+#include <cmath>
 #include <memory>
 
 #include "absl/strings/str_cat.h"
@@ -15,6 +16,7 @@ void RayBatch::Resize(int n) {
   time_step.resize(n);
   weight.resize(n);
   robust.assign(n, 0);
+  depth.assign(n, 0.0f);
 }
 
 void PixelRay(const Camera& cam, uint32_t pixel, float* origin, float* dir) {
@@ -28,10 +30,31 @@ void PixelRay(const Camera& cam, uint32_t pixel, float* origin, float* dir) {
   }
 }
 
+void SparseDepthTargets(const Camera& model_camera, const Normalization& norm, const std::vector<DepthPoint>& depth,
+                        std::vector<uint32_t>* pixels, std::vector<float>* t) {
+  const uint32_t npix = uint32_t(model_camera.intrinsics.width) * uint32_t(model_camera.intrinsics.height);
+  for (const DepthPoint& d : depth) {
+    if (d.pixel >= npix) continue;
+    float o[3], dir[3];
+    PixelRay(model_camera, d.pixel, o, dir);
+    const Eigen::Vector3f x = norm.ToModel(d.world);
+    const float dist = (x - Eigen::Map<const Eigen::Vector3f>(o)).dot(Eigen::Map<const Eigen::Vector3f>(dir));
+    if (!(dist > 0.0f) || !std::isfinite(dist)) continue;
+    pixels->push_back(d.pixel);
+    t->push_back(dist);
+  }
+}
+
 absl::StatusOr<std::unique_ptr<ImageRaySampler>> ImageRaySampler::Create(const std::vector<const View*>& views,
-                                                                         const NgpModel& model) {
+                                                                         const NgpModel& model,
+                                                                         float depth_fraction) {
   if (views.empty()) return absl::InvalidArgumentError("no training views");
+  if (!(depth_fraction >= 0.0f && depth_fraction <= 1.0f)) {
+    return absl::InvalidArgumentError("depth_fraction must be in [0, 1]");
+  }
   std::unique_ptr<ImageRaySampler> s(new ImageRaySampler());
+  s->depth_fraction_ = depth_fraction;
+  const Normalization& norm = model.normalization();
   for (const View* v : views) {
     if (v->image.empty()) return absl::InvalidArgumentError(absl::StrCat("view '", v->name, "' has no image"));
     s->views_.push_back(v);
@@ -44,6 +67,13 @@ absl::StatusOr<std::unique_ptr<ImageRaySampler>> ImageRaySampler::Create(const s
       if (valid.empty()) return absl::InvalidArgumentError(absl::StrCat("view '", v->name, "' is fully masked"));
     }
     s->valid_.push_back(std::move(valid));
+    std::vector<uint32_t> dpix;
+    std::vector<float> dt;
+    SparseDepthTargets(s->cameras_.back(), norm, v->depth, &dpix, &dt);
+    if (!dpix.empty()) s->depth_views_.push_back(int(s->views_.size()) - 1);
+    s->num_depth_pixels_ += (long long)dpix.size();
+    s->depth_pixel_.push_back(std::move(dpix));
+    s->depth_t_.push_back(std::move(dt));
   }
   return s;
 }
@@ -52,16 +82,25 @@ void ImageRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
   out->Resize(n);
   const uint64_t base = (*rng)();
   const int nviews = int(views_.size());
+  const int ndepth = depth_views_.empty() ? 0 : int(std::lround(depth_fraction_ * n));
 #pragma omp parallel
   {
     std::mt19937_64 r(base + 0x9E3779B97F4A7C15ull * (omp_get_thread_num() + 1));
 #pragma omp for schedule(static)
     for (int i = 0; i < n; ++i) {
-      const int v = int(r() % uint64_t(nviews));
+      int v;
+      uint32_t pixel;
+      if (i < ndepth) {  // A sparse-depth pixel.
+        v = depth_views_[r() % depth_views_.size()];
+        const size_t k = r() % depth_pixel_[v].size();
+        pixel = depth_pixel_[v][k];
+        out->depth[i] = depth_t_[v][k];
+      } else {
+        v = int(r() % uint64_t(nviews));
+        const std::vector<uint32_t>& valid = valid_[v];
+        pixel = valid.empty() ? uint32_t(r() % views_[v]->image.num_pixels()) : valid[r() % valid.size()];
+      }
       const View& view = *views_[v];
-      const std::vector<uint32_t>& valid = valid_[v];
-      const uint32_t pixel = valid.empty() ? uint32_t(r() % view.image.num_pixels())
-                                           : valid[r() % valid.size()];
       PixelRay(cameras_[v], pixel, &out->origin[3 * size_t(i)], &out->dir[3 * size_t(i)]);
       const float* px = view.image.rgb.data() + size_t(pixel) * 3;
       out->target[3 * size_t(i)] = px[0];

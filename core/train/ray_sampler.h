@@ -28,6 +28,9 @@ struct RayBatch {
   std::vector<int> time_step;  // n.
   std::vector<float> weight;   // n, loss weight (1 for plain training).
   std::vector<uint8_t> robust; // n, 1 = Charbonnier loss sqrt(e^2 + 1e-6) instead of MSE.
+  // n, the ray distance (model units) to a known surface point on this ray,
+  // or 0 when none (sparse-depth supervision; TrainOptions::depth_weight).
+  std::vector<float> depth;
   int size() const { return int(time_step.size()); }
   void Resize(int n);
 };
@@ -44,13 +47,25 @@ class RaySampler {
   virtual std::vector<Camera> Cameras() const = 0;
 };
 
-// Uniform over views, then over each view's unmasked pixels. Holds pointers
-// into `views`, which must outlive the sampler.
+// Uniform over views, then over each view's unmasked pixels. When views
+// carry sparse depth (View::depth), a fraction `depth_fraction` of each batch
+// is drawn from those pixels instead (uniform over such views, then over
+// their depth pixels) and carries RayBatch::depth; these rays are ordinary
+// colour rays too. Holds pointers into `views`, which must outlive the
+// sampler.
 class ImageRaySampler : public RaySampler {
  public:
-  // Fails with INVALID_ARGUMENT when a view has no image or no usable pixel.
+  // DS-NeRF draws a separate depth batch as large as the colour batch; an
+  // eighth of one batch keeps the colour rays' count (measured on flower_4
+  // and beer_2 in docs/sparse_depth.md).
+  static constexpr float kDefaultDepthFraction = 0.125f;
+  // Fails with INVALID_ARGUMENT when a view has no image or no usable pixel,
+  // or depth_fraction is outside [0, 1].
   static absl::StatusOr<std::unique_ptr<ImageRaySampler>> Create(const std::vector<const View*>& views,
-                                                                  const NgpModel& model);
+                                                                  const NgpModel& model,
+                                                                  float depth_fraction = kDefaultDepthFraction);
+  // Depth pixels over all views.
+  long long num_depth_pixels() const { return num_depth_pixels_; }
   void Sample(int n, std::mt19937_64* rng, RayBatch* out) override;
   std::vector<Camera> Cameras() const override { return cameras_; }
 
@@ -59,10 +74,24 @@ class ImageRaySampler : public RaySampler {
   std::vector<const View*> views_;
   std::vector<Camera> cameras_;                 // Model space.
   std::vector<std::vector<uint32_t>> valid_;    // Unmasked pixel ids (empty = all).
+  // Sparse depth: views that have some, and per view its pixels and their
+  // model-space ray distances.
+  float depth_fraction_ = 0.0f;
+  std::vector<int> depth_views_;
+  std::vector<std::vector<uint32_t>> depth_pixel_;
+  std::vector<std::vector<float>> depth_t_;
+  long long num_depth_pixels_ = 0;
 };
 
 // Generates the model-space ray of a pixel of a model-space camera.
 void PixelRay(const Camera& model_camera, uint32_t pixel, float* origin, float* dir);
+
+// Sparse-depth targets of one view: for each depth pixel inside the image,
+// its id (appended to *pixels) and the model-space distance along its pixel
+// ray to the foot of the known point (appended to *t; the point projects
+// into the pixel, not onto its centre). Points behind the camera are skipped.
+void SparseDepthTargets(const Camera& model_camera, const Normalization& norm, const std::vector<DepthPoint>& depth,
+                        std::vector<uint32_t>* pixels, std::vector<float>* t);
 
 }  // namespace clnerf
 

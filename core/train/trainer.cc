@@ -34,6 +34,9 @@ absl::Status TrainOptions::Validate() const {
   if (!(near_density_distance >= 0) || !std::isfinite(near_density_distance)) {
     return absl::InvalidArgumentError("train: near_density_distance must be finite and >= 0");
   }
+  if (!(depth_weight >= 0) || !std::isfinite(depth_weight) || !(depth_sigma > 0) || !std::isfinite(depth_sigma)) {
+    return absl::InvalidArgumentError("train: depth_weight must be finite and >= 0, depth_sigma finite and > 0");
+  }
   if (threads < 0) return absl::InvalidArgumentError("train: threads must be >= 0");
   if (!(interlevel_weight >= 0) || !std::isfinite(interlevel_weight)) {
     return absl::InvalidArgumentError("train: interlevel_weight must be finite and >= 0");
@@ -64,7 +67,7 @@ struct Trainer::ThreadScratch {
   std::vector<uint8_t> ray_alive;
   // Kept samples gathered per ray across waves (gseg: ray offsets).
   std::vector<int> gseg, gwave, gcol;
-  std::vector<float> gsigma, gt, gdt, gw, grgb, gmid, gwidth, gdrgb, gdsigma, t_final;
+  std::vector<float> gsigma, gt, gdt, gw, grgb, gmid, gwidth, gdrgb, gdsigma, t_final, gdepth_mid;
   std::vector<float> grad_mlp, grad_emb;
   std::vector<float> store_pos, store_dfeat;  // For the grid backward phase.
   // Proposal models: placement state, MLP gradients (full proposal layout,
@@ -148,6 +151,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
     near_reg *= std::max(0.0f, 1.0f - float(step_) / (options_.near_density_fade * float(options_.iterations)));
   }
   const float near_dist = options_.near_density_distance;
+  const float depth_w = options_.depth_weight;
 
   const int nblocks = (nrays + kBlockRays - 1) / kBlockRays;
   // Reset every scratch, not only those of the threads that run: the OpenMP
@@ -376,6 +380,15 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
           s.loss += dist_reg * inv_n *
                     DistortionLoss(&s.gdt[a], &s.gw[a], &s.gmid[a], &s.gwidth[a], used, dist_reg * inv_n,
                                    &s.gdsigma[a]);
+        }
+        const float known_depth = batch.depth.empty() ? 0.0f : batch.depth[r];
+        if (depth_w > 0 && known_depth > 0) {
+          // Ray distances of the samples, as for the distortion loss.
+          s.gdepth_mid.resize(used);
+          for (int j = 0; j < used; ++j) s.gdepth_mid[j] = proposals ? s.gt[a + j] : s.gt[a + j] + 0.5f * s.gdt[a + j];
+          s.loss += depth_w * inv_n *
+                    SparseDepthLoss(&s.gdt[a], &s.gw[a], s.gdepth_mid.data(), used, known_depth, options_.depth_sigma,
+                                    depth_w * inv_n, &s.gdsigma[a]);
         }
       }
       // 4b. Interlevel loss: the proposal histograms must cover the full

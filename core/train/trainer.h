@@ -83,6 +83,14 @@ struct TrainOptions {
   // a quarter of `iterations`, at most 1000).
   float interlevel_weight = 1.0f;
   int proposal_anneal_iterations = -1;
+  // Sparse-depth supervision (rays with RayBatch::depth > 0, from a
+  // capture's points; sparse_depth.h): weight of SparseDepthLoss
+  // (volume_rendering.h), averaged over the batch as the colour loss is, and
+  // its Gaussian's width in model units (scaled by the depth beyond 1).
+  // depth-nerfacto's defaults: 1e-3 and a variance of 0.01 (width 0.1).
+  // Without depth rays neither matters.
+  float depth_weight = 1e-3f;
+  float depth_sigma = 0.1f;
   AdamOptions adam;
   uint64_t seed = 0;
   int threads = 0;                // OpenMP threads; 0 = all cores.

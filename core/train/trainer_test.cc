@@ -206,7 +206,7 @@ struct Block {
 // `near_reg` is the occlusion penalty's weight (0: off; `near_distance`
 // its reach); the test then also checks that the term changes the loss.
 void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.0f, float near_distance = 0.2f,
-                       SamplerKind sampler_kind = SamplerKind::kOccupancy) {
+                       SamplerKind sampler_kind = SamplerKind::kOccupancy, float depth_weight = 0.0f) {
   SerialEigen serial;
   NgpModel model = TinyModel(3, 2, contracted ? SceneKind::kUnbounded : SceneKind::kBounded, sampler_kind);
   ModelParams& p = model.mutable_params();
@@ -231,6 +231,8 @@ void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.
   to.opacity_reg = 0.01f;  // Entropy gradient comparable to the MSE one.
   to.near_density_reg = near_reg;
   to.near_density_distance = near_distance;
+  to.depth_weight = depth_weight;
+  to.depth_sigma = 0.2f;
   // The interlevel loss reads the full field's weights as constants (stop
   // gradient, by design): a finite difference of the full field's parameters
   // would see it move, the gradient would not. Its own gradient is checked in
@@ -266,6 +268,11 @@ void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.
       ++n;
     }
     ASSERT_EQ(n, 16);
+    // Sparse depth on every other ray, inside the box (rays start 1.3 from
+    // the centre and aim near it).
+    if (depth_weight > 0) {
+      for (int i = 0; i < n; i += 2) batch.depth[i] = 1.0f + 0.4f * u(rng);
+    }
   }
   if (opaque) {
     EXPECT_GE(terminated, 12);
@@ -299,6 +306,15 @@ void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.
     Trainer::Gradients g0;
     const float l0 = without.ComputeLossAndGradients(batch, jitter, &g0);
     EXPECT_GT(base - l0, 0.1f * base) << "penalty " << base - l0 << " of " << base;
+  }
+  if (depth_weight > 0) {  // So does the sparse-depth loss.
+    TrainOptions off = to;
+    off.depth_weight = 0.0f;
+    NoSampler sampler2;
+    Trainer without(&model, &sampler2, off);
+    Trainer::Gradients g0;
+    const float l0 = without.ComputeLossAndGradients(batch, jitter, &g0);
+    EXPECT_GT(base - l0, 0.1f * base) << "depth loss " << base - l0 << " of " << base;
   }
   const double ulp = double(std::nextafter(base, 1.0f)) - base;
   ASSERT_EQ(grads.grid.size(), p.grid.size());
@@ -405,6 +421,19 @@ TEST(TrainerGradientTest, NearDensityPenaltyMatchesFiniteDifferences) {
 
 TEST(TrainerGradientTest, ContractedSceneWithNearDensityPenaltyMatchesFiniteDifferences) {
   CheckLossGradient(/*opaque=*/false, /*contracted=*/true, /*near_reg=*/0.002f, /*near_distance=*/2.0f);
+}
+
+// Sparse-depth supervision on half the rays, marched and proposal-sampled.
+TEST(TrainerGradientTest, SparseDepthLossMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/false, /*contracted=*/false, 0.0f, 0.2f, SamplerKind::kOccupancy, /*depth_weight=*/2e-3f);
+}
+
+TEST(TrainerGradientTest, ContractedSceneWithSparseDepthLossMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/false, /*contracted=*/true, 0.0f, 0.2f, SamplerKind::kOccupancy, /*depth_weight=*/2e-3f);
+}
+
+TEST(TrainerGradientTest, ProposalSampledSceneWithSparseDepthLossMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/false, /*contracted=*/true, 0.0f, 0.2f, SamplerKind::kProposal, /*depth_weight=*/2e-3f);
 }
 
 // The field evaluator's two callers compute one function: the trainer's
