@@ -55,7 +55,8 @@ void BindFitFlags(CLI::App* c, FitOptions* fo) {
   c->add_option("--depth-sigma", t.depth_sigma, "Sparse-depth loss: Gaussian width in model units")
       ->capture_default_str();
   c->add_option("--depth-fraction", fo->depth_fraction,
-                "Share of each batch drawn from pixels with a known depth (0 = no depth supervision)")
+                "Share of each batch drawn from pixels with a known depth: sparse-depth supervision from the "
+                "capture's points, e.g. 0.125 (0 = off; docs/sparse_depth.md)")
       ->capture_default_str();
   c->add_flag("!--no-embed", fo->model.network.use_embeddings, "Disable per-time-step embeddings");
 }
@@ -70,6 +71,8 @@ void BindDatasetFlags(CLI::App* c, DatasetOptions* d) {
   c->add_option("--max-images", d->max_images_per_split, "Keep at most this many views per split (0 = all)")
       ->capture_default_str();
   c->add_flag("--ngp-bounded", d->ngp_bounded, "transforms.json: a bounded object scene (white background)");
+  c->add_flag("--depth-from-images", d->sparse_depth_from_images,
+              "Real captures without points: sparse depth from the images' own plane-sweep matches");
   c->add_flag("!--no-sparse-depth", d->sparse_depth,
               "Do not attach depth targets from the capture's points (COLMAP points3D, ply_file_path)");
 }

@@ -68,8 +68,9 @@ struct UpdateOptions {
   // scan of step t gets only 1/(t+1) of the rays.
   float new_scan_share = 0.0f;
   // Share of each batch drawn from the new scan's sparse-depth pixels when
-  // it has any (an upload's point cloud; sparse_depth.h). 0 = off.
-  float depth_fraction = ImageRaySampler::kDefaultDepthFraction;
+  // it has any (an upload's point cloud; sparse_depth.h), as
+  // FitOptions::depth_fraction. 0 = off.
+  float depth_fraction = 0.125f;
   // Warm start: the new time step's embeddings start as a copy of the last
   // step's (true) or from random values like a fresh model's (false).
   bool copy_embedding = false;

@@ -10,6 +10,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/data/blender_loader.h"
 #include "core/data/colmap_loader.h"
+#include "core/data/content_sweep.h"
 #include "core/data/image.h"
 #include "core/data/llff_loader.h"
 #include "core/data/ngp_loader.h"
@@ -111,6 +112,11 @@ absl::StatusOr<Scene> LoadScene(const std::string& dir, const DatasetOptions& op
   if (absl::Status s = ValidateScene(*scene); !s.ok()) {
     return absl::InvalidArgumentError(
         absl::StrCat(dir, " (", DatasetFormatName(*format), "): ", s.message()));
+  }
+  if (opts.sparse_depth && opts.load_images && scene->sparse_points.empty() && opts.sparse_depth_from_images &&
+      scene->kind == SceneKind::kUnbounded) {
+    // No measured points: the plane sweep's matches stand in for them.
+    scene->sparse_points = EstimateContentPoints(scene->train);
   }
   if (opts.sparse_depth && opts.load_images && !scene->sparse_points.empty()) {
     AttachSparseDepth(scene->sparse_points, SparseDepthOptions(), &scene->train);

@@ -34,6 +34,9 @@ struct DatasetOptions {
   // capture's measured points (COLMAP points3D, a transforms.json's
   // ply_file_path) when it has any; see sparse_depth.h.
   bool sparse_depth = true;
+  // Real captures without points: use the content sweep's matches
+  // (content_sweep.h) as the points.
+  bool sparse_depth_from_images = false;
 
   absl::Status Validate() const;
 };

@@ -30,8 +30,9 @@ struct FitOptions {
   int curve_every = 0;            // Evaluate held-out views every N steps (0 = never).
   int curve_views = 8;            // Held-out views used for each curve point.
   // Share of each batch drawn from sparse-depth pixels when the views have
-  // any (ImageRaySampler); 0 turns sparse-depth supervision off.
-  float depth_fraction = ImageRaySampler::kDefaultDepthFraction;
+  // any (ImageRaySampler); 0 = no sparse-depth supervision. Views without
+  // depth targets are unaffected. Measured in docs/sparse_depth.md.
+  float depth_fraction = 0.125f;
   absl::Status Validate() const;
 };
 

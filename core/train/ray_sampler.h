@@ -55,15 +55,10 @@ class RaySampler {
 // sampler.
 class ImageRaySampler : public RaySampler {
  public:
-  // DS-NeRF draws a separate depth batch as large as the colour batch; an
-  // eighth of one batch keeps the colour rays' count (measured on flower_4
-  // and beer_2 in docs/sparse_depth.md).
-  static constexpr float kDefaultDepthFraction = 0.125f;
   // Fails with INVALID_ARGUMENT when a view has no image or no usable pixel,
-  // or depth_fraction is outside [0, 1].
+  // or depth_fraction is outside [0, 1]. 0 = no depth rays.
   static absl::StatusOr<std::unique_ptr<ImageRaySampler>> Create(const std::vector<const View*>& views,
-                                                                  const NgpModel& model,
-                                                                  float depth_fraction = kDefaultDepthFraction);
+                                                                  const NgpModel& model, float depth_fraction = 0.0f);
   // Depth pixels over all views.
   long long num_depth_pixels() const { return num_depth_pixels_; }
   void Sample(int n, std::mt19937_64* rng, RayBatch* out) override;
