@@ -34,12 +34,18 @@ TEST(ServerOptionsTest, BadConfigIsRejectedWithTheKey) {
   EXPECT_EQ(ApplyConfigJson(R"({"sampler": "grid"})", &o).code(), absl::StatusCode::kInvalidArgument);
   ASSERT_TRUE(ApplyConfigJson(R"({"sampler": "proposal"})", &o).ok());
   EXPECT_EQ(o.update.model.sampler, SamplerKind::kProposal);
+  EXPECT_EQ(o.update.depth_fraction, 0.125f);
+  ASSERT_TRUE(ApplyConfigJson(R"({"depth_fraction": 0})", &o).ok());
+  EXPECT_EQ(o.update.depth_fraction, 0.0f);
   EXPECT_EQ(ApplyConfigFile("/nonexistent/server.json", &o).code(), absl::StatusCode::kNotFound);
   ServerOptions bad;
   bad.max_queue = 0;
   EXPECT_FALSE(bad.Validate().ok());
   bad = ServerOptions();
   bad.tls_cert = "cert.pem";
+  EXPECT_FALSE(bad.Validate().ok());
+  bad = ServerOptions();
+  bad.update.depth_fraction = 1.5f;
   EXPECT_FALSE(bad.Validate().ok());
   bad = ServerOptions();
   bad.update.method = ContinualMethod::kEWC;
