@@ -58,6 +58,15 @@ void BindFitFlags(CLI::App* c, FitOptions* fo) {
                 "Share of each batch drawn from pixels with a known depth: sparse-depth supervision from the "
                 "capture's points, e.g. 0.125 (0 = off; docs/sparse_depth.md)")
       ->capture_default_str();
+  c->add_flag("--view-colour,!--no-view-colour", t.view_colour,
+              "Per-photo affine colour transforms learned in training (exposure / white balance; test views use "
+              "the identity; docs/appearance.md)")
+      ->capture_default_str();
+  c->add_option("--view-colour-prior", t.view_colour_prior, "Weight of the per-photo colour transforms' identity prior")
+      ->capture_default_str();
+  c->add_option("--view-colour-lr", t.view_colour_lr_scale,
+                "Learning-rate scale of the per-photo colour transforms")
+      ->capture_default_str();
   c->add_flag("!--no-embed", fo->model.network.use_embeddings, "Disable per-time-step embeddings");
 }
 

@@ -37,6 +37,10 @@ TEST(ServerOptionsTest, BadConfigIsRejectedWithTheKey) {
   EXPECT_EQ(o.update.depth_fraction, 0.125f);
   ASSERT_TRUE(ApplyConfigJson(R"({"depth_fraction": 0})", &o).ok());
   EXPECT_EQ(o.update.depth_fraction, 0.0f);
+  EXPECT_FALSE(o.update.train.view_colour);
+  ASSERT_TRUE(ApplyConfigJson(R"({"view_colour": true})", &o).ok());
+  EXPECT_TRUE(o.update.train.view_colour);
+  EXPECT_EQ(ApplyConfigJson(R"({"view_colour": "yes"})", &o).code(), absl::StatusCode::kInvalidArgument);
   EXPECT_EQ(ApplyConfigFile("/nonexistent/server.json", &o).code(), absl::StatusCode::kNotFound);
   ServerOptions bad;
   bad.max_queue = 0;

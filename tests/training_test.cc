@@ -1,10 +1,13 @@
 // End-to-end: a tiny procedural scene trained for a few hundred steps must
 // clear a PSNR bar well above the constant-colour baseline, renders must be
 // finite, and a run must be reproducible with a fixed seed.
+#include <algorithm>
 #include <cmath>
+#include <cstdio>
 
 #include "core/render/evaluate.h"
 #include "core/train/fit.h"
+#include "core/train/view_colour.h"
 #include "core/render/metrics.h"
 #include "core/data/procedural_scene.h"
 #include "gtest/gtest.h"
@@ -99,6 +102,62 @@ TEST(TrainingTest, CapacityOverridesWinOverTheDerivedSizes) {
   fo.overrides.log2_table_size.reset();
   fo.overrides.occupancy_threshold = 0.0f;  // Not "derive": refused.
   EXPECT_EQ(FitScene(scene, fo, nullptr).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+// Per-view colour transforms (TrainOptions::view_colour, default settings):
+// training photos whose exposure varies (gains 0.8 .. 1.2 by view, test
+// photos at 1) get transforms whose gains follow the applied ones. Measured
+// on this scene: correlation 0.91, and test PSNR 20.37 dB against 20.17
+// without transforms. The field still absorbs much of each photo's exposure
+// through its view-dependent colour (the learned gains span only
+// 0.95 .. 1.00), which is why the gain in PSNR is small; docs/appearance.md.
+// A transform indexed by the wrong view gives a correlation near 0, one
+// with its gradient's sign flipped a negative one.
+TEST(TrainingTest, ViewColourTransformsAbsorbPerPhotoExposure) {
+  Scene scene = TinyScene();
+  std::vector<double> gains;
+  for (size_t v = 0; v < scene.train.size(); ++v) {
+    const double g = 0.8 + 0.1 * double(v % 5);
+    gains.push_back(g);
+    for (float& x : scene.train[v].image.rgb) x = std::min(1.0f, float(g * x));
+  }
+  FitOptions fo = TinyFit(300);
+  absl::StatusOr<FitResult> plain = FitScene(scene, fo, nullptr);
+  ASSERT_TRUE(plain.ok()) << plain.status();
+  EXPECT_TRUE(plain->view_colours.empty());
+  fo.train.view_colour = true;
+  absl::StatusOr<FitResult> fit = FitScene(scene, fo, nullptr);
+  ASSERT_TRUE(fit.ok()) << fit.status();
+  ASSERT_EQ(fit->view_colours.size(), scene.train.size() * kViewColourParams);
+  // Correlation of the learned mean diagonal gain with the applied gain.
+  std::vector<double> learned;
+  for (size_t v = 0; v < scene.train.size(); ++v) {
+    const float* p = &fit->view_colours[v * kViewColourParams];
+    learned.push_back((p[0] + p[4] + p[8]) / 3.0);
+  }
+  double ma = 0, mb = 0;
+  for (size_t v = 0; v < gains.size(); ++v) {
+    ma += gains[v] / gains.size();
+    mb += learned[v] / gains.size();
+  }
+  double sab = 0, saa = 0, sbb = 0;
+  for (size_t v = 0; v < gains.size(); ++v) {
+    sab += (gains[v] - ma) * (learned[v] - mb);
+    saa += (gains[v] - ma) * (gains[v] - ma);
+    sbb += (learned[v] - mb) * (learned[v] - mb);
+  }
+  const double corr = sab / std::sqrt(saa * sbb + 1e-30);
+  absl::StatusOr<EvalResult> with = EvaluateViews(*fit->model, scene.test, {});
+  absl::StatusOr<EvalResult> without = EvaluateViews(*plain->model, scene.test, {});
+  ASSERT_TRUE(with.ok() && without.ok());
+  RecordProperty("gain_correlation", std::to_string(corr));
+  RecordProperty("psnr_with", std::to_string(with->psnr));
+  RecordProperty("psnr_without", std::to_string(without->psnr));
+  std::printf("gain correlation %.3f (learned %.3f .. %.3f); test PSNR %.2f with transforms, %.2f without\n", corr,
+              *std::min_element(learned.begin(), learned.end()), *std::max_element(learned.begin(), learned.end()),
+              with->psnr, without->psnr);
+  EXPECT_GT(corr, 0.6);
+  EXPECT_GT(with->psnr, without->psnr - 0.5);  // Not a regression on photos of one exposure.
 }
 
 }  // namespace

@@ -48,6 +48,7 @@ void ContinualRaySampler::FillRay(int v, std::mt19937_64& r, RayBatch* out, int 
   out->time_step[i] = view.camera.time_step;
   out->weight[i] = 1.0f;
   out->robust[i] = 0;
+  out->view[i] = view.replay ? -1 : v;  // Photos (new scan, buffered) have their own colour transform.
   if (view.image != nullptr) {
     const float* px = view.image->rgb.data() + size_t(pixel) * 3;
     for (int c = 0; c < 3; ++c) out->target[3 * size_t(i) + c] = px[c];

@@ -43,6 +43,8 @@ class ContinualRaySampler : public RaySampler {
                       float meil_new_fraction, float new_share = 0.0f, float depth_fraction = 0.0f);
   void Sample(int n, std::mt19937_64* rng, RayBatch* out) override;
   std::vector<Camera> Cameras() const override { return model_cameras_; }
+  // RayBatch::view indexes `views` (photos only; replay rays carry -1).
+  int NumPhotoViews() const override { return int(views_.size()); }
   // Pixels with a sparse-depth target over all views.
   long long num_depth_pixels() const {
     long long n = 0;

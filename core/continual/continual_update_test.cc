@@ -133,6 +133,7 @@ TEST(ContinualUpdateTest, ReplayLabelsAreThePreviousModelsRenders) {
     // kernels (e.g. AVX-512 FP16 paths on Intel), so the property is
     // equality to float precision, not bit equality.
     for (int c = 0; c < 3; ++c) EXPECT_NEAR(b.target[3 * i + c], rgb[c], 1e-6f) << "ray " << i;
+    EXPECT_EQ(b.view[i], -1) << "a replay ray has no photo (and no colour transform)";
   }
   // Offline: the cached label of a view is RenderView's image of it, so a
   // sampled pixel equals the same pixel of RenderView.
@@ -174,7 +175,12 @@ TEST(ContinualUpdateTest, NewScanShareSplitsTheBatch) {
     RayBatch b;
     sampler.Sample(4000, &rng, &b);
     int cur = 0;
-    for (int i = 0; i < b.size(); ++i) cur += b.time_step[i] == 1;
+    for (int i = 0; i < b.size(); ++i) {
+      cur += b.time_step[i] == 1;
+      // Photos name their view (view 0 is the current one).
+      EXPECT_EQ(b.view[i] == 0, b.time_step[i] == 1) << i;
+      EXPECT_GE(b.view[i], 0);
+    }
     return double(cur) / b.size();
   };
   EXPECT_NEAR(current_fraction(0.5f), 0.5, 1e-3);    // Exactly round(n * share) rays.

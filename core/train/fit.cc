@@ -1,7 +1,10 @@
 #include "core/train/fit.h"
 
+#include <algorithm>
+
 #include "core/render/evaluate.h"
 #include "core/train/ray_sampler.h"
+#include "core/train/view_colour.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {
@@ -71,6 +74,18 @@ absl::StatusOr<FitResult> FitScene(const Scene& scene, const FitOptions& options
   result.train_seconds = trainer.total_seconds();
   result.samples = trainer.total_samples();
   result.skipped_batches = trainer.skipped_batches();
+  result.view_colours = trainer.view_colours();
+  if (!result.view_colours.empty()) {  // How far the photos' exposures spread.
+    float lo = 1e9f, hi = -1e9f;
+    for (size_t v = 0; v < result.view_colours.size(); v += kViewColourParams) {
+      const float* p = &result.view_colours[v];
+      const float gain = (p[0] + p[4] + p[8]) / 3.0f;
+      lo = std::min(lo, gain);
+      hi = std::max(hi, gain);
+    }
+    spdlog::info("per-photo colour transforms: {} photos, mean gain {:.3f} .. {:.3f}",
+                 result.view_colours.size() / kViewColourParams, lo, hi);
+  }
   result.samples_per_second = result.train_seconds > 0 ? result.samples / result.train_seconds : 0;
   result.composited_samples_per_second =
       result.train_seconds > 0 ? trainer.total_composited() / result.train_seconds : 0;

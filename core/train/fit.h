@@ -52,6 +52,10 @@ struct FitResult {
   double composited_samples_per_second = 0;  // Samples through colour MLP + full backward.
   double rays_per_second = 0;
   int skipped_batches = 0;    // NaN/Inf batches the trainer skipped.
+  // Per-view colour transforms learned for the training views, in the order
+  // of Scene::train (12 each, view_colour.h); empty unless
+  // TrainOptions::view_colour.
+  std::vector<float> view_colours;
   std::vector<CurvePoint> curve;
 };
 

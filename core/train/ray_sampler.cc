@@ -17,6 +17,7 @@ void RayBatch::Resize(int n) {
   weight.resize(n);
   robust.assign(n, 0);
   depth.assign(n, 0.0f);
+  view.assign(n, -1);
 }
 
 void PixelRay(const Camera& cam, uint32_t pixel, float* origin, float* dir) {
@@ -108,6 +109,7 @@ void ImageRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
       out->target[3 * size_t(i) + 2] = px[2];
       out->time_step[i] = view.camera.time_step;
       out->weight[i] = 1.0f;
+      out->view[i] = v;
     }
   }
 }

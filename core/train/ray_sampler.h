@@ -31,6 +31,10 @@ struct RayBatch {
   // n, the ray distance (model units) to a known surface point on this ray,
   // or 0 when none (sparse-depth supervision; TrainOptions::depth_weight).
   std::vector<float> depth;
+  // n, the index of the photo this ray's target comes from (for its
+  // per-view colour transform, view_colour.h), in [0, RaySampler::
+  // NumPhotoViews()); -1 = none (replay labels, or a sampler without them).
+  std::vector<int> view;
   int size() const { return int(time_step.size()); }
   void Resize(int n);
 };
@@ -45,6 +49,8 @@ class RaySampler {
   // Model-space cameras of every view the sampler draws from (for the
   // occupancy grid's visibility mask).
   virtual std::vector<Camera> Cameras() const = 0;
+  // How many photos RayBatch::view indexes (0 = the sampler sets none).
+  virtual int NumPhotoViews() const { return 0; }
 };
 
 // Uniform over views, then over each view's unmasked pixels. When views
@@ -63,6 +69,8 @@ class ImageRaySampler : public RaySampler {
   long long num_depth_pixels() const { return num_depth_pixels_; }
   void Sample(int n, std::mt19937_64* rng, RayBatch* out) override;
   std::vector<Camera> Cameras() const override { return cameras_; }
+  // Every view is a photo; RayBatch::view is its index in `views`.
+  int NumPhotoViews() const override { return int(views_.size()); }
 
  private:
   ImageRaySampler() = default;

@@ -75,5 +75,31 @@ TEST(RaySamplerTest, DepthRaysCarryTheDistanceToTheirPoint) {
   EXPECT_FALSE(ImageRaySampler::Create({&plain[0]}, model, 1.5f).ok());
 }
 
+// Every ray names the photo it came from (RayBatch::view, for that photo's
+// colour transform): three views of constant, distinct colours.
+TEST(RaySamplerTest, RaysNameTheirPhoto) {
+  std::vector<Eigen::Vector3f> unused;
+  std::vector<View> views(3, PlaneView(&unused));
+  for (int v = 0; v < 3; ++v) {
+    for (size_t i = 0; i < views[v].image.rgb.size(); ++i) views[v].image.rgb[i] = 0.25f * float(v + 1);
+  }
+  std::vector<const View*> ptrs = {&views[0], &views[1], &views[2]};
+  NgpModel model = SmallModel();
+  auto sampler = ImageRaySampler::Create(ptrs, model);
+  ASSERT_TRUE(sampler.ok()) << sampler.status();
+  EXPECT_EQ((*sampler)->NumPhotoViews(), 3);
+  RayBatch b;
+  std::mt19937_64 rng(2);
+  (*sampler)->Sample(600, &rng, &b);
+  int seen[3] = {0, 0, 0};
+  for (int i = 0; i < b.size(); ++i) {
+    ASSERT_GE(b.view[i], 0);
+    ASSERT_LT(b.view[i], 3);
+    ++seen[b.view[i]];
+    EXPECT_EQ(b.target[3 * size_t(i)], 0.25f * float(b.view[i] + 1)) << i;
+  }
+  for (int v = 0; v < 3; ++v) EXPECT_GT(seen[v], 100) << v;
+}
+
 }  // namespace
 }  // namespace clnerf

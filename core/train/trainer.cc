@@ -11,6 +11,7 @@
 #include "core/field/field.h"
 #include "core/field/proposal_sampler.h"
 #include "core/render/volume_rendering.h"
+#include "core/train/view_colour.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {
@@ -36,6 +37,10 @@ absl::Status TrainOptions::Validate() const {
   }
   if (!(depth_weight >= 0) || !std::isfinite(depth_weight) || !(depth_sigma > 0) || !std::isfinite(depth_sigma)) {
     return absl::InvalidArgumentError("train: depth_weight must be finite and >= 0, depth_sigma finite and > 0");
+  }
+  if (!(view_colour_prior >= 0) || !std::isfinite(view_colour_prior) || !(view_colour_lr_scale > 0) ||
+      !std::isfinite(view_colour_lr_scale)) {
+    return absl::InvalidArgumentError("train: view_colour_prior must be finite and >= 0, view_colour_lr_scale finite and > 0");
   }
   if (threads < 0) return absl::InvalidArgumentError("train: threads must be >= 0");
   if (!(interlevel_weight >= 0) || !std::isfinite(interlevel_weight)) {
@@ -68,7 +73,7 @@ struct Trainer::ThreadScratch {
   // Kept samples gathered per ray across waves (gseg: ray offsets).
   std::vector<int> gseg, gwave, gcol;
   std::vector<float> gsigma, gt, gdt, gw, grgb, gmid, gwidth, gdrgb, gdsigma, t_final, gdepth_mid;
-  std::vector<float> grad_mlp, grad_emb;
+  std::vector<float> grad_mlp, grad_emb, grad_view_colour;
   std::vector<float> store_pos, store_dfeat;  // For the grid backward phase.
   // Proposal models: placement state, MLP gradients (full proposal layout,
   // only the MLP ranges used), grid-backward store, per-ray used counts.
@@ -111,6 +116,11 @@ Trainer::Trainer(NgpModel* model, RaySampler* sampler, const TrainOptions& optio
   adam_.ResizeBlock(2, model->params().emb.size());
   adam_.ResizeBlock(3, model->params().proposal.size());
   grad_prop_.assign(model->params().proposal.size(), 0.0f);
+  if (options.view_colour && sampler->NumPhotoViews() > 0) {
+    view_colour_ = IdentityViewColours(sampler->NumPhotoViews());
+    grad_view_colour_.assign(view_colour_.size(), 0.0f);
+    adam_.ResizeBlock(4, view_colour_.size());
+  }
   for (int i = 0; i < threads_; ++i) scratch_.push_back(std::make_unique<ThreadScratch>());
   model->mutable_occupancy().MarkInvisible(sampler->Cameras(), model->options().march.near);
 }
@@ -161,6 +171,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
     ThreadScratch& s = *sp;
     s.grad_mlp.assign(model.params().mlp.size(), 0.0f);
     s.grad_emb.assign(model.params().emb.size(), 0.0f);
+    s.grad_view_colour.assign(view_colour_.size(), 0.0f);
     s.store_pos.clear();
     s.store_dfeat.clear();
     if (model.uses_proposals()) {
@@ -330,6 +341,11 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         float c[3];
         const float* bgr = ray_bg ? &ray_bg[3 * size_t(r)] : bg.data();
         CompositeColour(&s.gw[a], rgb, used, s.t_final[i], bgr, c);
+        // The photo's own colour transform (view_colour.h), if it has one.
+        const int pv = view_colour_.empty() || batch.view.empty() ? -1 : batch.view[r];
+        const float* vc = pv >= 0 ? &view_colour_[size_t(pv) * kViewColourParams] : nullptr;
+        float c_field[3] = {c[0], c[1], c[2]};
+        if (vc != nullptr) ApplyViewColour(vc, c_field, c);
         const float* gt = &batch.target[3 * size_t(r)];
         const float wr = batch.weight[r];
         const bool robust = !batch.robust.empty() && batch.robust[r] != 0;
@@ -350,6 +366,11 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         s.sq_err += se / 3.0f;
         s.loss += (wr * data_loss / 3.0f + lambda * (-o * std::log(o))) * inv_n;
         const float d_opacity = lambda * -(std::log(o) + 1.0f) * inv_n;
+        if (vc != nullptr) {
+          float dc_field[3];
+          ViewColourBackward(vc, c_field, dc, dc_field, &s.grad_view_colour[size_t(pv) * kViewColourParams]);
+          for (int k = 0; k < 3; ++k) dc[k] = dc_field[k];
+        }
         if (used == 0) continue;
         CompositeBackward(&s.gsigma[a], &s.gdt[a], rgb, &s.gw[a], used, s.t_final[i], bgr, dc, d_opacity,
                           &s.gdrgb[3 * size_t(a)], &s.gdsigma[a]);
@@ -471,17 +492,20 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
   // Reduce the small per-thread gradients in a fixed order (deterministic).
   grad_mlp_.assign(model.params().mlp.size(), 0.0f);
   grad_emb_.assign(model.params().emb.size(), 0.0f);
+  grad_view_colour_.assign(view_colour_.size(), 0.0f);
   double loss = 0, sq = 0;
   batch_samples_ = batch_composited_ = 0;
   for (const auto& sp : scratch_) {
     for (size_t i = 0; i < grad_mlp_.size(); ++i) grad_mlp_[i] += sp->grad_mlp[i];
     for (size_t i = 0; i < grad_emb_.size(); ++i) grad_emb_[i] += sp->grad_emb[i];
+    for (size_t i = 0; i < grad_view_colour_.size(); ++i) grad_view_colour_[i] += sp->grad_view_colour[i];
     loss += sp->loss;
     sq += sp->sq_err;
     batch_samples_ += sp->samples_marched;
     batch_composited_ += sp->samples_used;
   }
   batch_mse_ = sq * inv_n;
+  loss += ViewColourPrior(view_colour_, options_.view_colour_prior, grad_view_colour_.data());
   return float(loss);
 }
 
@@ -495,6 +519,7 @@ float Trainer::ComputeLossAndGradients(const RayBatch& batch, const std::vector<
   g->mlp = grad_mlp_;
   g->emb = grad_emb_;
   g->proposal = grad_prop_;
+  g->view_colour = grad_view_colour_;
   std::fill(grad_grid_.begin(), grad_grid_.end(), 0.0f);
   std::fill(grad_prop_.begin(), grad_prop_.end(), 0.0f);
   return loss;
@@ -586,6 +611,7 @@ absl::Status Trainer::Step() {
   else if (!AllFinite(grad_mlp_)) bad = "MLP gradient has NaN/Inf";
   else if (!AllFinite(grad_emb_)) bad = "embedding gradient has NaN/Inf";
   else if (!AllFinite(grad_prop_)) bad = "proposal-field gradient has NaN/Inf";
+  else if (!AllFinite(grad_view_colour_)) bad = "view-colour gradient has NaN/Inf";
   else {
     int grid_bad = 0;
 #pragma omp parallel for schedule(dynamic) reduction(+ : grid_bad) num_threads(threads_)
@@ -622,14 +648,18 @@ absl::Status Trainer::Step() {
   const float lr = CurrentLearningRate();
   ModelParams& p = model.mutable_params();
   // Keep a copy of the small blocks so a non-finite update can be undone.
-  const std::vector<float> mlp_before = p.mlp, emb_before = p.emb;
+  const std::vector<float> mlp_before = p.mlp, emb_before = p.emb, view_colour_before = view_colour_;
   adam_.UpdateDense(1, lr, next, p.mlp.data(), grad_mlp_.data(), p.mlp.size());
   adam_.UpdateDense(2, lr, next, p.emb.data(), grad_emb_.data(), p.emb.size());
   if (!p.proposal.empty()) {
     adam_.UpdateDense(3, lr, next, p.proposal.data(), grad_prop_.data(), p.proposal.size());
     std::fill(grad_prop_.begin(), grad_prop_.end(), 0.0f);
   }
-  bool finite = AllFinite(p.mlp) && AllFinite(p.emb) && AllFinite(p.proposal);
+  if (!view_colour_.empty()) {
+    adam_.UpdateDense(4, lr * options_.view_colour_lr_scale, next, view_colour_.data(), grad_view_colour_.data(),
+                      view_colour_.size());
+  }
+  bool finite = AllFinite(p.mlp) && AllFinite(p.emb) && AllFinite(p.proposal) && AllFinite(view_colour_);
   if (finite) {
     // Sparse grid update, one level per task (levels own disjoint entries);
     // gradients are cleared in the same pass.
@@ -649,6 +679,7 @@ absl::Status Trainer::Step() {
   if (!finite) {
     p.mlp = mlp_before;
     p.emb = emb_before;
+    view_colour_ = view_colour_before;
     return absl::InternalError(absl::StrFormat(
         "training diverged at step %d: parameters became NaN/Inf after the update", next));
   }

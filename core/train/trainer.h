@@ -11,7 +11,10 @@
 // hash grid -> Adam (lazy on the grid). Models with proposal sampling
 // (NgpModel::uses_proposals) place each ray's samples with the proposal
 // fields instead of marching, add the interlevel loss and update the proposal
-// fields with dense Adam (core/field/proposal_sampler.h).
+// fields with dense Adam (core/field/proposal_sampler.h). With
+// TrainOptions::view_colour, each photo's rays pass through that photo's
+// affine colour transform before the loss (view_colour.h); the transforms
+// are the trainer's own state, not part of the model.
 //
 // Stability: the loss, every gradient and every updated parameter are checked
 // for NaN/Inf; a bad step is not applied and Step() returns INTERNAL naming
@@ -92,6 +95,16 @@ struct TrainOptions {
   // (docs/sparse_depth.md). Without depth rays neither matters.
   float depth_weight = 1e-2f;
   float depth_sigma = 0.1f;
+  // Per-view colour transforms (view_colour.h): each photo the sampler
+  // names (RayBatch::view) gets an affine colour transform of the composited
+  // colour, trained with the rest at `view_colour_lr_scale` times the
+  // learning rate and held near the identity by a prior of weight
+  // `view_colour_prior`. Views without one (test views, replay) use the
+  // identity. Absorbs exposure / white-balance changes between a phone
+  // video's frames.
+  bool view_colour = false;
+  float view_colour_prior = 1e-2f;
+  float view_colour_lr_scale = 0.1f;
   AdamOptions adam;
   uint64_t seed = 0;
   int threads = 0;                // OpenMP threads; 0 = all cores.
@@ -149,8 +162,12 @@ class Trainer {
   // Loss and gradients of one fixed batch without updating anything (used by
   // gradient checks). Gradients are returned in the same layout as params.
   struct Gradients {
-    std::vector<float> grid, mlp, emb, proposal;
+    std::vector<float> grid, mlp, emb, proposal, view_colour;
   };
+  // The per-view colour transforms (12 per photo; empty when
+  // options.view_colour is off or the sampler names no photos).
+  const std::vector<float>& view_colours() const { return view_colour_; }
+  std::vector<float>* mutable_view_colours() { return &view_colour_; }
   float ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* grads);
 
  private:
@@ -188,6 +205,7 @@ class Trainer {
   std::vector<std::vector<uint32_t>> touched_lists_;  // Per level.
   std::vector<float> grad_mlp_, grad_emb_;
   std::vector<float> grad_prop_;  // Proposal fields (dense).
+  std::vector<float> view_colour_, grad_view_colour_;  // Per-view colour transforms.
   uint64_t batch_seed_ = 1;       // Proposal placement stream of the current batch (non-zero).
   std::vector<std::unique_ptr<ThreadScratch>> scratch_;
   // Batch statistics from the last ForwardBackward.

@@ -3,6 +3,7 @@
 // opacity entropy) against central differences of the loss, NaN handling in
 // Step(), and run-to-run determinism.
 #include "core/train/trainer.h"
+#include "core/train/view_colour.h"
 
 #include <omp.h>
 
@@ -76,8 +77,13 @@ NgpModel TinyModel(uint64_t seed, int time_steps = 2, SceneKind kind = SceneKind
 // directly).
 class NoSampler : public RaySampler {
  public:
+  explicit NoSampler(int photos = 0) : photos_(photos) {}
   void Sample(int, std::mt19937_64*, RayBatch*) override { ADD_FAILURE() << "not used"; }
   std::vector<Camera> Cameras() const override { return {}; }
+  int NumPhotoViews() const override { return photos_; }
+
+ private:
+  int photos_;
 };
 
 // Rays from a sphere of radius 1.3 aimed near the centre, random targets,
@@ -206,7 +212,8 @@ struct Block {
 // `near_reg` is the occlusion penalty's weight (0: off; `near_distance`
 // its reach); the test then also checks that the term changes the loss.
 void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.0f, float near_distance = 0.2f,
-                       SamplerKind sampler_kind = SamplerKind::kOccupancy, float depth_weight = 0.0f) {
+                       SamplerKind sampler_kind = SamplerKind::kOccupancy, float depth_weight = 0.0f,
+                       bool view_colour = false) {
   SerialEigen serial;
   NgpModel model = TinyModel(3, 2, contracted ? SceneKind::kUnbounded : SceneKind::kBounded, sampler_kind);
   ModelParams& p = model.mutable_params();
@@ -224,9 +231,13 @@ void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.
       w = std::abs(w) + 0.6f;
     }
   }
-  NoSampler sampler;
+  // Per-view colour transforms: three photos (and rays without one).
+  constexpr int kPhotos = 3;
+  NoSampler sampler(view_colour ? kPhotos : 0);
   TrainOptions to;
   to.threads = 1;
+  to.view_colour = view_colour;
+  to.view_colour_prior = 0.05f;
   to.proposal_anneal_iterations = 0;  // Proposal weights unannealed, as the renderer uses them.
   to.opacity_reg = 0.01f;  // Entropy gradient comparable to the MSE one.
   to.near_density_reg = near_reg;
@@ -240,6 +251,10 @@ void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.
   to.interlevel_weight = 0.0f;
   Trainer trainer(&model, &sampler, to);
   ASSERT_EQ(model.occupancy().num_occupied(), model.occupancy().num_cells());
+  if (view_colour) {  // Transforms away from the identity, so every term of their gradient matters.
+    ASSERT_EQ(trainer.view_colours().size(), size_t(kPhotos * kViewColourParams));
+    for (float& v : *trainer.mutable_view_colours()) v += 0.2f * (u(rng) - 0.5f);
+  }
 
   // 16 rays out of 48 candidates: those whose transmittance never comes
   // within a factor e^0.05 of the termination threshold, so that no FD step
@@ -284,10 +299,19 @@ void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.
   // prediction: the loss, and so the rounding of the float it is returned
   // as, is then small compared with its gradient.
   for (int i = 0; i < batch.size(); ++i) {
-    const Eigen::Vector3f c = TrainerColour(&trainer, batch, jitter, i);
+    Eigen::Vector3f c = TrainerColour(&trainer, batch, jitter, i);
     for (int k = 0; k < 3; ++k) {
       ASSERT_GT(c[k], 0.0f);
       ASSERT_LT(c[k], 1.0f);
+    }
+    if (view_colour) {  // Rays of photos 0..2 and rays of none (-1).
+      batch.view[i] = i % (kPhotos + 1) - 1;
+      if (batch.view[i] >= 0) {
+        const Eigen::Vector3f field = c;
+        ApplyViewColour(&trainer.view_colours()[size_t(batch.view[i]) * kViewColourParams], field.data(), c.data());
+      }
+    }
+    for (int k = 0; k < 3; ++k) {
       const float r = (0.02f + 0.03f * u(rng)) * (rng() % 2 ? 1.0f : -1.0f);
       batch.target[3 * i + k] = c[k] + r;
     }
@@ -386,6 +410,30 @@ void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.
     }
     EXPECT_LE(skipped, 6);
   }
+  if (view_colour) {
+    // Every transform parameter; the loss is quadratic in each, so FD is
+    // exact up to the float noise.
+    std::vector<float>& x = *trainer.mutable_view_colours();
+    ASSERT_EQ(grads.view_colour.size(), x.size());
+    double gmax = 0;
+    for (float v : grads.view_colour) gmax = std::max(gmax, double(std::abs(v)));
+    ASSERT_GT(gmax, 0.0);
+    const float h = 1e-3f;
+    for (size_t i = 0; i < x.size(); ++i) {
+      const float x0 = x[i];
+      Trainer::Gradients tmp;
+      x[i] = x0 + h;
+      const float hi = x[i];
+      const double lp = trainer.ComputeLossAndGradients(batch, jitter, &tmp);
+      x[i] = x0 - h;
+      const float lo = x[i];
+      const double lm = trainer.ComputeLossAndGradients(batch, jitter, &tmp);
+      x[i] = x0;
+      const double fd = (lp - lm) / (double(hi) - double(lo));
+      const double tol = 4 * ulp / (double(hi) - double(lo)) + 1e-2 * std::abs(fd) + 1e-3 * gmax;
+      EXPECT_NEAR(grads.view_colour[i], fd, tol) << "view_colour[" << i << "]";
+    }
+  }
 }
 
 TEST(TrainerGradientTest, LossGradientMatchesFiniteDifferences) { CheckLossGradient(/*opaque=*/false); }
@@ -434,6 +482,18 @@ TEST(TrainerGradientTest, ContractedSceneWithSparseDepthLossMatchesFiniteDiffere
 
 TEST(TrainerGradientTest, ProposalSampledSceneWithSparseDepthLossMatchesFiniteDifferences) {
   CheckLossGradient(/*opaque=*/false, /*contracted=*/true, 0.0f, 0.2f, SamplerKind::kProposal, /*depth_weight=*/2e-3f);
+}
+
+// Per-view colour transforms on three photos' rays (a quarter of the rays
+// have none): the field's gradient through them, and theirs, prior included.
+TEST(TrainerGradientTest, ViewColourTransformsMatchFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/false, /*contracted=*/false, 0.0f, 0.2f, SamplerKind::kOccupancy, 0.0f,
+                    /*view_colour=*/true);
+}
+
+TEST(TrainerGradientTest, ContractedSceneWithViewColourTransformsMatchesFiniteDifferences) {
+  CheckLossGradient(/*opaque=*/true, /*contracted=*/true, 0.0f, 0.2f, SamplerKind::kOccupancy, 0.0f,
+                    /*view_colour=*/true);
 }
 
 // The field evaluator's two callers compute one function: the trainer's
