@@ -67,6 +67,11 @@ void BindFitFlags(CLI::App* c, FitOptions* fo) {
   c->add_option("--view-colour-lr", t.view_colour_lr_scale,
                 "Learning-rate scale of the per-photo colour transforms")
       ->capture_default_str();
+  c->add_flag("--prune", fo->prune,
+              "After training, drop occupancy cells no training pixel needs (faster renders; docs/render_cost.md)");
+  c->add_option("--prune-max-drop", fo->prune_options.max_psnr_drop,
+                "Pruning: PSNR (dB) it may cost on training pixels")
+      ->capture_default_str();
   c->add_flag("!--no-embed", fo->model.network.use_embeddings, "Disable per-time-step embeddings");
 }
 

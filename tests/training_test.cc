@@ -7,6 +7,7 @@
 
 #include "core/render/evaluate.h"
 #include "core/train/fit.h"
+#include "core/train/occupancy_prune.h"
 #include "core/train/view_colour.h"
 #include "core/render/metrics.h"
 #include "core/data/procedural_scene.h"
@@ -158,6 +159,55 @@ TEST(TrainingTest, ViewColourTransformsAbsorbPerPhotoExposure) {
               with->psnr, without->psnr);
   EXPECT_GT(corr, 0.6);
   EXPECT_GT(with->psnr, without->psnr - 0.5);  // Not a regression on photos of one exposure.
+}
+
+// Occupancy pruning after training (FitOptions::prune): the calibration
+// contract holds (training-pixel PSNR within max_psnr_drop), fewer cells
+// stay occupied and rays march no more samples, and held-out views barely
+// change. A ladder that prunes everything is refused by the calibration.
+TEST(TrainingTest, PruningKeepsWhatTrainingPixelsNeed) {
+  const Scene scene = TinyScene();
+  FitOptions fo = TinyFit(300);
+  absl::StatusOr<FitResult> fit = FitScene(scene, fo, nullptr);
+  ASSERT_TRUE(fit.ok()) << fit.status();
+  absl::StatusOr<EvalResult> before = EvaluateViews(*fit->model, scene.test, {});
+  ASSERT_TRUE(before.ok());
+  std::vector<const View*> views;
+  for (const View& v : scene.train) views.push_back(&v);
+  NgpModel pruned = *fit->model;
+  PruneOptions po;
+  // This small scene's grid is nearly tight already: rungs up to 30x the
+  // grid's threshold, so that some of them remove cells.
+  po.ladder = {0.1f, 0.3f, 1.0f, 3.0f, 10.0f, 30.0f};
+  absl::StatusOr<PruneReport> r = PruneOccupancy(&pruned, views, po);
+  ASSERT_TRUE(r.ok()) << r.status();
+  std::printf("pruned %zu -> %zu cells (threshold %.3g), %.1f -> %.1f samples/ray, calibration %.2f -> %.2f dB\n",
+              r->cells_before, r->cells_after, r->threshold, r->samples_before, r->samples_after, r->psnr_before,
+              r->psnr_after);
+  EXPECT_EQ(r->cells_before, fit->model->occupancy().num_occupied());
+  EXPECT_EQ(r->cells_after, pruned.occupancy().num_occupied());
+  EXPECT_LT(r->cells_after, r->cells_before);
+  EXPECT_LE(r->samples_after, r->samples_before);
+  EXPECT_GE(r->psnr_after, r->psnr_before - po.max_psnr_drop);
+  absl::StatusOr<EvalResult> after = EvaluateViews(pruned, scene.test, {});
+  ASSERT_TRUE(after.ok());
+  EXPECT_NEAR(after->psnr, before->psnr, 0.3);
+  // The field itself is untouched.
+  EXPECT_EQ(pruned.params().grid, fit->model->params().grid);
+
+  // A ladder whose only rung removes every cell costs far more than the
+  // allowance, so nothing is pruned.
+  NgpModel all = *fit->model;
+  po.ladder = {1e12f};
+  absl::StatusOr<PruneReport> none = PruneOccupancy(&all, views, po);
+  ASSERT_TRUE(none.ok()) << none.status();
+  EXPECT_EQ(none->threshold, 0.0f);
+  EXPECT_EQ(all.occupancy().bits(), fit->model->occupancy().bits());
+
+  po.ladder = {0.1f, 0.05f};  // Not increasing.
+  EXPECT_EQ(PruneOccupancy(&all, views, po).status().code(), absl::StatusCode::kInvalidArgument);
+  po = PruneOptions();
+  EXPECT_EQ(PruneOccupancy(&all, {}, po).status().code(), absl::StatusCode::kInvalidArgument);
 }
 
 }  // namespace

@@ -10,7 +10,8 @@
 namespace clnerf {
 
 absl::Status FitOptions::Validate() const {
-  for (const absl::Status& s : {train.Validate(), model.Validate(), capacity.Validate(), overrides.Validate()}) {
+  for (const absl::Status& s :
+       {train.Validate(), model.Validate(), capacity.Validate(), overrides.Validate(), prune_options.Validate()}) {
     if (!s.ok()) return s;
   }
   if (curve_every < 0 || curve_views < 1) return absl::InvalidArgumentError("fit: bad curve options");
@@ -90,6 +91,15 @@ absl::StatusOr<FitResult> FitScene(const Scene& scene, const FitOptions& options
   result.composited_samples_per_second =
       result.train_seconds > 0 ? trainer.total_composited() / result.train_seconds : 0;
   result.rays_per_second = result.train_seconds > 0 ? trainer.total_rays() / result.train_seconds : 0;
+  if (options.prune && !result.model->uses_proposals()) {
+    absl::StatusOr<PruneReport> pr = PruneOccupancy(result.model.get(), views, options.prune_options);
+    if (!pr.ok()) return pr.status();
+    result.prune = *pr;
+    spdlog::info("occupancy pruned: {} -> {} cells (density threshold {:.3g}), {:.1f} -> {:.1f} samples per ray, "
+                 "training-pixel PSNR {:.2f} -> {:.2f} dB",
+                 pr->cells_before, pr->cells_after, pr->threshold, pr->samples_before, pr->samples_after,
+                 pr->psnr_before, pr->psnr_after);
+  }
   return result;
 }
 

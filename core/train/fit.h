@@ -15,6 +15,7 @@
 #include "core/field/capacity.h"
 #include "core/field/ngp_model.h"
 #include "core/data/scene.h"
+#include "core/train/occupancy_prune.h"
 #include "core/train/ray_sampler.h"
 #include "core/train/trainer.h"
 
@@ -33,6 +34,12 @@ struct FitOptions {
   // any (ImageRaySampler); 0 = no sparse-depth supervision. Views without
   // depth targets are unaffected. Measured in docs/sparse_depth.md.
   float depth_fraction = 0.125f;
+  // After training, prune occupancy cells that no training pixel needs
+  // (occupancy_prune.h; fewer samples per rendered ray). Off by default:
+  // beer_2 rendered 1.9x faster (292 -> 131 samples per ray) for 0.10 dB of
+  // test PSNR (docs/render_cost.md).
+  bool prune = false;
+  PruneOptions prune_options;
   absl::Status Validate() const;
 };
 
@@ -56,6 +63,7 @@ struct FitResult {
   // of Scene::train (12 each, view_colour.h); empty unless
   // TrainOptions::view_colour.
   std::vector<float> view_colours;
+  PruneReport prune;  // Empty unless FitOptions::prune.
   std::vector<CurvePoint> curve;
 };
 
