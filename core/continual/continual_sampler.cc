@@ -1,8 +1,8 @@
 #include "core/continual/continual_sampler.h"
 
+#include <algorithm>
 #include <cmath>
 
-#include "core/render/renderer.h"
 
 namespace clnerf {
 
@@ -93,31 +93,11 @@ void ContinualRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
   }
   if (online.empty() || frozen_ == nullptr) return;
   // Online generative replay: the frozen θ_{t-1} renders the replay rays,
-  // grouped by time step (each with its own embeddings). Rays are in this
-  // model's space; both models share the normalisation.
-  std::vector<int> steps;
-  for (int i : online) steps.push_back(out->time_step[i]);
-  std::vector<float> o, d, rgb;
-  for (int t = 0; t < frozen_->num_time_steps(); ++t) {
-    std::vector<int> idx;
-    for (size_t k = 0; k < online.size(); ++k) {
-      if (steps[k] == t) idx.push_back(online[k]);
-    }
-    if (idx.empty()) continue;
-    o.resize(3 * idx.size());
-    d.resize(3 * idx.size());
-    rgb.resize(3 * idx.size());
-    for (size_t k = 0; k < idx.size(); ++k) {
-      for (int c = 0; c < 3; ++c) {
-        o[3 * k + c] = out->origin[3 * size_t(idx[k]) + c];
-        d[3 * k + c] = out->dir[3 * size_t(idx[k]) + c];
-      }
-    }
-    RenderRays(*frozen_, o.data(), d.data(), int(idx.size()), t, RenderOptions{}, rgb.data(), nullptr, nullptr);
-    for (size_t k = 0; k < idx.size(); ++k) {
-      for (int c = 0; c < 3; ++c) out->target[3 * size_t(idx[k]) + c] = rgb[3 * k + c];
-    }
-  }
+  // each with its time step's embeddings. Rays are in this model's space;
+  // both models share the normalisation.
+  std::vector<float> rgb;
+  RenderBatchRays(*frozen_, *out, online, &rgb);
+  for (int i : online) std::copy_n(&rgb[3 * size_t(i)], 3, &out->target[3 * size_t(i)]);
 }
 
 }  // namespace clnerf

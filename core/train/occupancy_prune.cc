@@ -2,10 +2,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <random>
 
 #include "core/render/metrics.h"
-#include "core/render/renderer.h"
 #include "core/train/ray_sampler.h"
 
 namespace clnerf {
@@ -27,36 +27,15 @@ absl::Status PruneOptions::Validate() const {
 
 namespace {
 
-struct Calibration {
-  std::vector<float> origin, dir, target;
-  std::vector<int> time_step;
-};
-
-// Renders the calibration rays (grouped by time step); returns the PSNR
-// against their targets and the mean samples per ray.
-void Score(const NgpModel& model, const Calibration& cal, double* psnr, double* samples) {
-  const int n = int(cal.time_step.size());
-  std::vector<float> rgb(3 * size_t(n));
-  long long total = 0;
-  for (int t = 0; t < model.num_time_steps(); ++t) {
-    std::vector<int> idx;
-    for (int i = 0; i < n; ++i) {
-      if (cal.time_step[i] == t) idx.push_back(i);
-    }
-    if (idx.empty()) continue;
-    std::vector<float> o(3 * idx.size()), d(3 * idx.size()), c(3 * idx.size());
-    for (size_t k = 0; k < idx.size(); ++k) {
-      std::copy_n(&cal.origin[3 * size_t(idx[k])], 3, &o[3 * k]);
-      std::copy_n(&cal.dir[3 * size_t(idx[k])], 3, &d[3 * k]);
-    }
-    RenderOptions ro;
-    total += RenderRays(model, o.data(), d.data(), int(idx.size()), t, ro, c.data(), nullptr, nullptr);
-    for (size_t k = 0; k < idx.size(); ++k) std::copy_n(&c[3 * k], 3, &rgb[3 * size_t(idx[k])]);
-  }
+// Renders the calibration rays; returns their PSNR against the batch's
+// targets and the mean samples per ray.
+void Score(const NgpModel& model, const RayBatch& cal, const std::vector<int>& all, double* psnr, double* samples) {
+  std::vector<float> rgb;
+  const long long total = RenderBatchRays(model, cal, all, &rgb);
   double se = 0;
   for (size_t i = 0; i < rgb.size(); ++i) se += double(rgb[i] - cal.target[i]) * (rgb[i] - cal.target[i]);
   *psnr = PsnrFromMse(se / double(std::max<size_t>(rgb.size(), 1)));
-  *samples = n > 0 ? double(total) / n : 0.0;
+  *samples = cal.size() > 0 ? double(total) / cal.size() : 0.0;
 }
 
 }  // namespace
@@ -77,26 +56,14 @@ absl::StatusOr<PruneReport> PruneOccupancy(NgpModel* model, const std::vector<co
   OccupancyGrid& grid = model->mutable_occupancy();
   std::mt19937_64 rng(options.seed);
 
-  // Calibration pixels: uniform over views, then pixels (unmasked ones).
-  Calibration cal;
-  const int n = options.calibration_rays;
-  cal.origin.resize(3 * size_t(n));
-  cal.dir.resize(3 * size_t(n));
-  cal.target.resize(3 * size_t(n));
-  cal.time_step.resize(n);
-  std::vector<Camera> cams;
-  for (const View* v : usable) cams.push_back(model->ToModelCamera(v->camera));
-  for (int i = 0; i < n; ++i) {
-    const size_t v = rng() % usable.size();
-    const View& view = *usable[v];
-    uint32_t pixel = uint32_t(rng() % view.image.num_pixels());
-    for (int tries = 0; tries < 16 && !view.mask.empty() && !view.mask.keep[pixel]; ++tries) {
-      pixel = uint32_t(rng() % view.image.num_pixels());
-    }
-    PixelRay(cams[v], pixel, &cal.origin[3 * size_t(i)], &cal.dir[3 * size_t(i)]);
-    std::copy_n(&view.image.rgb[3 * size_t(pixel)], 3, &cal.target[3 * size_t(i)]);
-    cal.time_step[i] = view.camera.time_step;
-  }
+  // Calibration pixels: training rays as the trainer draws them (uniform
+  // over views, then over unmasked pixels).
+  absl::StatusOr<std::unique_ptr<ImageRaySampler>> sampler = ImageRaySampler::Create(usable, *model);
+  if (!sampler.ok()) return sampler.status();
+  RayBatch cal;
+  (*sampler)->Sample(options.calibration_rays, &rng, &cal);
+  std::vector<int> all(cal.size());
+  for (int i = 0; i < cal.size(); ++i) all[i] = i;
 
   // Density probes of every occupied cell: the maximum over jittered points
   // and time steps.
@@ -123,7 +90,7 @@ absl::StatusOr<PruneReport> PruneOccupancy(NgpModel* model, const std::vector<co
     }
   }
 
-  Score(*model, cal, &report.psnr_before, &report.samples_before);
+  Score(*model, cal, all, &report.psnr_before, &report.samples_before);
   report.psnr_after = report.psnr_before;
   report.samples_after = report.samples_before;
   const std::vector<float> density = grid.density();
@@ -148,7 +115,7 @@ absl::StatusOr<PruneReport> PruneOccupancy(NgpModel* model, const std::vector<co
     std::vector<uint64_t> bits = bits_at(thr, &count);
     grid.Restore(density, visible, bits, base);
     double psnr = 0, samples = 0;
-    Score(*model, cal, &psnr, &samples);
+    Score(*model, cal, all, &psnr, &samples);
     if (!(psnr >= report.psnr_before - options.max_psnr_drop)) break;
     best = std::move(bits);
     report.threshold = thr;

@@ -2,10 +2,12 @@
 
 #include <omp.h>
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
 
 #include "absl/strings/str_cat.h"
+#include "core/render/renderer.h"
 
 namespace clnerf {
 
@@ -29,6 +31,31 @@ void PixelRay(const Camera& cam, uint32_t pixel, float* origin, float* dir) {
     origin[c] = o[c];
     dir[c] = d[c];
   }
+}
+
+long long RenderBatchRays(const NgpModel& model, const RayBatch& batch, const std::vector<int>& rays,
+                          std::vector<float>* rgb) {
+  rgb->resize(3 * size_t(batch.size()));
+  std::vector<int> idx;
+  std::vector<float> o, d, c;
+  long long samples = 0;
+  for (int t = 0; t < model.num_time_steps(); ++t) {
+    idx.clear();
+    for (int i : rays) {
+      if (batch.time_step[i] == t) idx.push_back(i);
+    }
+    if (idx.empty()) continue;
+    o.resize(3 * idx.size());
+    d.resize(3 * idx.size());
+    c.resize(3 * idx.size());
+    for (size_t k = 0; k < idx.size(); ++k) {
+      std::copy_n(&batch.origin[3 * size_t(idx[k])], 3, &o[3 * k]);
+      std::copy_n(&batch.dir[3 * size_t(idx[k])], 3, &d[3 * k]);
+    }
+    samples += RenderRays(model, o.data(), d.data(), int(idx.size()), t, RenderOptions{}, c.data(), nullptr, nullptr);
+    for (size_t k = 0; k < idx.size(); ++k) std::copy_n(&c[3 * k], 3, &(*rgb)[3 * size_t(idx[k])]);
+  }
+  return samples;
 }
 
 void SparseDepthTargets(const Camera& model_camera, const Normalization& norm, const std::vector<DepthPoint>& depth,

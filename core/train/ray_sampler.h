@@ -86,6 +86,14 @@ class ImageRaySampler : public RaySampler {
   long long num_depth_pixels_ = 0;
 };
 
+// Renders the rays `rays` (indices into `batch`) with `model`, each with its
+// own time step's embeddings (one RenderRays call per step; rays of steps the
+// model does not have are left alone), writing ray i's colour to
+// (*rgb)[3 i .. 3 i + 2]; *rgb is resized to 3 x batch.size(). Returns the
+// density evaluations. Used for replay labels and pruning's calibration.
+long long RenderBatchRays(const NgpModel& model, const RayBatch& batch, const std::vector<int>& rays,
+                          std::vector<float>* rgb);
+
 // Generates the model-space ray of a pixel of a model-space camera.
 void PixelRay(const Camera& model_camera, uint32_t pixel, float* origin, float* dir);
 
