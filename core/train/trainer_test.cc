@@ -322,22 +322,25 @@ void CheckLossGradient(bool opaque, bool contracted = false, float near_reg = 0.
   ASSERT_TRUE(std::isfinite(base));
   ASSERT_GT(base, 0.0f);
   ASSERT_LT(base, 0.01f);
+  // The loss of the same batch by a trainer with `off`'s options (a term
+  // switched off), on the same model.
+  auto loss_with = [&](const TrainOptions& off) {
+    NoSampler sampler2(sampler.NumPhotoViews());
+    Trainer other(&model, &sampler2, off);
+    *other.mutable_view_colours() = trainer.view_colours();
+    Trainer::Gradients g0;
+    return other.ComputeLossAndGradients(batch, jitter, &g0);
+  };
   if (near_reg > 0) {  // The penalty contributes a sizeable part of the loss.
     TrainOptions off = to;
     off.near_density_reg = 0.0f;
-    NoSampler sampler2;
-    Trainer without(&model, &sampler2, off);
-    Trainer::Gradients g0;
-    const float l0 = without.ComputeLossAndGradients(batch, jitter, &g0);
+    const float l0 = loss_with(off);
     EXPECT_GT(base - l0, 0.1f * base) << "penalty " << base - l0 << " of " << base;
   }
   if (depth_weight > 0) {  // So does the sparse-depth loss.
     TrainOptions off = to;
     off.depth_weight = 0.0f;
-    NoSampler sampler2;
-    Trainer without(&model, &sampler2, off);
-    Trainer::Gradients g0;
-    const float l0 = without.ComputeLossAndGradients(batch, jitter, &g0);
+    const float l0 = loss_with(off);
     EXPECT_GT(base - l0, 0.1f * base) << "depth loss " << base - l0 << " of " << base;
   }
   const double ulp = double(std::nextafter(base, 1.0f)) - base;
