@@ -108,6 +108,58 @@ TEST(ContentSweepTest, NormalisationFollowsTheCamerasFrame) {
   }
 }
 
+// The box turns about the up axis to fit the cameras as tightly as it can:
+// the inner cube's resolution goes to the capture, not to empty corners. A
+// diamond-shaped walk (main axis 2, cross axis 1) fits best turned about 45
+// degrees off its main axis (radius ~1.41 instead of 2): the main-axis choice
+// this replaced kept radius 2 and, on fox_8, cost 0.7 dB.
+TEST(ContentSweepTest, NormalisationTurnsTheBoxToFitTheCameras) {
+  Scene base;
+  base.kind = SceneKind::kUnbounded;
+  for (int i = 0; i < 40; ++i) {
+    const float u = float(i) / 40.0f * 4.0f;  // Walk the diamond's edges.
+    const int edge = int(u);
+    const float f = u - float(edge);
+    const Eigen::Vector2f corners[4] = {{2, 0}, {0, 1}, {-2, 0}, {0, -1}};
+    const Eigen::Vector2f p = (1 - f) * corners[edge] + f * corners[(edge + 1) % 4];
+    View v;
+    v.camera.intrinsics = {64, 48, 60, 60, 32, 24};
+    // Every camera looks along +y, up +z (OpenCV: x right, y down, z forward).
+    v.camera.c2w.setZero();
+    v.camera.c2w.col(0) = Eigen::Vector3f(1, 0, 0);
+    v.camera.c2w.col(1) = Eigen::Vector3f(0, 0, -1);
+    v.camera.c2w.col(2) = Eigen::Vector3f(0, 1, 0);
+    v.camera.c2w.col(3) = Eigen::Vector3f(p.x(), p.y(), 0.05f * float(i % 3));
+    base.train.push_back(v);
+  }
+  const Eigen::Matrix3f r =
+      (Eigen::AngleAxisf(0.7f, Eigen::Vector3f(0.2f, 0.5f, -0.6f).normalized())).toRotationMatrix();
+  for (const Scene& scene : {base, Transformed(base, 3.0f, r, Eigen::Vector3f(5, -1, 2))}) {
+    const Normalization n = ComputeNormalization(scene);
+    float radius = 0;
+    for (const View& v : scene.train) {
+      radius = std::max(radius, (n.rotation * (v.camera.position() - n.center)).cwiseAbs().maxCoeff());
+    }
+    // The best turn over every degree, about the same centre and up axis.
+    float best = 1e30f;
+    for (int deg = 0; deg < 90; ++deg) {
+      const Eigen::Matrix3f turn = Eigen::AngleAxisf(float(deg) * float(M_PI) / 180.0f, Eigen::Vector3f::UnitZ())
+                                       .toRotationMatrix();
+      float r_deg = 0;
+      for (const View& v : scene.train) {
+        r_deg = std::max(r_deg, (turn * n.rotation * (v.camera.position() - n.center)).cwiseAbs().maxCoeff());
+      }
+      best = std::min(best, r_deg);
+    }
+    EXPECT_LE(radius, best * 1.002f);
+    // In the diamond's own units: well under the main-axis box's 2.
+    // Cameras 10 and 30 sit at the cross axis's ends, one unit from the middle.
+    const float unit = (scene.train[10].camera.position() - scene.train[30].camera.position()).norm() / 2;
+    EXPECT_LT(radius / unit, 1.6f);
+    EXPECT_NEAR(n.rotation.determinant(), 1.0f, 1e-4f);
+  }
+}
+
 TEST(ContentSweepTest, NothingToMatchGivesNoPoints) {
   absl::StatusOr<Scene> scene = GenerateProceduralScene(Small(ProceduralLayout::kRoom));
   ASSERT_TRUE(scene.ok());

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include "absl/strings/str_cat.h"
 #include "core/data/content_sweep.h"
@@ -69,6 +70,44 @@ Eigen::Matrix3f CanonicalRotation(const std::vector<View>& views) {
   r.row(1) = z.cross(x);
   r.row(2) = z;
   return r.allFinite() ? r : Eigen::Matrix3f::Identity();
+}
+
+// The turn about the model's z axis (applied after `rotation`) that gives the
+// cameras the smallest L-inf radius around `center`: the tightest box, so the
+// inner cube spends its resolution on the capture rather than on corners. The
+// main horizontal axis alone is a poor choice for arcs: on fox_8 it made the
+// box 5 % looser and cost 0.7 dB (29.36 vs 30.07 in the files' own frame,
+// whose axes happen to sit within 5 degrees of this turn). Depends only on
+// the cameras relative to each other, so every file format gets the same turn.
+Eigen::Matrix3f TightestTurn(const std::vector<View>& views, const Eigen::Vector3f& center,
+                             const Eigen::Matrix3f& rotation) {
+  std::vector<Eigen::Vector2f> flat;
+  for (const View& v : views) {
+    const Eigen::Vector3f d = rotation * (v.camera.position() - center);
+    flat.emplace_back(d.x(), d.y());
+  }
+  // The L-inf box is symmetric under quarter turns: search [0, 90) degrees in
+  // half-degree steps. Ties (within 1e-4 of the radius) keep the smaller
+  // angle, so float noise between formats cannot pick a distant twin.
+  float best_radius = std::numeric_limits<float>::infinity();
+  float best_angle = 0;
+  for (int step = 0; step < 180; ++step) {
+    const float a = float(step) * float(M_PI) / 360.0f, c = std::cos(a), s = std::sin(a);
+    float r = 0;
+    for (const Eigen::Vector2f& d : flat) {
+      r = std::max({r, std::abs(c * d.x() + s * d.y()), std::abs(-s * d.x() + c * d.y())});
+    }
+    if (r < best_radius * (1.0f - 1e-4f)) {
+      best_radius = r;
+      best_angle = a;
+    }
+  }
+  Eigen::Matrix3f turn = Eigen::Matrix3f::Identity();
+  turn(0, 0) = std::cos(best_angle);
+  turn(0, 1) = std::sin(best_angle);
+  turn(1, 0) = -std::sin(best_angle);
+  turn(1, 1) = std::cos(best_angle);
+  return turn;
 }
 
 // Where the cameras look: the look-at point when their optical axes
@@ -146,6 +185,7 @@ Normalization ComputeNormalization(const Scene& scene) {
   const std::vector<Eigen::Vector3f>* points = estimated.empty() ? &scene.content_points : &estimated;
   n.rotation = CanonicalRotation(views);
   n.center = FocusPoint(views, *points, n.rotation);
+  n.rotation = TightestTurn(views, n.center, n.rotation) * n.rotation;
   float radius = 0;
   for (const View& v : views) radius = std::max(radius, InfNorm(n.rotation * (v.camera.position() - n.center)));
   if (!points->empty()) {

@@ -106,11 +106,13 @@ struct Scene {
 //                COLMAP model would be. Loader hints (instant-ngp
 //                scale/offset/aabb_scale) are not used, so an upload through
 //                the service, which carries no hints, normalises the same way.
-//                rotation: z = the cameras' mean up vector, x = the main
-//                horizontal axis of the camera positions (sign: along the
-//                cameras' mean right vector), so one capture in any file
-//                format (COLMAP's arbitrary frame, colmap2nerf's z-up one)
-//                gets the same box; identity when the cameras give no up.
+//                rotation: z = the cameras' mean up vector; about it, the
+//                turn that fits the cameras in the tightest L-inf box around
+//                the centre (searched in half-degree steps from the main
+//                horizontal axis of the camera positions), so one capture in
+//                any file format (COLMAP's arbitrary frame, colmap2nerf's
+//                z-up one) gets the same box; identity when the cameras give
+//                no up.
 Normalization ComputeNormalization(const Scene& scene);
 
 // Checks every view: valid camera, image size matches intrinsics, mask size
