@@ -100,6 +100,9 @@ CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* a) {
                "Start each update from the previous model or from scratch");
   BindEnumFlag(c, "--replay", &u.replay, {ReplayMode::kOffline, ReplayMode::kOnline}, ReplayModeName,
                "Generative replay labels rendered once per update or per batch");
+  c->add_option("--replay-labels-per-draw", u.replay_labels.labels_per_draw,
+                 "Offline replay: labels rendered per replay ray the update draws (0 = every pixel of every past view)")
+      ->capture_default_str();
   c->add_option("--buffer", u.buffer_size, "Real images kept for experience replay (clnerf, er)")
       ->capture_default_str();
   c->add_flag("--prioritized", u.prioritized_buffer, "Buffer keeps the lowest-PSNR images instead of a reservoir");
@@ -155,6 +158,7 @@ int RunBenchContinual(const BenchContinualArgs& a) {
                       {"iterations", iterations},
                       {"init", InitModeName(uo.init)},
                       {"replay", ReplayModeName(uo.replay)},
+                      {"replay_labels_per_draw", uo.replay_labels.labels_per_draw},
                       {"buffer", uo.buffer_size},
                       {"prioritized", uo.prioritized_buffer},
                       {"embeddings", uo.model.network.use_embeddings},
@@ -247,6 +251,8 @@ int RunBenchContinual(const BenchContinualArgs& a) {
                        {"train_seconds", rep.train_seconds},
                        {"replay_prepare_seconds", rep.replay_prepare_seconds},
                        {"replay_cache_bytes", rep.replay_cache_bytes},
+                       {"replay_labels", rep.replay_labels},
+                       {"replay_view_pixels", rep.replay_view_pixels},
                        {"new_views", rep.new_views},
                        {"replay_views", rep.replay_views},
                        {"buffer_views", rep.buffer_views},
@@ -258,8 +264,11 @@ int RunBenchContinual(const BenchContinualArgs& a) {
       eval_seconds += Since(e0);
       matrix.push_back(sc->psnr);
       f = *sc;  // The last row is the final score.
-      spdlog::info("step {}/{}: {:.1f}s (replay prep {:.1f}s); PSNR on scan {} {:.2f} dB, on scan 0 {:.2f} dB", t + 1,
-                   T, secs, rep.replay_prepare_seconds, t, sc->psnr.back(), sc->psnr.front());
+      spdlog::info(
+          "step {}/{}: {:.1f}s (replay prep {:.1f}s, {} labels of {} past pixels); PSNR on scan {} {:.2f} dB, on scan 0 "
+          "{:.2f} dB",
+          t + 1, T, secs, rep.replay_prepare_seconds, rep.replay_labels, rep.replay_view_pixels, t, sc->psnr.back(),
+          sc->psnr.front());
     }
     final_model = state->model;
     camera_bytes = state->memory.camera_bytes();

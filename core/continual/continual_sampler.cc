@@ -27,7 +27,7 @@ ContinualRaySampler::ContinualRaySampler(std::vector<SamplerView> views, const N
     (views_[v].past ? past_views_ : current_views_).push_back(int(v));
     std::vector<uint32_t> dpix;
     std::vector<float> dt;
-    if (views_[v].depth != nullptr && views_[v].image != nullptr) {
+    if (views_[v].depth != nullptr && views_[v].image != nullptr && views_[v].label_pixels == nullptr) {
       SparseDepthTargets(model_cameras_.back(), model.normalization(), *views_[v].depth, &dpix, &dt);
     }
     if (!dpix.empty()) depth_views_.push_back(int(v));
@@ -41,16 +41,24 @@ void ContinualRaySampler::FillRay(int v, std::mt19937_64& r, RayBatch* out, int 
   const SamplerView& view = views_[v];
   const Intrinsics& in = view.camera.intrinsics;
   const std::vector<uint32_t>& valid = valid_[v];
-  const uint32_t pixel = given_pixel >= 0 ? uint32_t(given_pixel)
-                         : valid.empty()  ? uint32_t(r() % (uint64_t(in.width) * in.height))
-                                          : valid[r() % valid.size()];
+  uint32_t pixel;
+  size_t label;  // Index of the pixel's label in view.image.
+  if (view.label_pixels != nullptr && given_pixel < 0) {
+    label = r() % view.label_pixels->size();
+    pixel = (*view.label_pixels)[label];
+  } else {
+    pixel = given_pixel >= 0 ? uint32_t(given_pixel)
+            : valid.empty()  ? uint32_t(r() % (uint64_t(in.width) * in.height))
+                             : valid[r() % valid.size()];
+    label = pixel;
+  }
   PixelRay(model_cameras_[v], pixel, &out->origin[3 * size_t(i)], &out->dir[3 * size_t(i)]);
   out->time_step[i] = view.camera.time_step;
   out->weight[i] = 1.0f;
   out->robust[i] = 0;
   out->view[i] = view.replay ? -1 : v;  // Photos (new scan, buffered) have their own colour transform.
   if (view.image != nullptr) {
-    const float* px = view.image->rgb.data() + size_t(pixel) * 3;
+    const float* px = view.image->rgb.data() + label * 3;
     for (int c = 0; c < 3; ++c) out->target[3 * size_t(i) + c] = px[c];
   } else {
     online->push_back(i);

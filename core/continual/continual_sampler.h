@@ -28,6 +28,10 @@ struct SamplerView {
   bool past = false;             // From an earlier scan (buffered image or replay).
   // Sparse-depth targets (the new scan's View::depth; may be null).
   const std::vector<DepthPoint>* depth = nullptr;
+  // Labels for a subset of the view's pixels only (replay_labels.h): label k
+  // (image->rgb[3k..3k+2]) is pixel (*label_pixels)[k]; rays are drawn from
+  // these pixels. Null = `image` covers every pixel.
+  const std::vector<uint32_t>* label_pixels = nullptr;
 };
 
 class ContinualRaySampler : public RaySampler {

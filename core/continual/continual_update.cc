@@ -73,7 +73,7 @@ absl::Status UpdateOptions::Validate() const {
   if (!(meil_new_fraction > 0 && meil_new_fraction < 1)) {
     return absl::InvalidArgumentError("meil_new_fraction must be in (0, 1)");
   }
-  for (const absl::Status& s : {train.Validate(), model.Validate(), capacity.Validate()}) {
+  for (const absl::Status& s : {train.Validate(), model.Validate(), capacity.Validate(), replay_labels.Validate()}) {
     if (!s.ok()) return s;
   }
   return absl::OkStatus();
@@ -146,7 +146,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
     views.push_back({v.camera, &v.image, v.mask.empty() ? nullptr : &v.mask, false, false, &v.depth});
   }
   rep.new_views = int(scan.train.size());
-  std::vector<Image> cache;  // Offline replay labels.
+  std::vector<ReplayLabelView> cache;  // Offline replay labels.
   if (prev != nullptr) {
     const ReplayMemory& mem = prev->memory;
     if (use_buffer) {
@@ -163,28 +163,50 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
       rep.replay_views = int(gr.size());
       const auto t0 = std::chrono::steady_clock::now();
       if (options.replay == ReplayMode::kOffline) {
-        cache.reserve(gr.size());
-        for (size_t k = 0; k < gr.size(); ++k) {
-          if (cancel != nullptr && cancel->load()) return absl::CancelledError("update cancelled while preparing replay");
-          const Camera cam = mem.GetCamera(gr[k]);
-          RenderOptions ro;
-          ro.time_step = cam.time_step;
-          if (cancel != nullptr) ro.should_stop = [cancel] { return cancel->load(std::memory_order_relaxed); };
-          absl::StatusOr<RenderedView> r = RenderView(*prev->model, cam, ro);
-          if (absl::IsCancelled(r.status())) return absl::CancelledError("update cancelled while preparing replay");
-          if (!r.ok()) return r.status();
-          cache.push_back(std::move(r->rgb));
-          rep.replay_cache_bytes += cache.back().rgb.size() * sizeof(float);
-          if (progress) {
-            UpdateProgress p;
-            p.phase = UpdatePhase::kPreparingReplay;
-            p.iteration = int(k + 1);
-            p.total = int(gr.size());
-            p.elapsed_seconds = Since(start);
-            progress(p);
-          }
+        std::vector<Camera> cams;
+        for (uint32_t i : gr) cams.push_back(mem.GetCamera(i));
+        // The replay draws this update can make: steps x the adaptive batch
+        // (estimated from θ_{t-1}'s samples per ray; the first batch's size
+        // when the batch is fixed) x the replay views' share of the batch.
+        const double spr = ProbeSamplesPerRay(*prev->model, cams, options.replay_labels.probe_rays, seed ^ 0x9e37);
+        const TrainOptions& tr = options.train;
+        double batch = tr.batch_rays;
+        if (tr.target_samples > 0 && spr > 0) {
+          batch = std::clamp(double(tr.target_samples) / spr, 256.0, double(tr.max_batch_rays));
         }
-        for (size_t k = 0; k < gr.size(); ++k) views.push_back({mem.GetCamera(gr[k]), &cache[k], nullptr, true, true});
+        const double total_views = double(views.size() + gr.size());
+        double share = double(gr.size()) / total_views;
+        if (method == ContinualMethod::kMEIL) {
+          share = 1.0 - options.meil_new_fraction;
+        } else if (options.new_scan_share > 0) {
+          share = (1.0 - options.new_scan_share) * double(gr.size()) / double(gr.size() + rep.buffer_views);
+        }
+        const long long per_view =
+            LabelsPerView(double(tr.iterations) * batch * share, int(gr.size()), options.replay_labels);
+        ReplayLabelReport lr;
+        absl::StatusOr<std::vector<ReplayLabelView>> labels = RenderReplayLabels(
+            *prev->model, cams, per_view, seed ^ 0x1abe1, cancel,
+            [&](int done, int total) {
+              if (!progress) return;
+              UpdateProgress p;
+              p.phase = UpdatePhase::kPreparingReplay;
+              p.iteration = done;
+              p.total = total;
+              p.elapsed_seconds = Since(start);
+              progress(p);
+            },
+            &lr);
+        if (!labels.ok()) return labels.status();
+        cache = std::move(*labels);
+        rep.replay_cache_bytes = lr.bytes;
+        rep.replay_labels = lr.labels;
+        rep.replay_view_pixels = lr.view_pixels;
+        rep.replay_probe_samples_per_ray = spr;
+        for (size_t k = 0; k < gr.size(); ++k) {
+          SamplerView sv{cams[k], &cache[k].rgb, nullptr, true, true};
+          if (!cache[k].pixels.empty()) sv.label_pixels = &cache[k].pixels;
+          views.push_back(sv);
+        }
       } else {
         for (uint32_t i : gr) views.push_back({mem.GetCamera(i), nullptr, nullptr, true, true});
       }

@@ -30,6 +30,7 @@
 #include "absl/status/statusor.h"
 #include "core/field/capacity.h"
 #include "core/field/ngp_model.h"
+#include "core/continual/replay_labels.h"
 #include "core/continual/replay_memory.h"
 #include "core/data/scene.h"
 #include "core/train/ray_sampler.h"
@@ -57,6 +58,9 @@ struct UpdateOptions {
   // is kept for the paper's protocol.
   InitMode init = InitMode::kWarm;
   ReplayMode replay = ReplayMode::kOffline;
+  // Offline replay renders only as many of each past view's pixels as the
+  // update can draw (replay_labels.h); labels_per_draw 0 renders them all.
+  ReplayLabelOptions replay_labels;
   int buffer_size = 10;                 // K for clnerf / er (clnerf-noer forces 0).
   bool prioritized_buffer = false;      // Keep the K lowest-PSNR views instead of a reservoir.
   float ewc_lambda = 1e5f;              // Paper's value.
@@ -107,6 +111,9 @@ struct UpdateReport {
   int new_views = 0, replay_views = 0, buffer_views = 0;
   double replay_prepare_seconds = 0;  // Offline pre-render time (0 online).
   size_t replay_cache_bytes = 0;      // Offline label cache (released after).
+  long long replay_labels = 0;        // Offline: pixels rendered as labels,
+  long long replay_view_pixels = 0;   // of this many in the replayed views.
+  double replay_probe_samples_per_ray = 0;  // θ_{t-1}'s, from the probe.
   double train_seconds = 0;
   long long samples = 0;
   int skipped_batches = 0;            // NaN/Inf batches skipped by the trainer.

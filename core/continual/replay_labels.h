@@ -1,0 +1,79 @@
+// Replay labels: θ_{t-1}'s renders of past views, rendered once at the start
+// of an update (offline generative replay) and then sampled by the
+// ContinualRaySampler like photos.
+//
+// An update draws far fewer replay rays than its past views have pixels:
+// beer_2's fifth scan replays 40 views of 360×640 (9.2 M pixels) while 300
+// steps of about 450 rays draw about 0.1 M of them, so rendering every pixel
+// spent 225 of a 255 s update on labels nobody read. Here each past view gets
+// a random subset of its pixels sized from the draws the update can make
+// (`labels_per_draw` labels per expected draw, so about 1 − e^(−1/4) ≈ 88 % of
+// the draws still land on distinct pixels at the default 4); a view whose
+// share reaches its pixel count is rendered whole. Labels are the same
+// renders as before (the same rays through the same model), only fewer.
+//
+// Pure functions of their inputs; the model is read concurrently by the
+// rendering threads and never modified. Thread-safe.
+#ifndef CLNERF_CORE_CONTINUAL_REPLAY_LABELS_H_
+#define CLNERF_CORE_CONTINUAL_REPLAY_LABELS_H_
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "core/data/camera.h"
+#include "core/data/image.h"
+#include "core/field/ngp_model.h"
+
+namespace clnerf {
+
+struct ReplayLabelOptions {
+  // Labels rendered per expected replay draw. 0 = every pixel of every past
+  // view (the whole-view cache, as the paper's code pre-renders).
+  float labels_per_draw = 4.0f;
+  // Rays of θ_{t-1} rendered to measure its samples per ray, from which the
+  // trainer's adaptive batch (and so the draws) is estimated.
+  int probe_rays = 1024;
+  absl::Status Validate() const;
+};
+
+// The labels of one past view: either a whole image (`pixels` empty) or
+// `pixels.size()` labels, label k being pixel pixels[k] (ascending), stored
+// as an image of pixels.size() × 1.
+struct ReplayLabelView {
+  Image rgb;
+  std::vector<uint32_t> pixels;
+};
+
+struct ReplayLabelReport {
+  long long labels = 0;         // Pixels rendered.
+  long long view_pixels = 0;    // Pixels the past views have in all.
+  double probe_samples_per_ray = 0;  // Filled by the caller (ProbeSamplesPerRay).
+  size_t bytes = 0;             // Labels plus pixel indices.
+};
+
+// θ_{t-1}'s mean density evaluations per ray over `probe_rays` random pixels
+// of `cameras` (world space), each at its own time step. 0 when there is
+// nothing to probe.
+double ProbeSamplesPerRay(const NgpModel& model, const std::vector<Camera>& cameras, int probe_rays, uint64_t seed);
+
+// Labels per past view for `expected_draws` replay draws spread uniformly
+// over `num_views` views: ceil(labels_per_draw × draws / views), at least 1;
+// 0 labels_per_draw (or a non-positive estimate) means every pixel, which
+// callers see as a count >= the view's pixels.
+long long LabelsPerView(double expected_draws, int num_views, const ReplayLabelOptions& options);
+
+// Renders `labels_per_view` random pixels (without replacement; the whole
+// view when that is at least its pixel count) of each camera with `model` at
+// the camera's time step. progress(done, total) after each view; CANCELLED
+// when *cancel turns true.
+absl::StatusOr<std::vector<ReplayLabelView>> RenderReplayLabels(
+    const NgpModel& model, const std::vector<Camera>& cameras, long long labels_per_view, uint64_t seed,
+    const std::atomic<bool>* cancel, const std::function<void(int, int)>& progress, ReplayLabelReport* report);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_CONTINUAL_REPLAY_LABELS_H_

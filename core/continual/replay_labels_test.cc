@@ -1,0 +1,174 @@
+#include "core/continual/replay_labels.h"
+
+#include <atomic>
+#include <set>
+
+#include "core/continual/continual_sampler.h"
+#include "core/continual/continual_update.h"
+#include "core/continual/scan_sequence.h"
+#include "core/data/procedural_scene.h"
+#include "core/render/renderer.h"
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+ScanSequence Sequence(int steps) {
+  ProceduralSceneOptions po;
+  po.width = po.height = 16;
+  po.num_train_views = 8;
+  po.num_test_views = 2;
+  po.num_time_steps = steps;
+  po.samples_per_axis = 1;
+  po.seed = 3;
+  absl::StatusOr<Scene> s = GenerateProceduralScene(po);
+  EXPECT_TRUE(s.ok()) << s.status();
+  absl::StatusOr<ScanSequence> seq = FromTimeSteps(*s);
+  EXPECT_TRUE(seq.ok()) << seq.status();
+  return *seq;
+}
+
+UpdateOptions Tiny(int iterations) {
+  UpdateOptions o;
+  o.train.iterations = iterations;
+  o.train.threads = 2;
+  o.train.seed = 1;
+  o.train.target_samples = 1 << 13;
+  o.train.batch_rays = 512;
+  o.model.grid.levels = 8;
+  o.capacity.max_log2_table_size = 14;
+  o.model.occupancy.warmup_iterations = 64;
+  return o;
+}
+
+TEST(ReplayLabelsTest, OptionsAndBudget) {
+  EXPECT_TRUE(ReplayLabelOptions().Validate().ok());
+  ReplayLabelOptions bad;
+  bad.labels_per_draw = -1;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad.labels_per_draw = NAN;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad = ReplayLabelOptions();
+  bad.probe_rays = 0;
+  EXPECT_FALSE(bad.Validate().ok());
+
+  ReplayLabelOptions o;  // 4 labels per draw.
+  EXPECT_EQ(LabelsPerView(1000.0, 10, o), 400);
+  EXPECT_EQ(LabelsPerView(1.0, 10, o), 1);  // At least one label per view.
+  o.labels_per_draw = 0;                    // Every pixel.
+  EXPECT_GE(LabelsPerView(1000.0, 10, o), 1LL << 40);
+  EXPECT_GE(LabelsPerView(0.0, 10, ReplayLabelOptions()), 1LL << 40);  // No estimate: every pixel.
+}
+
+// A subset's labels are θ_{t-1}'s renders of exactly those pixels; a budget
+// at least a view's pixel count renders the whole view; the sampler draws
+// only labelled pixels and pairs each with its own label.
+TEST(ReplayLabelsTest, LabelsAreTheModelsRendersOfTheirPixels) {
+  const ScanSequence seq = Sequence(1);
+  absl::StatusOr<ContinualState> s0 = ContinualUpdate(seq.ScanScene(0), nullptr, Tiny(30), nullptr, nullptr, nullptr);
+  ASSERT_TRUE(s0.ok()) << s0.status();
+  const NgpModel& model = *s0->model;
+  std::vector<Camera> cams;
+  for (uint32_t i = 0; i < 3; ++i) cams.push_back(s0->memory.GetCamera(i));
+  const long long npix = 16 * 16;
+
+  EXPECT_GT(ProbeSamplesPerRay(model, cams, 256, 7), 0.0);
+  EXPECT_EQ(ProbeSamplesPerRay(model, {}, 256, 7), 0.0);
+
+  ReplayLabelReport rep;
+  int calls = 0;
+  absl::StatusOr<std::vector<ReplayLabelView>> part =
+      RenderReplayLabels(model, cams, 40, 11, nullptr, [&](int done, int total) {
+        ++calls;
+        EXPECT_EQ(total, 3);
+        EXPECT_EQ(done, calls);
+      }, &rep);
+  ASSERT_TRUE(part.ok()) << part.status();
+  ASSERT_EQ(part->size(), 3u);
+  EXPECT_EQ(calls, 3);
+  EXPECT_EQ(rep.labels, 3 * 40);
+  EXPECT_EQ(rep.view_pixels, 3 * npix);
+  EXPECT_EQ(rep.bytes, 3 * 40 * (3 * sizeof(float) + sizeof(uint32_t)));
+  for (size_t v = 0; v < cams.size(); ++v) {
+    const ReplayLabelView& lv = (*part)[v];
+    ASSERT_EQ(lv.pixels.size(), 40u);
+    ASSERT_EQ(lv.rgb.num_pixels(), 40u);
+    EXPECT_EQ(std::set<uint32_t>(lv.pixels.begin(), lv.pixels.end()).size(), 40u) << "drawn without replacement";
+    EXPECT_TRUE(std::is_sorted(lv.pixels.begin(), lv.pixels.end()));
+    RenderOptions ro;
+    ro.time_step = cams[v].time_step;
+    absl::StatusOr<RenderedView> full = RenderView(model, cams[v], ro);
+    ASSERT_TRUE(full.ok());
+    for (size_t k = 0; k < lv.pixels.size(); ++k) {
+      ASSERT_LT(lv.pixels[k], uint32_t(npix));
+      // Different batch sizes may take different GEMM kernels: float
+      // precision, not bit equality.
+      for (int c = 0; c < 3; ++c) {
+        EXPECT_NEAR(lv.rgb.rgb[3 * k + c], full->rgb.rgb[3 * size_t(lv.pixels[k]) + c], 1e-5f) << v << " " << k;
+      }
+    }
+  }
+  // Different views get different subsets.
+  EXPECT_NE((*part)[0].pixels, (*part)[1].pixels);
+
+  absl::StatusOr<std::vector<ReplayLabelView>> whole = RenderReplayLabels(model, cams, npix, 11, nullptr, {}, &rep);
+  ASSERT_TRUE(whole.ok());
+  EXPECT_TRUE((*whole)[0].pixels.empty());
+  EXPECT_EQ((*whole)[0].rgb.num_pixels(), size_t(npix));
+  EXPECT_EQ(rep.labels, 3 * npix);
+
+  // The sampler: every drawn ray is a labelled pixel's ray, with its label.
+  ContinualRaySampler sampler({{cams[0], &(*part)[0].rgb, nullptr, true, true, nullptr, &(*part)[0].pixels}}, model,
+                              nullptr, 0.0f);
+  std::mt19937_64 rng(5);
+  RayBatch b;
+  sampler.Sample(64, &rng, &b);
+  const Camera mcam = model.ToModelCamera(cams[0]);
+  int matched = 0;
+  for (int i = 0; i < b.size(); ++i) {
+    for (size_t k = 0; k < (*part)[0].pixels.size(); ++k) {
+      float o[3], d[3];
+      PixelRay(mcam, (*part)[0].pixels[k], o, d);
+      if (std::abs(o[0] - b.origin[3 * i]) + std::abs(d[0] - b.dir[3 * i]) + std::abs(d[1] - b.dir[3 * i + 1]) +
+              std::abs(d[2] - b.dir[3 * i + 2]) >
+          1e-6f) {
+        continue;
+      }
+      ++matched;
+      for (int c = 0; c < 3; ++c) EXPECT_EQ(b.target[3 * i + c], (*part)[0].rgb.rgb[3 * k + c]);
+      break;
+    }
+  }
+  EXPECT_EQ(matched, b.size());
+
+  std::atomic<bool> cancel{true};
+  EXPECT_EQ(RenderReplayLabels(model, cams, 40, 11, &cancel, {}, nullptr).status().code(),
+            absl::StatusCode::kCancelled);
+}
+
+// Through the update: the default budget renders a fraction of the past
+// pixels when the update is short, and the whole views when asked.
+TEST(ReplayLabelsTest, UpdateRendersWhatItCanDraw) {
+  const ScanSequence seq = Sequence(2);
+  absl::StatusOr<ContinualState> s0 = ContinualUpdate(seq.ScanScene(0), nullptr, Tiny(30), nullptr, nullptr, nullptr);
+  ASSERT_TRUE(s0.ok()) << s0.status();
+  UpdateOptions o = Tiny(1);
+  o.buffer_size = 0;
+  o.method = ContinualMethod::kCLNeRFNoER;
+  UpdateReport rep;
+  ASSERT_TRUE(ContinualUpdate(seq.ScanScene(1), &*s0, o, nullptr, nullptr, &rep).ok());
+  EXPECT_EQ(rep.replay_view_pixels, 8 * 16 * 16);
+  EXPECT_GT(rep.replay_probe_samples_per_ray, 0.0);
+  // 1 step x (8192 / samples per ray) rays x 1/2 replay share x 4 labels
+  // per draw, over 8 views.
+  const double batch = std::clamp(8192.0 / rep.replay_probe_samples_per_ray, 256.0, 32768.0);
+  const long long expect = std::min<long long>(16 * 16, (long long)std::ceil(4.0 * 1 * batch * 0.5 / 8));
+  EXPECT_EQ(rep.replay_labels, 8 * expect);
+  EXPECT_LT(rep.replay_labels, rep.replay_view_pixels);
+  o.replay_labels.labels_per_draw = 0;
+  ASSERT_TRUE(ContinualUpdate(seq.ScanScene(1), &*s0, o, nullptr, nullptr, &rep).ok());
+  EXPECT_EQ(rep.replay_labels, 8 * 16 * 16);
+}
+
+}  // namespace
+}  // namespace clnerf
