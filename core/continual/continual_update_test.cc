@@ -4,6 +4,7 @@
 
 #include "core/io/checkpoint.h"
 #include "core/continual/continual_sampler.h"
+#include "core/continual/continual_test_util.h"
 #include "core/render/evaluate.h"
 #include "core/data/procedural_scene.h"
 #include "core/render/renderer.h"
@@ -12,35 +13,6 @@
 
 namespace clnerf {
 namespace {
-
-ScanSequence TinySequence(int steps, int size = 24, int train = 20, int samples_per_axis = 1) {
-  ProceduralSceneOptions po;
-  po.width = po.height = size;
-  po.num_train_views = train;
-  po.num_test_views = 4;
-  po.num_time_steps = steps;
-  po.samples_per_axis = samples_per_axis;
-  po.seed = 3;
-  absl::StatusOr<Scene> s = GenerateProceduralScene(po);
-  EXPECT_TRUE(s.ok()) << s.status();
-  absl::StatusOr<ScanSequence> seq = FromTimeSteps(*s);
-  EXPECT_TRUE(seq.ok()) << seq.status();
-  return *seq;
-}
-
-UpdateOptions TinyOptions(ContinualMethod method, int iterations) {
-  UpdateOptions o;
-  o.method = method;
-  o.train.iterations = iterations;
-  o.train.threads = 2;
-  o.train.seed = 1;
-  o.train.target_samples = 1 << 13;
-  o.train.batch_rays = 512;
-  o.model.grid.levels = 8;
-  o.capacity.max_log2_table_size = 14;
-  o.model.occupancy.warmup_iterations = 64;
-  return o;
-}
 
 TEST(ContinualUpdateTest, PreviousModelAndMemoryAreUntouched) {
   const ScanSequence seq = TinySequence(2, 16, 8);

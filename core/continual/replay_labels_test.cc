@@ -4,42 +4,12 @@
 #include <set>
 
 #include "core/continual/continual_sampler.h"
-#include "core/continual/continual_update.h"
-#include "core/continual/scan_sequence.h"
-#include "core/data/procedural_scene.h"
+#include "core/continual/continual_test_util.h"
 #include "core/render/renderer.h"
 #include "gtest/gtest.h"
 
 namespace clnerf {
 namespace {
-
-ScanSequence Sequence(int steps) {
-  ProceduralSceneOptions po;
-  po.width = po.height = 16;
-  po.num_train_views = 8;
-  po.num_test_views = 2;
-  po.num_time_steps = steps;
-  po.samples_per_axis = 1;
-  po.seed = 3;
-  absl::StatusOr<Scene> s = GenerateProceduralScene(po);
-  EXPECT_TRUE(s.ok()) << s.status();
-  absl::StatusOr<ScanSequence> seq = FromTimeSteps(*s);
-  EXPECT_TRUE(seq.ok()) << seq.status();
-  return *seq;
-}
-
-UpdateOptions Tiny(int iterations) {
-  UpdateOptions o;
-  o.train.iterations = iterations;
-  o.train.threads = 2;
-  o.train.seed = 1;
-  o.train.target_samples = 1 << 13;
-  o.train.batch_rays = 512;
-  o.model.grid.levels = 8;
-  o.capacity.max_log2_table_size = 14;
-  o.model.occupancy.warmup_iterations = 64;
-  return o;
-}
 
 TEST(ReplayLabelsTest, OptionsAndBudget) {
   EXPECT_TRUE(ReplayLabelOptions().Validate().ok());
@@ -64,8 +34,9 @@ TEST(ReplayLabelsTest, OptionsAndBudget) {
 // at least a view's pixel count renders the whole view; the sampler draws
 // only labelled pixels and pairs each with its own label.
 TEST(ReplayLabelsTest, LabelsAreTheModelsRendersOfTheirPixels) {
-  const ScanSequence seq = Sequence(1);
-  absl::StatusOr<ContinualState> s0 = ContinualUpdate(seq.ScanScene(0), nullptr, Tiny(30), nullptr, nullptr, nullptr);
+  const ScanSequence seq = TinySequence(1, 16, 8);
+  absl::StatusOr<ContinualState> s0 = ContinualUpdate(seq.ScanScene(0), nullptr, TinyOptions(ContinualMethod::kCLNeRF, 30),
+                                                      nullptr, nullptr, nullptr);
   ASSERT_TRUE(s0.ok()) << s0.status();
   const NgpModel& model = *s0->model;
   std::vector<Camera> cams;
@@ -149,12 +120,12 @@ TEST(ReplayLabelsTest, LabelsAreTheModelsRendersOfTheirPixels) {
 // Through the update: the default budget renders a fraction of the past
 // pixels when the update is short, and the whole views when asked.
 TEST(ReplayLabelsTest, UpdateRendersWhatItCanDraw) {
-  const ScanSequence seq = Sequence(2);
-  absl::StatusOr<ContinualState> s0 = ContinualUpdate(seq.ScanScene(0), nullptr, Tiny(30), nullptr, nullptr, nullptr);
+  const ScanSequence seq = TinySequence(2, 16, 8);
+  absl::StatusOr<ContinualState> s0 = ContinualUpdate(seq.ScanScene(0), nullptr, TinyOptions(ContinualMethod::kCLNeRF, 30),
+                                                      nullptr, nullptr, nullptr);
   ASSERT_TRUE(s0.ok()) << s0.status();
-  UpdateOptions o = Tiny(1);
+  UpdateOptions o = TinyOptions(ContinualMethod::kCLNeRFNoER, 1);
   o.buffer_size = 0;
-  o.method = ContinualMethod::kCLNeRFNoER;
   UpdateReport rep;
   ASSERT_TRUE(ContinualUpdate(seq.ScanScene(1), &*s0, o, nullptr, nullptr, &rep).ok());
   EXPECT_EQ(rep.replay_view_pixels, 8 * 16 * 16);
