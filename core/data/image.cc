@@ -188,20 +188,29 @@ absl::Status WriteU8(const std::string& path, int w, int h, int nc, const std::v
 }
 uint8_t ToU8(float v) { return uint8_t(std::lround(std::clamp(v, 0.0f, 1.0f) * 255.0f)); }
 
-absl::StatusOr<std::string> EncodeU8Png(int w, int h, int nc, const std::vector<uint8_t>& px) {
+// Encodes 8-bit pixels in memory through OIIO's writer for `ext` ("png",
+// "jpg"); `quality` (1..100) is passed on for JPEG.
+absl::StatusOr<std::string> EncodeU8(const char* ext, int w, int h, int nc, const std::vector<uint8_t>& px,
+                                     int quality = 0) {
   if (w <= 0 || h <= 0) return absl::InvalidArgumentError("cannot encode an empty image");
+  const std::string name = absl::StrCat("memory.", ext);
   std::vector<unsigned char> buf;
   OIIO::Filesystem::IOVecOutput vec(buf);
-  auto out = OIIO::ImageOutput::create("memory.png");
-  if (!out) return absl::InternalError(absl::StrCat("no PNG writer: ", OIIO::geterror()));
+  auto out = OIIO::ImageOutput::create(name);
+  if (!out) return absl::InternalError(absl::StrCat("no ", ext, " writer: ", OIIO::geterror()));
   OIIO::ImageSpec spec(w, h, nc, OIIO::TypeDesc::UINT8);
   void* ptr = &vec;
   spec.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &ptr);
-  if (!out->open("memory.png", spec) || !out->write_image(OIIO::TypeDesc::UINT8, px.data())) {
-    return absl::InternalError(absl::StrCat("cannot encode PNG: ", out->geterror()));
+  if (quality > 0) spec.attribute("Compression", absl::StrCat("jpeg:", quality));
+  if (!out->open(name, spec) || !out->write_image(OIIO::TypeDesc::UINT8, px.data())) {
+    return absl::InternalError(absl::StrCat("cannot encode ", ext, ": ", out->geterror()));
   }
   out->close();
   return std::string(buf.begin(), buf.end());
+}
+
+absl::StatusOr<std::string> EncodeU8Png(int w, int h, int nc, const std::vector<uint8_t>& px) {
+  return EncodeU8("png", w, h, nc, px);
 }
 }  // namespace
 
@@ -209,6 +218,15 @@ absl::StatusOr<std::string> EncodePng(const Image& image) {
   std::vector<uint8_t> px(image.rgb.size());
   for (size_t i = 0; i < px.size(); ++i) px[i] = ToU8(image.rgb[i]);
   return EncodeU8Png(image.width, image.height, 3, px);
+}
+
+absl::StatusOr<std::string> EncodeJpeg(const Image& image, int quality) {
+  if (quality < 1 || quality > 100) {
+    return absl::InvalidArgumentError(absl::StrCat("JPEG quality ", quality, " is outside 1..100"));
+  }
+  std::vector<uint8_t> px(image.rgb.size());
+  for (size_t i = 0; i < px.size(); ++i) px[i] = ToU8(image.rgb[i]);
+  return EncodeU8("jpg", image.width, image.height, 3, px, quality);
 }
 
 absl::StatusOr<std::string> EncodeMaskPng(const Mask& mask) {

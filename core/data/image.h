@@ -66,6 +66,8 @@ absl::StatusOr<Mask> DecodeMask(const std::string& bytes, const std::string& nam
                                 bool nonzero_is_exclude);
 // Encodes an image as an 8-bit RGB PNG in memory (values clamped, rounded).
 absl::StatusOr<std::string> EncodePng(const Image& image);
+// Encodes an image as a baseline 8-bit RGB JPEG in memory; `quality` 1..100.
+absl::StatusOr<std::string> EncodeJpeg(const Image& image, int quality = 85);
 // Encodes a mask as an 8-bit greyscale PNG: 255 = keep, 0 = exclude.
 absl::StatusOr<std::string> EncodeMaskPng(const Mask& mask);
 // Reads a mask image; any channel > 0.5 of the first channel means "keep"

@@ -1,5 +1,6 @@
 #include "core/data/image.h"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -23,6 +24,35 @@ TEST(ImageCodecTest, PngRoundTripsTo8BitPrecision) {
   ASSERT_EQ(back->width, 7);
   ASSERT_EQ(back->height, 5);
   for (size_t i = 0; i < img.rgb.size(); ++i) EXPECT_NEAR(back->rgb[i], img.rgb[i], 0.5f / 255.0f);
+}
+
+TEST(ImageCodecTest, JpegRoundTripsCloseAndQualityTradesSize) {
+  // A smooth gradient: JPEG keeps it within a few levels at quality 95.
+  Image img(32, 24);
+  for (int y = 0; y < img.height; ++y) {
+    for (int x = 0; x < img.width; ++x) {
+      float* p = &img.rgb[(size_t(y) * img.width + x) * 3];
+      p[0] = x / 31.0f;
+      p[1] = y / 23.0f;
+      p[2] = 0.5f;
+    }
+  }
+  auto hi = EncodeJpeg(img, 95);
+  auto lo = EncodeJpeg(img, 10);
+  ASSERT_TRUE(hi.ok()) << hi.status();
+  ASSERT_TRUE(lo.ok()) << lo.status();
+  EXPECT_EQ(SniffImageExtension(*hi), ".jpg");
+  EXPECT_LT(lo->size(), hi->size());
+  auto back = DecodeImage(*hi, "x.jpg");
+  ASSERT_TRUE(back.ok()) << back.status();
+  ASSERT_EQ(back->width, 32);
+  ASSERT_EQ(back->height, 24);
+  double err = 0;
+  for (size_t i = 0; i < img.rgb.size(); ++i) err = std::max(err, double(std::fabs(back->rgb[i] - img.rgb[i])));
+  EXPECT_LT(err, 12.0 / 255.0);
+  EXPECT_EQ(EncodeJpeg(img, 0).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(EncodeJpeg(img, 101).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(EncodeJpeg(Image(), 80).status().code(), absl::StatusCode::kInvalidArgument);
 }
 
 TEST(ImageCodecTest, MaskRoundTripsAndHonoursTheConvention) {
