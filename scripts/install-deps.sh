@@ -11,6 +11,8 @@ PKGS=(
   libgtest-dev libgmock-dev nlohmann-json3-dev libcli11-dev zlib1g-dev
   python3 python3-matplotlib linux-perf valgrind
   clang libclang-rt-dev libomp-dev
+  libcpp-httplib-dev
+  chromium chromium-driver python3-selenium
 )
 
 missing=()

@@ -9,6 +9,7 @@
 #include "grpcpp/resource_quota.h"
 #include "grpcpp/security/server_credentials.h"
 #include "grpcpp/server_builder.h"
+#include "server/http_server.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {
@@ -64,6 +65,12 @@ absl::StatusOr<std::unique_ptr<GrpcServer>> GrpcServer::Start(const ServerOption
   }
   spdlog::info("clnerf-server listening on port {} (store {}, auth {}, tls {})", srv->port_, options.store_dir,
                options.token.empty() ? "off" : "on", options.tls_cert.empty() ? "off" : "on");
+  if (!options.http_listen.empty()) {
+    absl::StatusOr<std::unique_ptr<HttpServer>> http = HttpServer::Start(options.http_listen, srv->host_.get(),
+                                                                         options.token);
+    if (!http.ok()) return http.status();
+    srv->http_ = *std::move(http);
+  }
   return srv;
 }
 
@@ -73,6 +80,9 @@ bool GrpcServer::Shutdown() {
     if (grpc::HealthCheckServiceInterface* health = server_->GetHealthCheckService()) {
       health->SetServingStatus(false);
     }
+    // The HTTP front end stops first: its renders in flight end, new
+    // requests are refused.
+    if (http_) http_->Stop();
     // Stop training first so long WatchJob streams and the worker end
     // promptly; new uploads and renders are refused (UNAVAILABLE).
     clean_ = host_->Shutdown();

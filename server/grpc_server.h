@@ -1,7 +1,9 @@
 // GrpcServer: a running clnerf-server — the ModelHost plus a grpc::Server
 // with the ClnerfService, the standard grpc.health.v1 health service and
-// server reflection (so grpcurl works). Used by main() and, in-process on
-// localhost:0, by the integration tests.
+// server reflection (so grpcurl works), and, with options.http_listen, the
+// HTTP front end (http_server.h: the web viewer and its JSON API) over the
+// same ModelHost. Used by main() and, in-process on localhost:0, by the
+// integration tests.
 //
 // Shutdown: health goes NOT_SERVING, new calls get UNAVAILABLE, in-flight
 // calls get `shutdown_grace_seconds` to finish, then the update worker is
@@ -18,6 +20,7 @@
 #include "absl/status/statusor.h"
 #include "grpcpp/server.h"
 #include "server/grpc_service.h"
+#include "server/http_server.h"
 #include "server/model_host.h"
 #include "server/server_options.h"
 
@@ -29,6 +32,8 @@ class GrpcServer {
   ~GrpcServer();
 
   int port() const { return port_; }  // The bound port (useful with port 0).
+  // The bound HTTP port; 0 when HTTP is off.
+  int http_port() const { return http_ ? http_->port() : 0; }
   ModelHost& host() { return *host_; }
   // False if the update worker did not stop within the grace period (the
   // caller should then exit the process without running destructors).
@@ -41,6 +46,7 @@ class GrpcServer {
   bool clean_ = true;
   std::unique_ptr<ClnerfServiceImpl> service_;
   std::unique_ptr<grpc::Server> server_;
+  std::unique_ptr<HttpServer> http_;  // Destroyed before host_.
   int port_ = 0;
   std::once_flag shutdown_once_;
 };

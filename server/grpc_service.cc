@@ -9,6 +9,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "core/data/image.h"
+#include "server/bearer_token.h"
 #include "server/log_util.h"
 #include "server/proto_convert.h"
 #include "server/scan_assembler.h"
@@ -48,12 +49,7 @@ grpc::Status ClnerfServiceImpl::CheckAuth(const grpc::ServerContext* ctx) const 
   if (it == md.end()) {
     return grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "this call needs 'authorization: Bearer <token>'");
   }
-  const std::string got(it->second.data(), it->second.size());
-  const std::string want = "Bearer " + token_;
-  // Constant-time comparison.
-  unsigned diff = got.size() ^ want.size();
-  for (size_t i = 0; i < want.size(); ++i) diff |= unsigned(i < got.size() ? got[i] : 0) ^ unsigned(want[i]);
-  if (diff != 0) return grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "invalid bearer token");
+  if (!BearerTokenMatches(std::string_view(it->second.data(), it->second.size()), token_)) return grpc::Status(grpc::StatusCode::UNAUTHENTICATED, "invalid bearer token");
   return grpc::Status::OK;
 }
 

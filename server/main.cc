@@ -51,6 +51,8 @@ int main(int argc, char** argv) {
   CLI::App app{"clnerf-server: continual NeRF model-update service (gRPC)"};
   app.set_version_flag("--version", "clnerf-server 0.1.0");
   app.add_option("--listen", o.listen, "HOST:PORT to listen on (port 0 = any free port)")->capture_default_str();
+  app.add_option("--http", o.http_listen,
+                 "HOST:PORT for the web viewer and its JSON API (port 0 = any free port; default off)");
   app.add_option("--store", o.store_dir, "Store directory (scans, versions, manifest)")->capture_default_str();
   app.add_option("--token", o.token, "Bearer token required for mutating calls (default: $CLNERF_TOKEN; empty = no auth)");
   app.add_option("--config", config, "JSON config file (keys: README 'The service' > Operation, server/server_options.h); flags override it");
@@ -111,6 +113,7 @@ int main(int argc, char** argv) {
   }
   // Machine-readable line for scripts (the port matters with :0).
   std::printf("clnerf-server listening on port %d\n", (*server)->port());
+  if ((*server)->http_port() > 0) std::printf("clnerf-server http on port %d\n", (*server)->http_port());
   std::fflush(stdout);
   int sig = 0;
   sigwait(&sigs, &sig);

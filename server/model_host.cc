@@ -156,13 +156,8 @@ absl::StatusOr<RenderResult> ModelHost::Render(const Camera& world_camera, std::
     return absl::InvalidArgumentError(absl::StrCat("time step ", *time_step,
                                                    " is negative; leave it unset for the latest time step"));
   }
-  absl::StatusOr<std::shared_ptr<const Servable>> snap = publisher_->registry().Get(version);
-  if (!snap.ok()) {
-    if (version == 0 && absl::IsFailedPrecondition(snap.status()) && !publisher_->error().empty()) {
-      return absl::UnavailableError(absl::StrCat("no version is deployed: ", publisher_->error()));
-    }
-    return snap.status();
-  }
+  absl::StatusOr<std::shared_ptr<const Servable>> snap = Snapshot(version);
+  if (!snap.ok()) return snap.status();
   const NgpModel& model = (*snap)->model();
   const int t = time_step.value_or(model.num_time_steps() - 1);
   if (t >= model.num_time_steps()) {
@@ -195,6 +190,20 @@ absl::StatusOr<RenderResult> ModelHost::Render(const Camera& world_camera, std::
   if (!small) render_slots_.release();
   if (!view.ok()) return view.status();
   return RenderResult{(*snap)->info.version, t, std::move(view->rgb), SecondsSince(t0)};
+}
+
+absl::StatusOr<std::shared_ptr<const Servable>> ModelHost::Snapshot(int64_t version) const {
+  absl::StatusOr<std::shared_ptr<const Servable>> snap = publisher_->registry().Get(version);
+  if (!snap.ok() && version == 0 && absl::IsFailedPrecondition(snap.status()) && !publisher_->error().empty()) {
+    return absl::UnavailableError(absl::StrCat("no version is deployed: ", publisher_->error()));
+  }
+  return snap;
+}
+
+absl::StatusOr<SceneSummary> ModelHost::Scene(int64_t version) const {
+  absl::StatusOr<std::shared_ptr<const Servable>> snap = Snapshot(version);
+  if (!snap.ok()) return snap.status();
+  return Summarize(**snap);
 }
 
 absl::StatusOr<JobStatus> ModelHost::CancelJob(const std::string& id) {

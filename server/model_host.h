@@ -10,7 +10,10 @@
 //
 //   AcceptScan   validate -> write durably -> queue a job -> acknowledge
 //   Render       snapshot (shared_ptr<const Servable>) -> bounded render slot
-//   versions, rollback, jobs, cancel, info
+//   versions, rollback, jobs, cancel, info, scene summaries
+//
+// The gRPC service (grpc_service.h) and the HTTP API (http_api.h) are thin
+// front ends over this class; neither calls the other.
 //
 // Start-up recovery: the publisher finishes a publish that crashed between
 // the version and the manifest; scans already trained into a version are
@@ -50,6 +53,7 @@
 #include "server/model_registry.h"
 #include "server/publisher.h"
 #include "server/scan_store.h"
+#include "server/scene_summary.h"
 #include "server/server_options.h"
 #include "server/update_worker.h"
 #include "server/version_store.h"
@@ -112,6 +116,9 @@ class ModelHost {
 
   absl::StatusOr<std::vector<VersionInfo>> ListVersions() const { return publisher_->versions().List(); }
   absl::StatusOr<VersionInfo> GetVersion(int64_t v) const { return publisher_->versions().Info(v); }
+  // What a viewer needs to look around version `v` (0 = deployed): time
+  // steps, the scans' cameras, up, a focus point. Errors as Render's.
+  absl::StatusOr<SceneSummary> Scene(int64_t v) const;
   // Rollback / pin. NOT_FOUND for an unknown version.
   absl::StatusOr<VersionInfo> SetDeployedVersion(int64_t v);
   int64_t deployed_version() const { return publisher_->registry().deployed_version(); }
@@ -128,6 +135,9 @@ class ModelHost {
  private:
   explicit ModelHost(const ServerOptions& options);
   absl::Status RecoverScans();
+  // Version `version` (0 = deployed) from the registry; UNAVAILABLE naming the
+  // store error when nothing is deployed because the store failed.
+  absl::StatusOr<std::shared_ptr<const Servable>> Snapshot(int64_t version) const;
   // The time step a scan queued now becomes if every job ahead succeeds.
   int PredictedTimeStep() const;
 

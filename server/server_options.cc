@@ -28,6 +28,9 @@ absl::Status ServerOptions::Validate() const {
   if (listen.empty() || listen.find(':') == std::string::npos) {
     return absl::InvalidArgumentError(absl::StrCat("listen address '", listen, "' is not HOST:PORT"));
   }
+  if (!http_listen.empty() && http_listen.find(':') == std::string::npos) {
+    return absl::InvalidArgumentError(absl::StrCat("http address '", http_listen, "' is not HOST:PORT"));
+  }
   if (store_dir.empty()) return absl::InvalidArgumentError("store directory must be set");
   if (tls_cert.empty() != tls_key.empty()) {
     return absl::InvalidArgumentError("TLS needs both a certificate and a key");
@@ -104,6 +107,7 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     absl::Status s;
     std::string str;
     if (k == "listen") s = Get(*it, "listen", &o->listen);
+    else if (k == "http") s = Get(*it, "http", &o->http_listen);
     else if (k == "store") s = Get(*it, "store", &o->store_dir);
     else if (k == "token") s = Get(*it, "token", &o->token);
     else if (k == "tls_cert") s = Get(*it, "tls_cert", &o->tls_cert);

@@ -27,6 +27,10 @@ namespace clnerf {
 
 struct ServerOptions {
   std::string listen = "0.0.0.0:50051";  // host:port; port 0 picks a free one.
+  // The web viewer and its JSON API over HTTP (http_server.h): host:port,
+  // port 0 picks a free one; "" (default) = off. The token applies to its
+  // mutating routes too.
+  std::string http_listen;
   std::string store_dir = "clnerf-store";
   std::string token;     // Bearer token for mutating calls ("" = no auth).
   std::string tls_cert;  // PEM certificate chain; with tls_key enables TLS.

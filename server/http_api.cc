@@ -1,0 +1,266 @@
+#include "server/http_api.h"
+
+#include <chrono>
+#include <cmath>
+#include <string>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "core/data/image.h"
+#include "httplib.h"
+#include "nlohmann/json.hpp"
+#include "proto/wire/wire.h"
+#include "server/bearer_token.h"
+#include "server/http_render_request.h"
+#include "server/log_util.h"
+#include "spdlog/spdlog.h"
+
+namespace clnerf {
+
+using json = nlohmann::json;
+
+int HttpStatusFor(absl::StatusCode code) {
+  switch (code) {
+    case absl::StatusCode::kOk: return 200;
+    case absl::StatusCode::kInvalidArgument:
+    case absl::StatusCode::kOutOfRange: return 400;
+    case absl::StatusCode::kUnauthenticated: return 401;
+    case absl::StatusCode::kPermissionDenied: return 403;
+    case absl::StatusCode::kNotFound: return 404;
+    case absl::StatusCode::kAlreadyExists:
+    case absl::StatusCode::kAborted:
+    case absl::StatusCode::kFailedPrecondition: return 409;
+    case absl::StatusCode::kResourceExhausted: return 429;
+    // nginx's "client closed request": the client (or a newer request of
+    // its view) no longer wants the answer.
+    case absl::StatusCode::kCancelled: return 499;
+    case absl::StatusCode::kUnimplemented: return 501;
+    case absl::StatusCode::kUnavailable: return 503;
+    case absl::StatusCode::kDeadlineExceeded: return 504;
+    default: return 500;
+  }
+}
+
+namespace {
+
+void SendJson(httplib::Response& res, const json& body, int status = 200) {
+  res.status = status;
+  res.set_header("Cache-Control", "no-store");
+  res.set_content(body.dump(-1, ' ', false, json::error_handler_t::replace), "application/json");
+}
+
+void SendError(httplib::Response& res, const absl::Status& s) {
+  SendJson(res,
+           json{{"error", std::string(s.message())},
+                {"code", StatusCodeName(static_cast<grpc::StatusCode>(s.code()))}},
+           HttpStatusFor(s.code()));
+}
+
+json Vec(const Eigen::Vector3f& v) { return json::array({v.x(), v.y(), v.z()}); }
+
+// A camera as the viewer uses it: eye, a target on its axis at the focus
+// distance, its own up, its vertical field of view; plus the raw pose.
+json CameraJson(const Camera& c, const SceneSummary& s) {
+  const Eigen::Vector3f eye = c.position();
+  const Eigen::Vector3f fwd = c.c2w.col(2).normalized();
+  float d = (s.focus - eye).dot(fwd);
+  if (!(d > 0.05f * s.radius)) d = s.radius;
+  json pose = json::array();
+  for (int i = 0; i < 3; ++i) {
+    for (int j = 0; j < 4; ++j) pose.push_back(c.c2w(i, j));
+  }
+  const Intrinsics& in = c.intrinsics;
+  return json{{"time_step", c.time_step},
+              {"eye", Vec(eye)},
+              {"target", Vec(eye + fwd * d)},
+              {"up", Vec(-c.c2w.col(1))},
+              {"fov", 2 * std::atan(0.5 * in.height / in.fy) * 180 / M_PI},
+              {"width", in.width},
+              {"height", in.height},
+              {"c2w", pose}};
+}
+
+json VersionJson(const VersionInfo& v, int64_t deployed) {
+  return json{{"version", v.version},         {"parent", v.parent},
+              {"time_steps", v.time_steps},   {"size_bytes", v.size_bytes},
+              {"model_bytes", v.model_bytes}, {"created_unix_ms", v.created_unix_ms},
+              {"scan_id", v.scan_id},         {"metrics", v.metrics},
+              {"deployed", v.version == deployed}};
+}
+
+json JobJson(const JobStatus& j) {
+  return json{{"job_id", j.job_id},
+              {"scan_id", j.scan_id},
+              {"scan_name", j.scan_name},
+              {"phase", JobPhaseName(j.phase)},
+              {"done", IsFinal(j.phase)},
+              {"time_step", j.time_step},
+              {"iteration", j.iteration},
+              {"total_iterations", j.total_iterations},
+              {"elapsed_seconds", j.elapsed_seconds},
+              {"eta_seconds", j.eta_seconds},
+              {"loss", std::isfinite(j.loss) ? json(j.loss) : json(nullptr)},
+              {"psnr", std::isfinite(j.psnr) ? json(j.psnr) : json(nullptr)},
+              {"version", j.version},
+              {"error", j.error},
+              {"created_unix_ms", j.created_unix_ms},
+              {"finished_unix_ms", j.finished_unix_ms},
+              {"cancel_requested", j.cancel_requested},
+              {"metrics", j.metrics}};
+}
+
+// An optional integer query parameter in [lo, hi].
+absl::StatusOr<int64_t> IntParam(const httplib::Request& req, const char* name, int64_t fallback, int64_t lo,
+                                 int64_t hi) {
+  if (!req.has_param(name)) return fallback;
+  if (req.get_param_value_count(name) > 1) {
+    return absl::InvalidArgumentError(absl::StrCat("parameter '", name, "' is given more than once"));
+  }
+  const std::string v = req.get_param_value(name);
+  int64_t x = 0;
+  if (!absl::SimpleAtoi(v, &x) || x < lo || x > hi) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("parameter '", name, "': '", EscapeForLog(v, 64), "' is not an integer in ", lo, "..", hi));
+  }
+  return x;
+}
+
+}  // namespace
+
+void HttpApi::Register(httplib::Server* server) {
+  auto authorized = [this](const httplib::Request& req, httplib::Response& res) {
+    if (token_.empty()) return true;
+    if (!req.has_header("Authorization")) {
+      SendError(res, absl::UnauthenticatedError("this call needs 'Authorization: Bearer <token>'"));
+      return false;
+    }
+    if (!BearerTokenMatches(req.get_header_value("Authorization"), token_)) {
+      SendError(res, absl::UnauthenticatedError("invalid bearer token"));
+      return false;
+    }
+    return true;
+  };
+
+  server->Get("/api/info", [this](const httplib::Request&, httplib::Response& res) {
+    const HostInfo h = host_->Info();
+    SendJson(res, json{{"server_version", "clnerf-server 0.1.0"},
+                       {"deployed_version", h.deployed_version},
+                       {"time_steps", h.time_steps},
+                       {"queued_jobs", h.queued_jobs},
+                       {"running_job", h.running_job},
+                       {"store_error", h.store_error},
+                       {"model_bytes", h.model_bytes},
+                       {"replay_cameras", h.replay_cameras},
+                       {"uptime_seconds", h.uptime_seconds},
+                       {"max_render_pixels", host_->max_pixels_per_render()},
+                       {"auth_required", !token_.empty()}});
+  });
+
+  server->Get("/api/versions", [this](const httplib::Request&, httplib::Response& res) {
+    absl::StatusOr<std::vector<VersionInfo>> all = host_->ListVersions();
+    if (!all.ok()) return SendError(res, all.status());
+    const int64_t deployed = host_->deployed_version();
+    json list = json::array();
+    for (const VersionInfo& v : *all) list.push_back(VersionJson(v, deployed));
+    SendJson(res, json{{"deployed_version", deployed}, {"versions", list}});
+  });
+
+  server->Get("/api/scene", [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<int64_t> v = IntParam(req, "version", 0, 0, int64_t(1) << 62);
+    if (!v.ok()) return SendError(res, v.status());
+    absl::StatusOr<SceneSummary> s = host_->Scene(*v);
+    if (!s.ok()) return SendError(res, s.status());
+    absl::StatusOr<std::vector<VersionInfo>> all = host_->ListVersions();
+    if (!all.ok()) return SendError(res, all.status());
+    const int64_t deployed = host_->deployed_version();
+    json versions = json::array();
+    for (const VersionInfo& vi : *all) versions.push_back(VersionJson(vi, deployed));
+    json scans = json::array();
+    for (const Camera& c : s->scan_cameras) scans.push_back(CameraJson(c, *s));
+    SendJson(res, json{{"version", s->version},
+                       {"deployed_version", deployed},
+                       {"time_steps", s->time_steps},
+                       {"bounded", s->bounded},
+                       {"up", Vec(s->up)},
+                       {"focus", Vec(s->focus)},
+                       {"radius", s->radius},
+                       {"cameras", s->cameras},
+                       {"scans", scans},
+                       {"default_camera", CameraJson(s->default_camera, *s)},
+                       {"versions", versions},
+                       {"max_render_pixels", host_->max_pixels_per_render()},
+                       {"auth_required", !token_.empty()}});
+  });
+
+  server->Get("/api/render", [this](const httplib::Request& req, httplib::Response& res) {
+    if (host_->shutting_down() || stopping_.load()) {
+      return SendError(res, absl::UnavailableError("server is shutting down"));
+    }
+    absl::StatusOr<HttpRenderRequest> r = ParseRenderQuery(req.params);
+    if (!r.ok()) return SendError(res, r.status());
+    const ViewSessions::Ticket ticket = views_.Begin(r->view_id);
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(r->timeout_ms);
+    auto stop = [&] {
+      return ticket.superseded() || stopping_.load() || host_->shutting_down() ||
+             std::chrono::steady_clock::now() >= deadline;
+    };
+    absl::StatusOr<RenderResult> out = host_->Render(r->camera, r->time_step, r->version, stop);
+    if (absl::IsCancelled(out.status())) {
+      if (ticket.superseded()) {
+        return SendError(res, absl::CancelledError(absl::StrCat("superseded by a newer render of view '",
+                                                                r->view_id, "'")));
+      }
+      if (std::chrono::steady_clock::now() >= deadline) {
+        return SendError(res, absl::DeadlineExceededError(absl::StrCat(
+                                  "the render did not finish within timeout_ms ", r->timeout_ms, " and was stopped")));
+      }
+      return SendError(res, absl::UnavailableError("server is shutting down"));
+    }
+    if (!out.ok()) return SendError(res, out.status());
+    absl::StatusOr<std::string> bytes = r->format == HttpImageFormat::kPng ? EncodePng(out->image)
+                                                                           : EncodeJpeg(out->image, r->quality);
+    if (!bytes.ok()) return SendError(res, bytes.status());
+    res.set_header("Cache-Control", "no-store");
+    res.set_header("X-Clnerf-Version", std::to_string(out->version));
+    res.set_header("X-Clnerf-Time-Step", std::to_string(out->time_step));
+    res.set_header("X-Clnerf-Render-Ms", absl::StrCat(std::lround(out->seconds * 1000)));
+    res.set_header("Access-Control-Expose-Headers", "X-Clnerf-Version, X-Clnerf-Time-Step, X-Clnerf-Render-Ms");
+    res.set_content(*std::move(bytes), r->format == HttpImageFormat::kPng ? "image/png" : "image/jpeg");
+  });
+
+  server->Get("/api/jobs", [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<int64_t> limit = IntParam(req, "limit", 100, 1, 1000);
+    if (!limit.ok()) return SendError(res, limit.status());
+    absl::StatusOr<int64_t> offset = IntParam(req, "offset", 0, 0, int64_t(1) << 40);
+    if (!offset.ok()) return SendError(res, offset.status());
+    size_t total = 0;
+    json list = json::array();
+    for (const JobStatus& j : host_->ListJobs(size_t(*offset), size_t(*limit), &total)) list.push_back(JobJson(j));
+    SendJson(res, json{{"jobs", list}, {"total", total}});
+  });
+
+  server->Get(R"(/api/jobs/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<JobStatus> j = host_->GetJob(req.matches[1].str());
+    if (!j.ok()) return SendError(res, j.status());
+    SendJson(res, JobJson(*j));
+  });
+
+  server->Post(R"(/api/jobs/([^/]+)/cancel)", [this, authorized](const httplib::Request& req, httplib::Response& res) {
+    if (!authorized(req, res)) return;
+    absl::StatusOr<JobStatus> j = host_->CancelJob(req.matches[1].str());
+    if (!j.ok()) return SendError(res, j.status());
+    SendJson(res, JobJson(*j));
+  });
+
+  server->Post("/api/deploy", [this, authorized](const httplib::Request& req, httplib::Response& res) {
+    if (!authorized(req, res)) return;
+    if (!req.has_param("version")) return SendError(res, absl::InvalidArgumentError("parameter 'version' is required"));
+    absl::StatusOr<int64_t> v = IntParam(req, "version", 0, 1, int64_t(1) << 62);
+    if (!v.ok()) return SendError(res, v.status());
+    absl::StatusOr<VersionInfo> info = host_->SetDeployedVersion(*v);
+    if (!info.ok()) return SendError(res, info.status());
+    SendJson(res, VersionJson(*info, host_->deployed_version()));
+  });
+}
+
+}  // namespace clnerf

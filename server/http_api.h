@@ -1,0 +1,63 @@
+// HttpApi: the JSON + image API of clnerf-server over HTTP, which the web
+// viewer uses and curl users can call. Every handler is a thin front end over
+// ModelHost, the same service layer the gRPC service calls: there is no
+// second implementation of rendering, versions or jobs, and no hop through
+// gRPC. Routes (README "The web viewer" has curl examples):
+//
+//   GET  /api/info                    server state (deployed version, queue)
+//   GET  /api/scene[?version=N]       time steps, versions, scans' cameras,
+//                                     up, focus, a default camera
+//   GET  /api/versions                every version, the deployed one marked
+//   GET  /api/render?...              one view as JPEG or PNG (see
+//                                     http_render_request.h for parameters)
+//   GET  /api/jobs[?limit=&offset=]   jobs, newest first, with progress
+//   GET  /api/jobs/ID                 one job
+//   POST /api/jobs/ID/cancel          cancel (needs the token, if one is set)
+//   POST /api/deploy?version=N        roll back / pin (needs the token)
+//
+// Errors are JSON {"error": message, "code": "INVALID_ARGUMENT"} with the
+// HTTP status of the absl code (400, 401, 404, 409, 429, 503, 504, ...).
+// Renders keep every limit of the gRPC path: the per-request pixel budget,
+// the render slots, a deadline (timeout_ms) and cancellation, here by a
+// newer render of the same view (view_sessions.h) or server shutdown.
+//
+// Thread-safety: handlers run concurrently on the HTTP server's threads;
+// HttpApi holds only thread-safe state.
+#ifndef CLNERF_SERVER_HTTP_API_H_
+#define CLNERF_SERVER_HTTP_API_H_
+
+#include <atomic>
+#include <string>
+
+#include "absl/status/status.h"
+#include "server/model_host.h"
+#include "server/view_sessions.h"
+
+namespace httplib {
+class Server;
+}
+
+namespace clnerf {
+
+// The HTTP status for an absl status code.
+int HttpStatusFor(absl::StatusCode code);
+
+class HttpApi {
+ public:
+  // `token` empty = no auth; otherwise mutating routes need
+  // `Authorization: Bearer <token>`, as on gRPC.
+  HttpApi(ModelHost* host, std::string token) : host_(host), token_(std::move(token)) {}
+  void Register(httplib::Server* server);
+  // Makes renders in flight stop (server shutdown).
+  void Stop() { stopping_.store(true); }
+
+ private:
+  ModelHost* const host_;
+  const std::string token_;
+  ViewSessions views_;
+  std::atomic<bool> stopping_{false};
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_SERVER_HTTP_API_H_

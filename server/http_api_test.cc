@@ -1,0 +1,259 @@
+// The HTTP API against the real server in-process (gRPC and HTTP on
+// localhost:0), through cpp-httplib's client: the same model as gRPC, the
+// status codes of bad requests, the token, and cancellation of stale renders.
+#include "server/http_api.h"
+
+#include <chrono>
+#include <future>
+#include <string>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
+#include "core/data/image.h"
+#include "httplib.h"
+#include "nlohmann/json.hpp"
+#include "server/server_fixture.h"
+
+namespace clnerf {
+namespace {
+
+using json = nlohmann::json;
+using testing_util::ServerFixture;
+using testing_util::TempDir;
+using testing_util::TinyScans;
+using testing_util::TinyServerOptions;
+
+class HttpApiTest : public ServerFixture {
+ protected:
+  void StartHttp(ServerOptions o) {
+    o.http_listen = "127.0.0.1:0";
+    StartServer(o);
+    ASSERT_GT(server_->http_port(), 0);
+    http_ = std::make_unique<httplib::Client>("127.0.0.1", server_->http_port());
+    http_->set_read_timeout(std::chrono::seconds(60));
+  }
+  json Json(const httplib::Result& r) {
+    EXPECT_TRUE(r) << "no HTTP response";
+    if (!r) return json();
+    EXPECT_EQ(r->get_header_value("Content-Type"), "application/json") << r->body;
+    return json::parse(r->body, nullptr, false);
+  }
+  // A render query for `cam` in the c2w + pixel-intrinsics form.
+  static std::string RenderPath(const Camera& cam, const std::string& extra = "") {
+    std::vector<std::string> m;
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 4; ++j) m.push_back(absl::StrCat(cam.c2w(i, j)));
+    }
+    const Intrinsics& in = cam.intrinsics;
+    return absl::StrCat("/api/render?width=", in.width, "&height=", in.height, "&c2w=", absl::StrJoin(m, ","),
+                        "&fx=", in.fx, "&fy=", in.fy, "&cx=", in.cx, "&cy=", in.cy, extra);
+  }
+  std::unique_ptr<httplib::Client> http_;
+};
+
+double MeanAbsDiff(const Image& a, const Image& b) {
+  double d = 0;
+  for (size_t i = 0; i < a.rgb.size(); ++i) d += std::abs(a.rgb[i] - b.rgb[i]);
+  return d / double(a.rgb.size());
+}
+
+TEST_F(HttpApiTest, ServesTheSameModelsVersionsAndJobsAsGrpc) {
+  StartHttp(TinyServerOptions(TempDir("srv_http")));
+  const Scene scene = TinyScans(2);
+  const v1::Job j0 = UploadAndWait(scene, 0);
+  ASSERT_EQ(j0.phase(), v1::JOB_PHASE_DONE) << j0.error();
+  const v1::Job j1 = UploadAndWait(scene, 1);
+  ASSERT_EQ(j1.phase(), v1::JOB_PHASE_DONE) << j1.error();
+
+  json s = Json(http_->Get("/api/scene"));
+  EXPECT_EQ(s["version"], 2);
+  EXPECT_EQ(s["deployed_version"], 2);
+  EXPECT_EQ(s["time_steps"], 2);
+  ASSERT_EQ(s["scans"].size(), 2u);
+  EXPECT_EQ(s["versions"].size(), 2u);
+  EXPECT_EQ(s["default_camera"]["time_step"], 1);
+  // The procedural scene's cameras look at its centre from a sphere.
+  EXPECT_LT(Eigen::Vector3f(s["focus"][0], s["focus"][1], s["focus"][2]).norm(), 0.2f);
+  EXPECT_EQ(Json(http_->Get("/api/scene?version=1"))["time_steps"], 1);
+
+  // The same camera through HTTP (PNG) and gRPC gives the same image.
+  const Camera cam = scene.test[0].camera;
+  for (int t : {0, 1}) {
+    auto r = http_->Get(RenderPath(cam, absl::StrCat("&format=png&time=", t)));
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 200) << r->body;
+    EXPECT_EQ(r->get_header_value("Content-Type"), "image/png");
+    EXPECT_EQ(r->get_header_value("X-Clnerf-Version"), "2");
+    EXPECT_EQ(r->get_header_value("X-Clnerf-Time-Step"), std::to_string(t));
+    absl::StatusOr<Image> via_http = DecodeImage(r->body, "r.png");
+    ASSERT_TRUE(via_http.ok()) << via_http.status();
+    v1::RenderResponse g;
+    ASSERT_TRUE(Render(cam, t, 0, &g).ok());
+    absl::StatusOr<Image> via_grpc = DecodeImage(g.image(), "g.png");
+    ASSERT_TRUE(via_grpc.ok());
+    EXPECT_LT(MeanAbsDiff(*via_http, *via_grpc), 1.0 / 255);
+  }
+  // JPEG by default; the look-at form of the scan's own camera works too.
+  const json& c = s["scans"][0];
+  auto jpg = http_->Get(absl::StrCat("/api/render?width=40&height=30&time=0&fov=", c["fov"].get<double>(),
+                                     "&eye=", c["eye"][0].get<double>(), ",", c["eye"][1].get<double>(), ",",
+                                     c["eye"][2].get<double>(), "&target=", c["target"][0].get<double>(), ",",
+                                     c["target"][1].get<double>(), ",", c["target"][2].get<double>(),
+                                     "&up=", c["up"][0].get<double>(), ",", c["up"][1].get<double>(), ",",
+                                     c["up"][2].get<double>()));
+  ASSERT_TRUE(jpg);
+  ASSERT_EQ(jpg->status, 200) << jpg->body;
+  EXPECT_EQ(jpg->get_header_value("Content-Type"), "image/jpeg");
+  absl::StatusOr<Image> small = DecodeImage(jpg->body, "r.jpg");
+  ASSERT_TRUE(small.ok());
+  EXPECT_EQ(small->width, 40);
+  EXPECT_EQ(small->height, 30);
+
+  // Versions and jobs: the same records gRPC has.
+  json v = Json(http_->Get("/api/versions"));
+  EXPECT_EQ(v["deployed_version"], 2);
+  ASSERT_EQ(v["versions"].size(), 2u);
+  json jobs = Json(http_->Get("/api/jobs"));
+  EXPECT_EQ(jobs["total"], 2);
+  json one = Json(http_->Get("/api/jobs/" + j1.job_id()));
+  EXPECT_EQ(one["phase"], "done");
+  EXPECT_EQ(one["version"], 2);
+  EXPECT_EQ(one["done"], true);
+  EXPECT_EQ(Json(http_->Get("/api/info"))["deployed_version"], 2);
+
+  // The page and its files are served.
+  auto page = http_->Get("/");
+  ASSERT_TRUE(page);
+  EXPECT_EQ(page->status, 200);
+  EXPECT_NE(page->get_header_value("Content-Type").find("text/html"), std::string::npos);
+  auto js = http_->Get("/viewer.js");
+  ASSERT_TRUE(js);
+  EXPECT_EQ(js->status, 200);
+}
+
+TEST_F(HttpApiTest, BadRequestsGetTheirStatusAndAMessage) {
+  ServerOptions o = TinyServerOptions(TempDir("srv_http_bad"));
+  o.token = "s3cret";
+  o.render_concurrency = 1;
+  o.render_pixel_budget = 256 * 256;
+  StartHttp(o);
+  const Scene scene = TinyScans(1);
+  const Camera cam = scene.test[0].camera;
+
+  // Nothing deployed yet: 409 (FAILED_PRECONDITION), as gRPC.
+  auto none = http_->Get(RenderPath(cam));
+  ASSERT_TRUE(none);
+  EXPECT_EQ(none->status, 409);
+  EXPECT_EQ(Json(none)["code"], "FAILED_PRECONDITION");
+  EXPECT_EQ(Json(http_->Get("/api/scene"))["code"], "FAILED_PRECONDITION");
+
+  v1::UploadScanResponse ack;
+  ASSERT_TRUE(Upload(testing_util::UploadMessages(testing_util::UploadOf(scene, 0)), &ack, "s3cret").ok());
+  ASSERT_EQ(Watch(ack.job_id()).phase(), v1::JOB_PHASE_DONE);
+
+  struct Case {
+    std::string path;
+    int status;
+    std::string says;
+  };
+  const Case cases[] = {
+      {RenderPath(cam, "&widht=3"), 400, "unknown parameter 'widht'"},
+      {RenderPath(cam, "&time=abc"), 400, "parameter 'time'"},
+      {RenderPath(cam, "&time=5"), 400, "out of range"},
+      {RenderPath(cam, "&quality=0"), 400, "parameter 'quality'"},
+      {"/api/render?width=10", 400, "parameter 'height'"},
+      {RenderPath(cam, "&version=99"), 404, "99"},
+      {"/api/scene?version=99", 404, "99"},
+      {"/api/scene?version=-1", 400, "parameter 'version'"},
+      {"/api/jobs/job-999999", 404, "job-999999"},
+      {"/api/jobs?limit=0", 400, "parameter 'limit'"},
+      {"/api/no/such/route", 404, "no route"},
+  };
+  for (const Case& c : cases) {
+    auto r = http_->Get(c.path);
+    ASSERT_TRUE(r) << c.path;
+    EXPECT_EQ(r->status, c.status) << c.path << " -> " << r->body;
+    json body = Json(r);
+    ASSERT_TRUE(body.contains("error")) << r->body;
+    EXPECT_NE(body["error"].get<std::string>().find(c.says), std::string::npos) << c.path << " -> " << r->body;
+  }
+  // An oversized render is refused before any work: 400 naming the limit.
+  Camera big = cam;
+  big.intrinsics = cam.intrinsics.Scaled(300, 300);
+  auto huge = http_->Get(RenderPath(big));
+  ASSERT_TRUE(huge);
+  EXPECT_EQ(huge->status, 400);
+  EXPECT_NE(Json(huge)["error"].get<std::string>().find("exceeds the per-request limit"), std::string::npos);
+
+  // Mutations need the token; reads do not.
+  auto no_token = http_->Post("/api/deploy?version=1");
+  ASSERT_TRUE(no_token);
+  EXPECT_EQ(no_token->status, 401);
+  EXPECT_EQ(Json(no_token)["code"], "UNAUTHENTICATED");
+  auto wrong = http_->Post("/api/deploy?version=1", httplib::Headers{{"Authorization", "Bearer nope"}}, "",
+                           "text/plain");
+  ASSERT_TRUE(wrong);
+  EXPECT_EQ(wrong->status, 401);
+  auto cancel = http_->Post("/api/jobs/" + ack.job_id() + "/cancel");
+  ASSERT_TRUE(cancel);
+  EXPECT_EQ(cancel->status, 401);
+  const httplib::Headers auth{{"Authorization", "Bearer s3cret"}};
+  auto ok = http_->Post("/api/deploy?version=1", auth, "", "text/plain");
+  ASSERT_TRUE(ok);
+  EXPECT_EQ(ok->status, 200) << ok->body;
+  auto unknown = http_->Post("/api/deploy?version=7", auth, "", "text/plain");
+  ASSERT_TRUE(unknown);
+  EXPECT_EQ(unknown->status, 404) << unknown->body;
+  // A body over the cap is refused.
+  auto fat = http_->Post("/api/deploy?version=1", auth, std::string(100 << 10, 'x'), "text/plain");
+  ASSERT_TRUE(fat);
+  EXPECT_EQ(fat->status, 413);
+  EXPECT_EQ(Json(http_->Get("/api/info"))["deployed_version"], 1);
+}
+
+TEST_F(HttpApiTest, ANewerRenderOfTheSameViewCancelsTheStaleOneAndDeadlinesHold) {
+  ServerOptions o = TinyServerOptions(TempDir("srv_http_cancel"));
+  o.render_concurrency = 1;
+  o.render_threads = 1;
+  o.render_pixel_budget = int64_t(512) * 512;
+  StartHttp(o);
+  const Scene scene = TinyScans(1);
+  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
+  Camera big = scene.test[0].camera;
+  big.intrinsics = big.intrinsics.Scaled(512, 512);
+  const Camera small = scene.test[0].camera;
+
+  // A big render of view "left" that takes seconds on one thread...
+  const auto t0 = std::chrono::steady_clock::now();
+  auto stale = std::async(std::launch::async, [&] {
+    httplib::Client c("127.0.0.1", server_->http_port());
+    c.set_read_timeout(std::chrono::seconds(60));
+    return c.Get(RenderPath(big, "&view=left&timeout_ms=300000"));
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  // ...is cancelled by a newer render of the same view, which succeeds.
+  auto fresh = http_->Get(RenderPath(small, "&view=left"));
+  ASSERT_TRUE(fresh);
+  EXPECT_EQ(fresh->status, 200) << fresh->body;
+  auto old = stale.get();
+  const double stale_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  ASSERT_TRUE(old);
+  EXPECT_EQ(old->status, 499) << old->body;
+  EXPECT_NE(Json(old)["error"].get<std::string>().find("superseded"), std::string::npos);
+  // The same render left alone takes far longer than the stale one lived.
+  const auto t1 = std::chrono::steady_clock::now();
+  auto full = http_->Get(RenderPath(big, "&format=png&timeout_ms=300000"));
+  ASSERT_TRUE(full);
+  EXPECT_EQ(full->status, 200);
+  const double full_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  EXPECT_LT(stale_s, full_s) << "the stale render should stop early";
+
+  // Deadlines: a render that cannot finish in timeout_ms is stopped (504).
+  auto late = http_->Get(RenderPath(big, "&timeout_ms=20"));
+  ASSERT_TRUE(late);
+  EXPECT_EQ(late->status, 504) << late->body;
+  EXPECT_EQ(Json(late)["code"], "DEADLINE_EXCEEDED");
+}
+
+}  // namespace
+}  // namespace clnerf

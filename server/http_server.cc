@@ -1,0 +1,117 @@
+#include "server/http_server.h"
+
+#include <chrono>
+#include <exception>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "httplib.h"
+#include "nlohmann/json.hpp"
+#include "server/log_util.h"
+#include "server/web_assets.h"
+#include "spdlog/spdlog.h"
+
+namespace clnerf {
+
+namespace {
+
+constexpr size_t kMaxBodyBytes = 64 << 10;
+
+void SendJsonError(httplib::Response& res, int status, const std::string& code, const std::string& msg) {
+  res.status = status;
+  res.set_content(nlohmann::json{{"error", msg}, {"code", code}}.dump(-1, ' ', false,
+                                                                       nlohmann::json::error_handler_t::replace),
+                  "application/json");
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string& listen, ModelHost* host,
+                                                              const std::string& token) {
+  const size_t colon = listen.rfind(':');
+  int port = -1;
+  if (colon == std::string::npos || !absl::SimpleAtoi(listen.substr(colon + 1), &port) || port < 0 || port > 65535) {
+    return absl::InvalidArgumentError(absl::StrCat("--http '", EscapeForLog(listen, 64), "' is not HOST:PORT"));
+  }
+  std::string bind_host = listen.substr(0, colon);
+  if (bind_host.size() >= 2 && bind_host.front() == '[' && bind_host.back() == ']') {
+    bind_host = bind_host.substr(1, bind_host.size() - 2);
+  }
+  if (bind_host.empty()) bind_host = "0.0.0.0";
+
+  std::unique_ptr<HttpServer> s(new HttpServer());
+  s->server_ = std::make_unique<httplib::Server>();
+  s->api_ = std::make_unique<HttpApi>(host, token);
+  httplib::Server& srv = *s->server_;
+  srv.set_payload_max_length(kMaxBodyBytes);
+  srv.set_read_timeout(std::chrono::seconds(10));
+  srv.set_write_timeout(std::chrono::seconds(30));
+  s->api_->Register(&srv);
+
+  for (const char* path : {"/", "/index.html", "/viewer.js", "/viewer.css"}) {
+    srv.Get(path, [](const httplib::Request& req, httplib::Response& res) {
+      const WebAsset* a = FindWebAsset(req.path == "/index.html" ? "/" : req.path);
+      if (a == nullptr) return SendJsonError(res, 404, "NOT_FOUND", "no such page");
+      res.set_header("Cache-Control", "no-cache");
+      res.set_content(a->body.data(), a->body.size(), std::string(a->content_type).c_str());
+    });
+  }
+  // Fills in errors that no handler described (unknown paths, bad requests,
+  // oversized bodies); JSON errors set by the API are left as they are.
+  srv.set_error_handler(httplib::Server::HandlerWithResponse([](const httplib::Request& req, httplib::Response& res) {
+    if (!res.body.empty()) return httplib::Server::HandlerResponse::Unhandled;
+    if (res.status == 404) {
+      SendJsonError(res, 404, "NOT_FOUND", absl::StrCat("no route for ", req.method, " ", EscapeForLog(req.path, 128)));
+    } else if (res.status == 413) {
+      SendJsonError(res, 413, "INVALID_ARGUMENT", absl::StrCat("request body over ", kMaxBodyBytes, " bytes"));
+    } else {
+      SendJsonError(res, res.status, res.status < 500 ? "INVALID_ARGUMENT" : "INTERNAL",
+                    absl::StrCat("HTTP ", res.status, " for ", req.method, " ", EscapeForLog(req.path, 128)));
+    }
+    return httplib::Server::HandlerResponse::Handled;
+  }));
+  srv.set_exception_handler([](const httplib::Request& req, httplib::Response& res, std::exception_ptr ep) {
+    std::string what = "unknown exception";
+    try {
+      std::rethrow_exception(ep);
+    } catch (const std::exception& e) {
+      what = e.what();
+    } catch (...) {
+    }
+    spdlog::error("http {} {}: {}", req.method, EscapeForLog(req.path, 128), EscapeForLog(what));
+    SendJsonError(res, 500, "INTERNAL", "internal error: " + what);
+  });
+  srv.set_logger([](const httplib::Request& req, const httplib::Response& res) {
+    spdlog::debug("http {} {} -> {}", req.method, EscapeForLog(req.path, 128), res.status);
+  });
+
+  if (port == 0) {
+    port = srv.bind_to_any_port(bind_host);
+  } else if (!srv.bind_to_port(bind_host, port)) {
+    port = -1;
+  }
+  if (port <= 0) {
+    return absl::UnavailableError(absl::StrCat("cannot listen for HTTP on ", EscapeForLog(listen, 64),
+                                               " (address in use or not available)"));
+  }
+  s->port_ = port;
+  s->thread_ = std::thread([srv = s->server_.get()] { srv->listen_after_bind(); });
+  // Stop() is only safe once the loop runs (httplib ignores an earlier stop).
+  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(10);
+  while (!srv.is_running() && std::chrono::steady_clock::now() < give_up) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  spdlog::info("http viewer and API on http://{}:{}/", bind_host == "0.0.0.0" ? "localhost" : bind_host, port);
+  return s;
+}
+
+void HttpServer::Stop() {
+  if (!server_) return;
+  api_->Stop();
+  server_->stop();
+  if (thread_.joinable()) thread_.join();
+}
+
+HttpServer::~HttpServer() { Stop(); }
+
+}  // namespace clnerf
