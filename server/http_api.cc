@@ -1,5 +1,6 @@
 #include "server/http_api.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <string>
@@ -224,7 +225,6 @@ void HttpApi::Register(httplib::Server* server) {
     res.set_header("X-Clnerf-Version", std::to_string(out->version));
     res.set_header("X-Clnerf-Time-Step", std::to_string(out->time_step));
     res.set_header("X-Clnerf-Render-Ms", absl::StrCat(std::lround(out->seconds * 1000)));
-    res.set_header("Access-Control-Expose-Headers", "X-Clnerf-Version, X-Clnerf-Time-Step, X-Clnerf-Render-Ms");
     res.set_content(*std::move(bytes), r->format == HttpImageFormat::kPng ? "image/png" : "image/jpeg");
   });
 
@@ -233,10 +233,26 @@ void HttpApi::Register(httplib::Server* server) {
     if (!limit.ok()) return SendError(res, limit.status());
     absl::StatusOr<int64_t> offset = IntParam(req, "offset", 0, 0, int64_t(1) << 40);
     if (!offset.ok()) return SendError(res, offset.status());
+    const std::string order = req.has_param("order") ? req.get_param_value("order") : "newest";
+    if (order != "newest" && order != "oldest") {
+      return SendError(res, absl::InvalidArgumentError(absl::StrCat("parameter 'order': '", EscapeForLog(order, 64),
+                                                                    "' is not newest or oldest")));
+    }
     size_t total = 0;
+    host_->ListJobs(0, 0, &total);
+    std::vector<JobStatus> page;
+    if (order == "oldest") {
+      page = host_->ListJobs(size_t(*offset), size_t(*limit), &total);
+    } else if (size_t(*offset) < total) {
+      // Newest first: the page [offset, offset + limit) counted from the end.
+      const size_t end = total - size_t(*offset);
+      const size_t begin = end > size_t(*limit) ? end - size_t(*limit) : 0;
+      page = host_->ListJobs(begin, end - begin, &total);
+      std::reverse(page.begin(), page.end());
+    }
     json list = json::array();
-    for (const JobStatus& j : host_->ListJobs(size_t(*offset), size_t(*limit), &total)) list.push_back(JobJson(j));
-    SendJson(res, json{{"jobs", list}, {"total", total}});
+    for (const JobStatus& j : page) list.push_back(JobJson(j));
+    SendJson(res, json{{"jobs", list}, {"total", total}, {"order", order}});
   });
 
   server->Get(R"(/api/jobs/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {

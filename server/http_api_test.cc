@@ -115,6 +115,14 @@ TEST_F(HttpApiTest, ServesTheSameModelsVersionsAndJobsAsGrpc) {
   ASSERT_EQ(v["versions"].size(), 2u);
   json jobs = Json(http_->Get("/api/jobs"));
   EXPECT_EQ(jobs["total"], 2);
+  ASSERT_EQ(jobs["jobs"].size(), 2u);
+  EXPECT_EQ(jobs["jobs"][0]["job_id"], j1.job_id()) << "newest first";
+  json oldest = Json(http_->Get("/api/jobs?order=oldest&limit=1"));
+  ASSERT_EQ(oldest["jobs"].size(), 1u);
+  EXPECT_EQ(oldest["jobs"][0]["job_id"], j0.job_id());
+  json second = Json(http_->Get("/api/jobs?limit=1&offset=1"));
+  ASSERT_EQ(second["jobs"].size(), 1u);
+  EXPECT_EQ(second["jobs"][0]["job_id"], j0.job_id());
   json one = Json(http_->Get("/api/jobs/" + j1.job_id()));
   EXPECT_EQ(one["phase"], "done");
   EXPECT_EQ(one["version"], 2);
@@ -167,6 +175,7 @@ TEST_F(HttpApiTest, BadRequestsGetTheirStatusAndAMessage) {
       {"/api/scene?version=-1", 400, "parameter 'version'"},
       {"/api/jobs/job-999999", 404, "job-999999"},
       {"/api/jobs?limit=0", 400, "parameter 'limit'"},
+      {"/api/jobs?order=random", 400, "parameter 'order'"},
       {"/api/no/such/route", 404, "no route"},
   };
   for (const Case& c : cases) {

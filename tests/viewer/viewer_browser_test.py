@@ -1,0 +1,280 @@
+#!/usr/bin/env python3
+"""End-to-end test of the web viewer in a real headless Chromium.
+
+Starts a real clnerf-server (gRPC and HTTP on 127.0.0.1:0) on a fresh store,
+uploads two scans of the procedural changing scene with the real CLI, then
+drives Debian's chromium through chromium-driver (python3-selenium) and
+checks what a user sees:
+  * the canvas is not blank;
+  * during a drag, frames are preview-sized and the image changes; within 2 s
+    of releasing, a full-resolution frame arrives;
+  * moving the time slider changes the image, and moving it back returns the
+    first image;
+  * two different versions differ, the same version twice does not;
+  * the jobs panel shows the progress of a running update;
+  * no page error, no HTTP 5xx;
+and saves screenshots under --out. Never skips: a missing browser or driver
+is a failure (scripts/install-deps.sh installs them).
+
+Usage: viewer_browser_test.py --server BIN --client BIN --out DIR
+"""
+import argparse
+import base64
+import io
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+
+def fail(msg):
+    print("FAIL: " + msg, flush=True)
+    sys.exit(1)
+
+
+try:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
+except ImportError as e:  # Not a skip: CI must run this test.
+    fail(f"python3-selenium is missing ({e}); run scripts/install-deps.sh")
+
+
+def wait_for(what, cond, timeout=20.0, every=0.05):
+    end = time.time() + timeout
+    while time.time() < end:
+        v = cond()
+        if v:
+            return v
+        time.sleep(every)
+    fail(f"timed out after {timeout:.0f} s waiting for {what}")
+
+
+class Server:
+    def __init__(self, binary, store, log_path, iters):
+        self.log = open(log_path, "w")
+        self.proc = subprocess.Popen(
+            [binary, "--store", store, "--listen", "127.0.0.1:0", "--http", "127.0.0.1:0",
+             "--iters", str(iters), "--log-level", "info"],
+            stdout=subprocess.PIPE, stderr=self.log, text=True)
+        self.grpc = self.http = None
+        while self.http is None:
+            line = self.proc.stdout.readline()
+            if not line:
+                fail(f"server exited early; see {log_path}")
+            m = re.match(r"clnerf-server listening on port (\d+)", line)
+            if m:
+                self.grpc = int(m.group(1))
+            m = re.match(r"clnerf-server http on port (\d+)", line)
+            if m:
+                self.http = int(m.group(1))
+
+    def stop(self):
+        self.proc.terminate()
+        try:
+            self.proc.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+        self.log.close()
+
+
+def canvas_pixels(driver, canvas_id="canvas-A"):
+    """The canvas as RGBA bytes (read back through getImageData)."""
+    b64 = driver.execute_script(
+        """const c = document.getElementById(arguments[0]);
+           const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+           let s = ''; for (let i = 0; i < d.length; i += 8192) s += String.fromCharCode.apply(null, d.subarray(i, i + 8192));
+           return btoa(s);""", canvas_id)
+    return base64.b64decode(b64)
+
+
+def mean_abs_diff(a, b):
+    if len(a) != len(b):
+        return 255.0
+    step = 4  # RGB(A): compare every byte but alpha.
+    total = sum(abs(a[i] - b[i]) + abs(a[i + 1] - b[i + 1]) + abs(a[i + 2] - b[i + 2]) for i in range(0, len(a), step))
+    return total / (3 * len(a) / step)
+
+
+def variance(px):
+    vals = [px[i] for i in range(0, len(px), 4)] + [px[i + 1] for i in range(0, len(px), 4)]
+    m = sum(vals) / len(vals)
+    return sum((v - m) ** 2 for v in vals) / len(vals)
+
+
+def full_shown(driver, panel="A"):
+    s = driver.execute_script("return window.clnerfViewer.shown(arguments[0]);", panel)
+    return s if s and s["full"] and not driver.execute_script("return window.clnerfViewer.busy(arguments[0]);", panel) else None
+
+
+def set_slider(driver, element_id, value):
+    driver.execute_script(
+        """const e = document.getElementById(arguments[0]); e.value = arguments[1];
+           e.dispatchEvent(new Event('input', {bubbles: true}));""", element_id, str(value))
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--server", required=True)
+    ap.add_argument("--client", required=True)
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--iters", type=int, default=60)
+    args = ap.parse_args()
+    os.makedirs(args.out, exist_ok=True)
+    chromium = shutil.which("chromium") or "/usr/bin/chromium"
+    driver_bin = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+    for b in (chromium, driver_bin):
+        if not os.path.exists(b):
+            fail(f"{b} not found: install chromium and chromium-driver (scripts/install-deps.sh)")
+
+    work = tempfile.mkdtemp(prefix="clnerf_viewer_")
+    t_start = time.time()
+    subprocess.run([args.client, "--log-level", "warn", "scans", "--out", f"{work}/scans", "--scans", "3",
+                    "--size", "32", "--train-views", "20", "--test-views", "2"], check=True)
+    server = Server(args.server, f"{work}/store", f"{args.out}/server.log", args.iters)
+    env = dict(os.environ, CLNERF_SERVER=f"127.0.0.1:{server.grpc}")
+    driver = None
+    try:
+        for t in (0, 1):
+            r = subprocess.run([args.client, "--log-level", "warn", "upload", f"{work}/scans/scan_00{t}", "--watch"],
+                               env=env, capture_output=True, text=True)
+            if r.returncode != 0:
+                fail(f"upload of scan {t} failed: {r.stdout[-2000:]} {r.stderr[-2000:]}")
+        print(f"two versions trained in {time.time() - t_start:.1f} s", flush=True)
+
+        opts = webdriver.ChromeOptions()
+        opts.binary_location = chromium
+        for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+                  "--window-size=1400,1000", "--no-first-run", "--disable-extensions"):
+            opts.add_argument(a)
+        opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+        driver = webdriver.Chrome(service=Service(driver_bin), options=opts)
+        driver.set_script_timeout(30)
+        base = f"http://127.0.0.1:{server.http}/"
+        driver.get(base)
+
+        # 1. A full-resolution frame arrives and the canvas is not blank.
+        wait_for("the first full-resolution frame", lambda: full_shown(driver))
+        first = canvas_pixels(driver)
+        var = variance(first)
+        print(f"first frame: canvas variance {var:.1f}", flush=True)
+        if var < 20:
+            fail(f"the canvas looks blank (variance {var:.1f})")
+        res = driver.execute_script("return window.clnerfViewer.resolution;")
+        W, H = res
+
+        # 2. A synthetic drag: preview-sized frames that change; full frame within 2 s of release.
+        canvas = driver.find_element(By.ID, "canvas-A")
+        n0 = len(driver.execute_script("return window.clnerfViewer.frames;"))
+        actions = ActionChains(driver, duration=0)
+        actions.move_to_element(canvas).click_and_hold()
+        actions.perform()
+        snaps = []
+        for i in range(30):
+            ActionChains(driver, duration=0).move_by_offset(6, 1 if i % 2 else -1).perform()
+            time.sleep(0.06)
+            if i % 6 == 5:
+                snaps.append(canvas_pixels(driver))
+        drag_frames = driver.execute_script("return window.clnerfViewer.frames;")[n0:]
+        ActionChains(driver, duration=0).release().perform()
+        released = time.time()
+        full = wait_for("a full-resolution frame after release", lambda: full_shown(driver), timeout=10)
+        settle = time.time() - released
+        previews = [f for f in drag_frames if not f["full"]]
+        print(f"drag: {len(drag_frames)} frames ({len(previews)} previews, sizes "
+              f"{sorted({(f['w'], f['h']) for f in previews})}), full frame {settle:.2f} s after release", flush=True)
+        if not previews:
+            fail("no preview frames arrived during the drag")
+        if any(f["w"] >= W for f in previews):
+            fail(f"preview frames should be smaller than {W}x{H}")
+        changes = [mean_abs_diff(snaps[i], snaps[i + 1]) for i in range(len(snaps) - 1)]
+        if max(changes) < 0.5:
+            fail(f"the image did not change during the drag ({changes})")
+        if settle > 2.0:
+            fail(f"the full-resolution frame took {settle:.2f} s after release (limit 2 s)")
+        if (full["w"], full["h"]) != (W, H):
+            fail(f"the settled frame is {full['w']}x{full['h']}, not {W}x{H}")
+
+        # 3. The time slider: t0 differs from t1; back to t1 returns the same image.
+        set_slider(driver, "time-A", 1)
+        wait_for("time step 1", lambda: (full_shown(driver) or {}).get("t") == 1)
+        img_t1 = canvas_pixels(driver)
+        set_slider(driver, "time-A", 0)
+        wait_for("time step 0", lambda: (full_shown(driver) or {}).get("t") == 0)
+        img_t0 = canvas_pixels(driver)
+        t_flip = time.time()
+        set_slider(driver, "time-A", 1)
+        wait_for("time step 1 again", lambda: (full_shown(driver) or {}).get("t") == 1)
+        flip_s = time.time() - t_flip
+        img_t1b = canvas_pixels(driver)
+        d_times, d_back = mean_abs_diff(img_t0, img_t1), mean_abs_diff(img_t1, img_t1b)
+        print(f"time slider: |t0 - t1| = {d_times:.2f}, |t1 - t1 again| = {d_back:.3f} (flip back {flip_s * 1000:.0f} ms)",
+              flush=True)
+        if d_times < 1.0:
+            fail(f"moving the time slider did not change the image ({d_times:.2f})")
+        if d_back > 0.5:
+            fail(f"moving the time slider back did not return the first image ({d_back:.3f})")
+        driver.save_screenshot(os.path.join(args.out, "viewer_single.png"))
+
+        # 4. Side by side: versions 1 and 2 at the same time step differ; 2 and 2 do not.
+        Select(driver.find_element(By.ID, "mode")).select_by_value("side")
+        set_slider(driver, "time-A", 0)
+        set_slider(driver, "time-B", 0)
+        Select(driver.find_element(By.ID, "version-A")).select_by_value("1")
+        Select(driver.find_element(By.ID, "version-B")).select_by_value("2")
+        wait_for("v1 | v2", lambda: (full_shown(driver, "A") or {}).get("v") == 1 and
+                 (full_shown(driver, "B") or {}).get("v") == 2)
+        a, b = canvas_pixels(driver, "canvas-A"), canvas_pixels(driver, "canvas-B")
+        d_versions = mean_abs_diff(a, b)
+        driver.save_screenshot(os.path.join(args.out, "viewer_compare.png"))
+        Select(driver.find_element(By.ID, "version-A")).select_by_value("2")
+        wait_for("v2 | v2", lambda: (full_shown(driver, "A") or {}).get("v") == 2 and
+                 (full_shown(driver, "B") or {}).get("v") == 2)
+        a, b = canvas_pixels(driver, "canvas-A"), canvas_pixels(driver, "canvas-B")
+        d_same = mean_abs_diff(a, b)
+        print(f"versions: |v1 - v2| = {d_versions:.2f}, |v2 - v2| = {d_same:.3f}", flush=True)
+        if d_versions < 0.3:
+            fail(f"versions 1 and 2 render the same ({d_versions:.2f})")
+        if d_same > 0.5:
+            fail(f"the same version twice differs ({d_same:.3f})")
+
+        # 5. Swipe mode draws both versions on one canvas.
+        Select(driver.find_element(By.ID, "mode")).select_by_value("swipe")
+        time.sleep(0.3)
+
+        # 6. The jobs panel shows a running update's progress.
+        r = subprocess.run([args.client, "--log-level", "warn", "upload", f"{work}/scans/scan_002"], env=env,
+                           capture_output=True, text=True, timeout=60)
+        if r.returncode != 0:
+            fail(f"upload of scan 2 failed: {r.stdout[-2000:]} {r.stderr[-2000:]}")
+        text = wait_for("the jobs panel to show training progress",
+                        lambda: (lambda t: t if re.search(r"step \d+ / \d+", t) else None)(
+                            driver.find_element(By.ID, "jobs").text), timeout=60)
+        print("jobs panel: " + " | ".join(text.splitlines()[:3]), flush=True)
+        driver.save_screenshot(os.path.join(args.out, "viewer_training.png"))
+        wait_for("the update to finish and appear in the panel",
+                 lambda: "view v3" in driver.find_element(By.ID, "jobs").text, timeout=120)
+
+        # 7. No page errors, no HTTP 5xx, no severe console messages.
+        errs = driver.execute_script("return window.clnerfViewer.pageErrors.concat(window.clnerfViewer.httpErrors);")
+        severe = [e["message"] for e in driver.get_log("browser") if e["level"] == "SEVERE"]
+        if errs or severe:
+            fail(f"page errors or HTTP 5xx: {errs} console: {severe}")
+        with open(os.path.join(args.out, "server.log")) as f:
+            if re.search(r"http .* -> 5\d\d", f.read()):
+                fail("the server answered 5xx")
+        print(f"viewer end-to-end: OK in {time.time() - t_start:.1f} s; screenshots in {args.out}", flush=True)
+    finally:
+        if driver is not None:
+            driver.quit()
+        server.stop()
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
