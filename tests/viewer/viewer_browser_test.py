@@ -19,8 +19,6 @@ is a failure (scripts/install-deps.sh installs them).
 Usage: viewer_browser_test.py --server BIN --client BIN --out DIR
 """
 import argparse
-import base64
-import io
 import os
 import re
 import shutil
@@ -29,93 +27,12 @@ import sys
 import tempfile
 import time
 
-
-def fail(msg):
-    print("FAIL: " + msg, flush=True)
-    sys.exit(1)
-
-
-try:
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-    from selenium.webdriver.common.action_chains import ActionChains
-    from selenium.webdriver.common.by import By
-    from selenium.webdriver.support.ui import Select
-except ImportError as e:  # Not a skip: CI must run this test.
-    fail(f"python3-selenium is missing ({e}); run scripts/install-deps.sh")
-
-
-def wait_for(what, cond, timeout=20.0, every=0.05):
-    end = time.time() + timeout
-    while time.time() < end:
-        v = cond()
-        if v:
-            return v
-        time.sleep(every)
-    fail(f"timed out after {timeout:.0f} s waiting for {what}")
-
-
-class Server:
-    def __init__(self, binary, store, log_path, iters):
-        self.log = open(log_path, "w")
-        self.proc = subprocess.Popen(
-            [binary, "--store", store, "--listen", "127.0.0.1:0", "--http", "127.0.0.1:0",
-             "--iters", str(iters), "--log-level", "info"],
-            stdout=subprocess.PIPE, stderr=self.log, text=True)
-        self.grpc = self.http = None
-        while self.http is None:
-            line = self.proc.stdout.readline()
-            if not line:
-                fail(f"server exited early; see {log_path}")
-            m = re.match(r"clnerf-server listening on port (\d+)", line)
-            if m:
-                self.grpc = int(m.group(1))
-            m = re.match(r"clnerf-server http on port (\d+)", line)
-            if m:
-                self.http = int(m.group(1))
-
-    def stop(self):
-        self.proc.terminate()
-        try:
-            self.proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-        self.log.close()
-
-
-def canvas_pixels(driver, canvas_id="canvas-A"):
-    """The canvas as RGBA bytes (read back through getImageData)."""
-    b64 = driver.execute_script(
-        """const c = document.getElementById(arguments[0]);
-           const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
-           let s = ''; for (let i = 0; i < d.length; i += 8192) s += String.fromCharCode.apply(null, d.subarray(i, i + 8192));
-           return btoa(s);""", canvas_id)
-    return base64.b64decode(b64)
-
-
-def mean_abs_diff(a, b):
-    if len(a) != len(b):
-        return 255.0
-    step = 4  # RGB(A): compare every byte but alpha.
-    total = sum(abs(a[i] - b[i]) + abs(a[i + 1] - b[i + 1]) + abs(a[i + 2] - b[i + 2]) for i in range(0, len(a), step))
-    return total / (3 * len(a) / step)
-
-
-def variance(px):
-    vals = [px[i] for i in range(0, len(px), 4)] + [px[i + 1] for i in range(0, len(px), 4)]
-    m = sum(vals) / len(vals)
-    return sum((v - m) ** 2 for v in vals) / len(vals)
-
-
-def full_shown(driver, panel="A"):
-    s = driver.execute_script("return window.clnerfViewer.shown(arguments[0]);", panel)
-    return s if s and s["full"] and not driver.execute_script("return window.clnerfViewer.busy(arguments[0]);", panel) else None
-
-
-def set_slider(driver, element_id, value):
-    driver.execute_script(
-        """const e = document.getElementById(arguments[0]); e.value = arguments[1];
-           e.dispatchEvent(new Event('input', {bubbles: true}));""", element_id, str(value))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from viewer_driver import (Server, canvas_pixels, fail, frames, full_shown, mean_abs_diff, run_client,  # noqa: E402
+                           set_slider, start_chromium, variance, wait_for)
+from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
+from selenium.webdriver.common.by import By  # noqa: E402
+from selenium.webdriver.support.ui import Select  # noqa: E402
 
 
 def main():
@@ -126,35 +43,19 @@ def main():
     ap.add_argument("--iters", type=int, default=60)
     args = ap.parse_args()
     os.makedirs(args.out, exist_ok=True)
-    chromium = shutil.which("chromium") or "/usr/bin/chromium"
-    driver_bin = shutil.which("chromedriver") or "/usr/bin/chromedriver"
-    for b in (chromium, driver_bin):
-        if not os.path.exists(b):
-            fail(f"{b} not found: install chromium and chromium-driver (scripts/install-deps.sh)")
-
     work = tempfile.mkdtemp(prefix="clnerf_viewer_")
     t_start = time.time()
     subprocess.run([args.client, "--log-level", "warn", "scans", "--out", f"{work}/scans", "--scans", "3",
                     "--size", "32", "--train-views", "20", "--test-views", "2"], check=True)
-    server = Server(args.server, f"{work}/store", f"{args.out}/server.log", args.iters)
+    server = Server(args.server, f"{work}/store", f"{args.out}/server.log", ["--iters", str(args.iters)])
     env = dict(os.environ, CLNERF_SERVER=f"127.0.0.1:{server.grpc}")
     driver = None
     try:
         for t in (0, 1):
-            r = subprocess.run([args.client, "--log-level", "warn", "upload", f"{work}/scans/scan_00{t}", "--watch"],
-                               env=env, capture_output=True, text=True)
-            if r.returncode != 0:
-                fail(f"upload of scan {t} failed: {r.stdout[-2000:]} {r.stderr[-2000:]}")
+            run_client(args.client, ["upload", f"{work}/scans/scan_00{t}", "--watch"], env, f"upload of scan {t}")
         print(f"two versions trained in {time.time() - t_start:.1f} s", flush=True)
 
-        opts = webdriver.ChromeOptions()
-        opts.binary_location = chromium
-        for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
-                  "--window-size=1400,1000", "--no-first-run", "--disable-extensions"):
-            opts.add_argument(a)
-        opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-        driver = webdriver.Chrome(service=Service(driver_bin), options=opts)
-        driver.set_script_timeout(30)
+        driver = start_chromium()
         base = f"http://127.0.0.1:{server.http}/"
         driver.get(base)
 
@@ -170,7 +71,7 @@ def main():
 
         # 2. A synthetic drag: preview-sized frames that change; full frame within 2 s of release.
         canvas = driver.find_element(By.ID, "canvas-A")
-        n0 = len(driver.execute_script("return window.clnerfViewer.frames;"))
+        n0 = len(frames(driver))
         actions = ActionChains(driver, duration=0)
         actions.move_to_element(canvas).click_and_hold()
         actions.perform()
@@ -180,7 +81,7 @@ def main():
             time.sleep(0.06)
             if i % 6 == 5:
                 snaps.append(canvas_pixels(driver))
-        drag_frames = driver.execute_script("return window.clnerfViewer.frames;")[n0:]
+        drag_frames = frames(driver)[n0:]
         ActionChains(driver, duration=0).release().perform()
         released = time.time()
         full = wait_for("a full-resolution frame after release", lambda: full_shown(driver), timeout=10)
@@ -248,10 +149,7 @@ def main():
         time.sleep(0.3)
 
         # 6. The jobs panel shows a running update's progress.
-        r = subprocess.run([args.client, "--log-level", "warn", "upload", f"{work}/scans/scan_002"], env=env,
-                           capture_output=True, text=True, timeout=60)
-        if r.returncode != 0:
-            fail(f"upload of scan 2 failed: {r.stdout[-2000:]} {r.stderr[-2000:]}")
+        run_client(args.client, ["upload", f"{work}/scans/scan_002"], env, "upload of scan 2", timeout=60)
         text = wait_for("the jobs panel to show training progress",
                         lambda: (lambda t: t if re.search(r"step \d+ / \d+", t) else None)(
                             driver.find_element(By.ID, "jobs").text), timeout=60)
