@@ -8,7 +8,8 @@
 #   4. renders a past view (scan 0's test cameras at time step 0) and a present
 #      view (scan 2's at time step 2) and prints their PSNR against the held-out
 #      images,
-#   5. stops the server with SIGTERM (graceful shutdown).
+#   5. stops the server with SIGTERM (graceful shutdown); the last line says
+#      how to serve the store in the web viewer.
 # Output: clnerf-service-demo/ (scans, store, renders, server.log).
 # Env: OUT (output dir), ITERS (iterations per update, default 300),
 #      SIZE (image size, default 64).
@@ -51,3 +52,4 @@ kill -TERM $SERVER_PID
 wait $SERVER_PID || true
 trap - EXIT
 echo "service demo: past view (scan 0 at time step 0) PSNR ${past_psnr} dB | present view (scan 2 at time step 2) PSNR ${present_psnr} dB | renders in $OUT/renders"
+echo "view it in a browser: ./build/server/clnerf-server --store $OUT/store --http 127.0.0.1:8080  then open http://127.0.0.1:8080/"

@@ -179,15 +179,21 @@ absl::StatusOr<RenderResult> ModelHost::Render(const Camera& world_camera, std::
       }
     }
   }
-  const int running = active_renders_.fetch_add(1) + 1;
+  // Adaptive threads: the cores shared among the big renders running now. A
+  // small render lasts milliseconds, so it does not count: otherwise a
+  // viewer's last preview, still finishing when its full frame starts, would
+  // halve that frame's threads for its whole duration.
+  const int big_running = small ? active_renders_.load() + 1 : active_renders_.fetch_add(1) + 1;
   const auto t0 = std::chrono::steady_clock::now();
   RenderOptions ro;
-  ro.threads = options_.render_threads > 0 ? options_.render_threads : std::max(1, cores_ / running);
+  ro.threads = options_.render_threads > 0 ? options_.render_threads : std::max(1, cores_ / big_running);
   ro.time_step = t;
   ro.should_stop = should_stop;
   absl::StatusOr<RenderedView> view = RenderView(model, world_camera, ro);
-  active_renders_.fetch_sub(1);
-  if (!small) render_slots_.release();
+  if (!small) {
+    active_renders_.fetch_sub(1);
+    render_slots_.release();
+  }
   if (!view.ok()) return view.status();
   return RenderResult{(*snap)->info.version, t, std::move(view->rgb), SecondsSince(t0)};
 }

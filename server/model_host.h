@@ -150,7 +150,7 @@ class ModelHost {
   std::mutex upload_mu_;  // Serialises uploads (id reservation, save, enqueue).
   std::counting_semaphore<1024> render_slots_;
   const int cores_;                     // For adaptive render threads.
-  std::atomic<int> active_renders_{0};  // Renders running now (small ones included).
+  std::atomic<int> active_renders_{0};  // Big renders running now (small ones excluded).
   std::atomic<bool> stopping_{false};
   std::once_flag shutdown_once_;
   bool shutdown_clean_ = true;

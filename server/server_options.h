@@ -38,9 +38,10 @@ struct ServerOptions {
 
   int max_queue = 8;                    // Scans waiting for training; more -> RESOURCE_EXHAUSTED.
   int render_concurrency = 2;           // Renders running at once.
-  // OpenMP threads per render; 0 = adaptive: the cores divided by the
-  // renders running at that moment (at least 1), so a lone render uses every
-  // core and concurrent ones share them.
+  // OpenMP threads per render; 0 = adaptive: the cores divided by the big
+  // renders running at that moment (at least 1; small ones, which last
+  // milliseconds, do not count), so a lone render uses every core and
+  // concurrent ones share them.
   int render_threads = 0;
   // Renders of at most this many pixels skip the render-slot queue: they take
   // milliseconds and little memory, so they never wait behind a big one.

@@ -307,8 +307,12 @@
     const wantFull = !moving();
     if (p.inflight) {
       if (p.inflight.key === fullKey && p.inflight.full) return;  // Already refining this camera.
-      if (!p.inflight.full) return;  // A preview finishes quickly; pump again then.
-      p.inflight.abort.abort();      // A stale full render: drop it (the server stops it too).
+      // While moving, a preview in flight finishes quickly: pump again then.
+      // Otherwise the frame in flight is stale (a preview once the camera
+      // stopped, or an old full render): drop it; the server, seeing the
+      // same view id on the next request, stops it too.
+      if (!p.inflight.full && !wantFull) return;
+      p.inflight.abort.abort();
       p.inflight = null;
     }
     if (p.shown && p.shown.key === fullKey && p.shown.full) return;
@@ -352,7 +356,8 @@
       p.shown = { ...meta, bmp, key };
       if (old && old.bmp !== bmp && !old.full) old.bmp.close();
       showMessage(p, '');
-      state.frames.push({ panel: p.name, full, w, h, t: meta.t, v: meta.v, at: performance.now(), ms: total });
+      state.frames.push({ panel: p.name, full, w, h, t: meta.t, v: meta.v, at: performance.now(), ms: total,
+        renderMs });
       if (state.frames.length > 400) state.frames.splice(0, 200);
       present();
     } catch (e) {
@@ -509,7 +514,11 @@
       last = null;
       state.dragging = false;
       canvas.classList.remove('dragging');
-      touched();
+      // Released: the camera is still now, so refine at once.
+      state.lastMove = 0;
+      state.releasedAt = performance.now();
+      requestAll();
+      scheduleHash();
     };
     canvas.addEventListener('pointerup', end);
     canvas.addEventListener('pointercancel', end);
@@ -679,6 +688,8 @@
   // same actions the controls perform.
   window.clnerfViewer = {
     get frames() { return state.frames; },
+    // performance.now() of the last pointer release (frames carry `at` on the same clock).
+    get releasedAt() { return state.releasedAt || 0; },
     get httpErrors() { return state.httpErrors; },
     get pageErrors() { return state.pageErrors; },
     get camera() { return state.cam && { ...state.cam }; },
