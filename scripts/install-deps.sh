@@ -12,8 +12,12 @@ PKGS=(
   python3 python3-matplotlib linux-perf valgrind
   clang libclang-rt-dev libomp-dev
   libcpp-httplib-dev
-  chromium chromium-driver python3-selenium
 )
+# The web viewer's end-to-end test drives a real headless Chromium
+# (CLNERF_NO_BROWSER=1 skips these, e.g. for an image that builds no tests).
+if [ "${CLNERF_NO_BROWSER:-0}" != 1 ]; then
+  PKGS+=(chromium chromium-driver python3-selenium)
+fi
 
 missing=()
 for p in "${PKGS[@]}"; do
