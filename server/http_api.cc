@@ -90,24 +90,14 @@ json VersionJson(const VersionInfo& v, int64_t deployed) {
 }
 
 json JobJson(const JobStatus& j) {
-  return json{{"job_id", j.job_id},
-              {"scan_id", j.scan_id},
-              {"scan_name", j.scan_name},
-              {"phase", JobPhaseName(j.phase)},
-              {"done", IsFinal(j.phase)},
-              {"time_step", j.time_step},
-              {"iteration", j.iteration},
-              {"total_iterations", j.total_iterations},
-              {"elapsed_seconds", j.elapsed_seconds},
-              {"eta_seconds", j.eta_seconds},
-              {"loss", std::isfinite(j.loss) ? json(j.loss) : json(nullptr)},
-              {"psnr", std::isfinite(j.psnr) ? json(j.psnr) : json(nullptr)},
-              {"version", j.version},
-              {"error", j.error},
-              {"created_unix_ms", j.created_unix_ms},
-              {"finished_unix_ms", j.finished_unix_ms},
-              {"cancel_requested", j.cancel_requested},
-              {"metrics", j.metrics}};
+  json o = JobToJson(j);
+  o["done"] = IsFinal(j.phase);
+  o["eta_seconds"] = j.eta_seconds;
+  o["cancel_requested"] = j.cancel_requested;
+  for (const char* k : {"loss", "psnr"}) {
+    if (!std::isfinite(o[k].get<double>())) o[k] = nullptr;
+  }
+  return o;
 }
 
 // An optional integer query parameter in [lo, hi].

@@ -29,8 +29,6 @@ int64_t NowUnixMs() {
       .count();
 }
 
-namespace {
-
 nlohmann::json JobToJson(const JobStatus& j) {
   return {{"job_id", j.job_id},
           {"scan_id", j.scan_id},
@@ -48,6 +46,8 @@ nlohmann::json JobToJson(const JobStatus& j) {
           {"finished_unix_ms", j.finished_unix_ms},
           {"metrics", j.metrics}};
 }
+
+namespace {
 
 bool JobFromJson(const nlohmann::json& o, JobStatus* j) {
   const std::string phase = o.at("phase");

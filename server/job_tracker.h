@@ -26,6 +26,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "nlohmann/json_fwd.hpp"
 
 namespace clnerf {
 
@@ -47,6 +48,10 @@ struct JobStatus {
   uint64_t revision = 0;
   bool cancel_requested = false;
 };
+
+// A job as a JSON object: the job history file's record, which the HTTP API
+// also serves (adding the live fields).
+nlohmann::json JobToJson(const JobStatus& job);
 
 class JobTracker {
  public:
