@@ -1,7 +1,11 @@
 // Log hygiene for strings that come from clients (scan names, frame names,
-// error messages that quote them): EscapeForLog makes them one printable
-// line, so a name cannot forge log lines or smuggle terminal escapes into the
-// text log. (The JSON log format escapes on its own.)
+// HTTP paths, error messages that quote them): EscapeForLog makes them one
+// printable line, so a name cannot forge log lines or smuggle terminal
+// escapes into the text log. That covers the Unicode line breaks that
+// Unicode-aware viewers honour (U+0085 NEL and the other C1 controls,
+// U+2028, U+2029) and the bidirectional controls that reorder what a reader
+// sees (U+061C, U+200E, U+200F, U+202A..U+202E, U+2066..U+2069).
+// (The JSON log format escapes on its own.)
 //
 // Thread-safety: a pure function.
 #ifndef CLNERF_SERVER_LOG_UTIL_H_
@@ -12,7 +16,33 @@
 
 namespace clnerf {
 
-// Control characters and backslashes become C escapes (\n, \x1b, \\);
+// If `s` holds, at byte i, the UTF-8 encoding of a C1 control, a Unicode
+// line or paragraph separator or a bidirectional control, returns its
+// length in bytes and stores the code point; else returns 0.
+inline size_t LineBreakOrBidiAt(std::string_view s, size_t i, unsigned* code_point) {
+  auto byte = [&](size_t k) { return i + k < s.size() ? static_cast<unsigned char>(s[i + k]) : 0u; };
+  const unsigned b0 = byte(0), b1 = byte(1), b2 = byte(2);
+  if (b0 == 0xc2 && b1 >= 0x80 && b1 <= 0x9f) {  // U+0080..U+009F (C1, NEL).
+    *code_point = b1;
+    return 2;
+  }
+  if (b0 == 0xd8 && b1 == 0x9c) {  // U+061C ARABIC LETTER MARK.
+    *code_point = 0x61c;
+    return 2;
+  }
+  if (b0 == 0xe2 && b1 == 0x80 && ((b2 >= 0xa8 && b2 <= 0xae) || b2 == 0x8e || b2 == 0x8f)) {
+    *code_point = 0x2000 + (b2 - 0x80);  // U+2028/9, U+202A..E, U+200E/F.
+    return 3;
+  }
+  if (b0 == 0xe2 && b1 == 0x81 && b2 >= 0xa6 && b2 <= 0xa9) {  // U+2066..U+2069 isolates.
+    *code_point = 0x2040 + (b2 - 0x80);
+    return 3;
+  }
+  return 0;
+}
+
+// Control characters and backslashes become C escapes (\n, \x1b, \\), and
+// the code points LineBreakOrBidiAt finds become \u escapes (\u2028);
 // everything else, UTF-8 included, is kept. At most `max_bytes` input bytes
 // are shown, then "...(N bytes)".
 inline std::string EscapeForLog(std::string_view s, size_t max_bytes = 512) {
@@ -21,6 +51,13 @@ inline std::string EscapeForLog(std::string_view s, size_t max_bytes = 512) {
   const size_t n = s.size() < max_bytes ? s.size() : max_bytes;
   out.reserve(n + 16);
   for (size_t i = 0; i < n; ++i) {
+    unsigned cp = 0;
+    if (const size_t len = LineBreakOrBidiAt(s, i, &cp); len > 0) {
+      out += "\\u";
+      for (int shift = 12; shift >= 0; shift -= 4) out += kHex[(cp >> shift) & 15];
+      i += len - 1;
+      continue;
+    }
     const unsigned char c = static_cast<unsigned char>(s[i]);
     switch (c) {
       case '\n': out += "\\n"; break;

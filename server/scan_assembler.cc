@@ -2,7 +2,9 @@
 
 #include <limits>
 
+#include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
+#include "server/log_util.h"
 
 namespace clnerf {
 
@@ -16,6 +18,11 @@ absl::Status ValidateName(std::string_view name, const std::string& what) {
     if (c < 0x20 || c == 0x7f) {
       return absl::InvalidArgumentError(
           absl::StrCat(what, " contains control character 0x", absl::Hex(c, absl::kZeroPad2), " at byte ", i));
+    }
+    unsigned cp = 0;
+    if (LineBreakOrBidiAt(name, i, &cp) > 0) {
+      return absl::InvalidArgumentError(absl::StrCat(what, " contains U+", absl::AsciiStrToUpper(absl::StrCat(absl::Hex(cp, absl::kZeroPad4))),
+                                                     " (a line break or bidirectional control) at byte ", i));
     }
   }
   return absl::OkStatus();

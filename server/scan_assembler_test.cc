@@ -75,6 +75,20 @@ TEST(ScanAssemblerTest, HeaderLimits) {
   ScanHeaderDecl newline = Header({{1, 0}});
   newline.name = "ok\n[error] fake log line";
   ExpectInvalid(ScanAssembler(Limits()).Begin(newline), "scan name contains control character 0x0a");
+  // Unicode line breaks and bidi overrides forge lines in Unicode-aware log viewers.
+  const std::pair<std::string, std::string> unicode[] = {
+      {"nel\xc2\x85[error] fake", "U+0085"},     {"ls\xe2\x80\xa8[error] fake", "U+2028"},
+      {"ps\xe2\x80\xa9[error] fake", "U+2029"}, {"rlo\xe2\x80\xaegnp.exe", "U+202E"},
+      {"iso\xe2\x81\xa6x", "U+2066"},           {"alm\xd8\x9cx", "U+061C"},
+      {"lrm\xe2\x80\x8ex", "U+200E"}};
+  for (const auto& [name, says] : unicode) {
+    ScanHeaderDecl u = Header({{1, 0}});
+    u.name = name;
+    ExpectInvalid(ScanAssembler(Limits()).Begin(u), "scan name contains " + says);
+  }
+  ScanHeaderDecl fine = Header({{1, 0}});
+  fine.name = "caf\xc3\xa9 \xe2\x80\x94 \xe6\x97\xa5\xe6\x9c\xac";  // café — 日本: ordinary UTF-8 stays allowed.
+  EXPECT_TRUE(ScanAssembler(Limits()).Begin(fine).ok());
   ScanHeaderDecl huge = Header({{1, 0}});
   huge.name = std::string(3 << 20, 'x');
   ExpectInvalid(ScanAssembler(Limits()).Begin(huge), "the limit is 256");
