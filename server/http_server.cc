@@ -46,6 +46,10 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string&
   srv.set_payload_max_length(kMaxBodyBytes);
   srv.set_read_timeout(std::chrono::seconds(10));
   srv.set_write_timeout(std::chrono::seconds(30));
+  // An idle keep-alive connection holds a worker for this long, and Stop()
+  // waits for it: keep it short so SIGTERM with a viewer open stays quick
+  // (the browser reconnects transparently).
+  srv.set_keep_alive_timeout(1);
   s->api_->Register(&srv);
 
   for (const char* path : {"/", "/index.html", "/viewer.js", "/viewer.css"}) {

@@ -13,6 +13,7 @@ checks what a user sees:
   * two different versions differ, the same version twice does not;
   * the jobs panel shows the progress of a running update;
   * no page error, no HTTP 5xx;
+  * SIGTERM with the page still open stops the server within 5 s;
 and saves screenshots under --out. Never skips: a missing browser or driver
 is a failure (scripts/install-deps.sh installs them).
 
@@ -166,6 +167,11 @@ def main():
         with open(os.path.join(args.out, "server.log")) as f:
             if re.search(r"http .* -> 5\d\d", f.read()):
                 fail("the server answered 5xx")
+        # 8. SIGTERM with the page open (its keep-alive connections idle) stops the server promptly.
+        rc, took = server.terminate_timed()
+        print(f"SIGTERM with the viewer open: exit code {rc} after {took:.2f} s", flush=True)
+        if rc != 0 or took > 5:
+            fail(f"the server took {took:.2f} s to stop (exit code {rc}) with a viewer connected")
         print(f"viewer end-to-end: OK in {time.time() - t_start:.1f} s; screenshots in {args.out}", flush=True)
     finally:
         if driver is not None:

@@ -57,7 +57,21 @@ class Server:
             if m:
                 self.http = int(m.group(1))
 
+    def terminate_timed(self, timeout=30):
+        """SIGTERM; returns (exit code, seconds until the process exited)."""
+        t = time.time()
+        self.proc.terminate()
+        try:
+            rc = self.proc.wait(timeout=timeout)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            rc = None
+        return rc, time.time() - t
+
     def stop(self):
+        if self.proc.poll() is not None:
+            self.log.close()
+            return
         self.proc.terminate()
         try:
             self.proc.wait(timeout=20)
