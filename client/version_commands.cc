@@ -37,6 +37,11 @@ int RunVersions(const ListArgs& a) {
   TextTable table({"", "VERSION", "PARENT", "TIME STEPS", "SIZE", "CREATED", "SCAN", "METRICS"});
   for (const clnerf::v1::Version& v : response.versions()) {
     const bool deployed = v.deployed() || v.version() == response.deployed_version();
+    if (!v.unavailable().empty()) {
+      table.AddRow({deployed ? "*" : "", absl::StrCat(v.version()), "-", "-", "-", "-", "-",
+                    "UNAVAILABLE: " + v.unavailable()});
+      continue;
+    }
     table.AddRow({deployed ? "*" : "", absl::StrCat(v.version()), v.parent() > 0 ? absl::StrCat(v.parent()) : "-",
                   absl::StrCat(v.time_steps()), FormatBytes(v.size_bytes()), FormatUnixMs(v.created_unix_ms()),
                   v.scan_id().empty() ? "-" : v.scan_id(), FormatMetrics(v.metrics())});

@@ -201,6 +201,48 @@ TEST_F(ForgedStoreTest, CorruptDeployedVersionStartsReadOnlyUntilAnotherIsPinned
   EXPECT_EQ(j.version(), 3);
 }
 
+// Issue 21: a corrupt version.json of a version that is not deployed used to
+// stop the server from starting (exit 1). Now it is isolated like a corrupt
+// checkpoint: listed as unavailable with its reason, DATA_LOSS to use, and
+// the server starts and serves the others.
+TEST_F(ServerFixture, CorruptVersionMetadataIsIsolatedToItsVersion) {
+  const std::string store = TempDir("srv_bad_meta");
+  const Scene scene = TinyScans(2);
+  StartServer(TinyServerOptions(store));
+  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
+  ASSERT_EQ(UploadAndWait(scene, 1).phase(), v1::JOB_PHASE_DONE);
+  StopServer();
+  {
+    std::ofstream f(store + "/versions/000001/version.json", std::ios::trunc);
+    f << "{\"version\": 1, \"parent\": tru";  // Truncated mid-write.
+  }
+  auto started = GrpcServer::Start(TinyServerOptions(store));
+  ASSERT_TRUE(started.ok()) << "a bad undeployed version must not block start-up: " << started.status();
+  server_ = *std::move(started);
+  channel_ = grpc::CreateChannel("localhost:" + std::to_string(server_->port()), grpc::InsecureChannelCredentials());
+  stub_ = v1::ClnerfService::NewStub(channel_);
+
+  const std::vector<v1::Version> versions = Versions();
+  ASSERT_EQ(versions.size(), 2u);
+  EXPECT_EQ(versions[0].version(), 1);
+  EXPECT_TRUE(Contains(versions[0].unavailable(), "corrupt")) << versions[0].unavailable();
+  EXPECT_TRUE(versions[1].unavailable().empty());
+  EXPECT_TRUE(versions[1].deployed());
+  v1::RenderResponse r;
+  EXPECT_TRUE(Render(scene.test[0].camera, 0, 0, &r).ok());
+  EXPECT_EQ(r.version(), 2);
+  grpc::Status bad = Render(scene.test[0].camera, 0, 1, &r);
+  EXPECT_EQ(bad.error_code(), grpc::StatusCode::DATA_LOSS) << bad.error_message();
+  grpc::ClientContext ctx;
+  v1::SetDeployedVersionRequest pin;
+  pin.set_version(1);
+  v1::Version v;
+  EXPECT_EQ(stub_->SetDeployedVersion(&ctx, pin, &v).error_code(), grpc::StatusCode::DATA_LOSS);
+  // The next publish takes a fresh number: nothing is overwritten.
+  ASSERT_EQ(UploadAndWait(scene, 1).version(), 3);
+  EXPECT_EQ(Versions().size(), 3u);
+}
+
 TEST_F(ServerFixture, NegativeTimeStepIsInvalidArgument) {
   const std::string store = TempDir("srv_negative_t");
   StartServer(TinyServerOptions(store));

@@ -86,7 +86,7 @@ json VersionJson(const VersionInfo& v, int64_t deployed) {
               {"time_steps", v.time_steps},   {"size_bytes", v.size_bytes},
               {"model_bytes", v.model_bytes}, {"created_unix_ms", v.created_unix_ms},
               {"scan_id", v.scan_id},         {"metrics", v.metrics},
-              {"deployed", v.version == deployed}};
+              {"deployed", v.version == deployed}, {"unavailable", v.unavailable}};
 }
 
 json JobJson(const JobStatus& j) {

@@ -71,6 +71,7 @@ v1::Version ToProto(const VersionInfo& v, int64_t deployed_version) {
   p.set_scan_id(v.scan_id);
   p.set_deployed(v.version == deployed_version);
   for (const auto& [k, val] : v.metrics) (*p.mutable_metrics())[k] = val;
+  p.set_unavailable(v.unavailable);
   return p;
 }
 

@@ -56,6 +56,14 @@ absl::Status Publisher::RecoverLocked() {
   m.next_version = std::max(m.next_version, manifest_.next_version);
   absl::StatusOr<std::vector<VersionInfo>> all = versions_->List();
   if (!all.ok()) return all.status();
+  for (const VersionInfo& v : *all) {
+    if (!v.unavailable.empty()) spdlog::warn("version {} is unavailable: {}", v.version, v.unavailable);
+    // Its number is taken even so: never hand it out again.
+    m.next_version = std::max(m.next_version, v.version + 1);
+  }
+  // Only versions whose metadata reads can be finished or deployed.
+  all->erase(std::remove_if(all->begin(), all->end(), [](const VersionInfo& v) { return !v.unavailable.empty(); }),
+             all->end());
   // A version written after the manifest's last update passed its gate but
   // was not recorded (a crash, or a failed manifest write): finish it.
   if (!all->empty() && all->back().version >= disk->next_version) {

@@ -107,7 +107,15 @@ absl::StatusOr<std::vector<VersionInfo>> VersionStore::List() const {
     int64_t v;
     if (!e.is_directory() || !absl::SimpleAtoi(e.path().filename().string(), &v)) continue;
     absl::StatusOr<VersionInfo> info = Info(v);
-    if (!info.ok()) return info.status();
+    if (!info.ok()) {
+      // Isolated to this version, like a corrupt checkpoint: listed with the
+      // reason, and every other version keeps serving.
+      VersionInfo bad;
+      bad.version = v;
+      bad.unavailable = std::string(info.status().message());
+      out.push_back(std::move(bad));
+      continue;
+    }
     out.push_back(*std::move(info));
   }
   if (ec) return absl::InternalError(absl::StrCat("cannot list '", dir_, "': ", ec.message()));

@@ -36,6 +36,10 @@ struct VersionInfo {
   int64_t created_unix_ms = 0;
   std::string scan_id;  // The scan this version was trained on.
   std::map<std::string, double> metrics;
+  // Why this version cannot be used ("" = it can): its version.json is
+  // missing or corrupt. List() reports such versions instead of failing, so
+  // one bad version never stops the others from serving.
+  std::string unavailable;
 };
 
 struct Manifest {
@@ -61,7 +65,8 @@ class VersionStore {
   // NOT_FOUND for a version that does not exist.
   absl::StatusOr<LoadedVersion> Load(int64_t version) const;
   absl::StatusOr<VersionInfo> Info(int64_t version) const;
-  // All versions, ascending.
+  // All versions, ascending. A version whose version.json cannot be read is
+  // listed with only its number and `unavailable` set (the reason).
   absl::StatusOr<std::vector<VersionInfo>> List() const;
 
   // Deletes a version's folder (renamed aside first, so a crash leaves it

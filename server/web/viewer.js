@@ -165,6 +165,7 @@
         const o = document.createElement('option');
         o.value = String(v.version);
         o.textContent = 'v' + v.version + ' · ' + v.time_steps + ' scan' + (v.time_steps === 1 ? '' : 's');
+        if (v.unavailable) { o.disabled = true; o.textContent = 'v' + v.version + ' · unavailable'; o.title = v.unavailable; }
         sel.appendChild(o);
       }
       sel.value = [...sel.options].some((o) => o.value === keep) ? keep : '0';
