@@ -3,6 +3,7 @@
 // negative time steps, abandoned renders, unbounded names, a full disk, a
 // failed publish, leftover temporaries, lost job history, garbage bytes.
 #include <sys/mount.h>
+#include <sys/wait.h>
 #include <zlib.h>
 
 #include <chrono>
@@ -241,6 +242,78 @@ TEST_F(ServerFixture, CorruptVersionMetadataIsIsolatedToItsVersion) {
   // The next publish takes a fresh number: nothing is overwritten.
   ASSERT_EQ(UploadAndWait(scene, 1).version(), 3);
   EXPECT_EQ(Versions().size(), 3u);
+}
+
+// The real clnerf-server binary beside this test binary (build/server/).
+std::string ServerBinary() {
+  std::error_code ec;
+  const fs::path self = fs::read_symlink("/proc/self/exe", ec);
+  return (self.parent_path().parent_path() / "server" / "clnerf-server").string();
+}
+
+// Issue 21: kill -9 during a publish used to lose the acknowledged job's
+// record (GetJob NOT_FOUND) although its version was finished and deployed on
+// restart. The real server binary is crashed at each publish step
+// (CLNERF_CRASH_AT, crash_point.h: exit 137 with no clean-up) and restarted
+// on the same store: the job must be DONE with its version.
+TEST_F(ServerFixture, AJobCrashedAtAnyPublishStepIsKnownAfterRestart) {
+  const std::string bin = ServerBinary();
+  ASSERT_TRUE(fs::exists(bin)) << bin;
+  const Scene scene = TinyScans(1);
+  for (const char* point : {"publish:version-written", "publish:manifest-written", "publish:scan-removed"}) {
+    SCOPED_TRACE(point);
+    const std::string store = TempDir("srv_crash");
+    {
+      std::ofstream cfg(store + ".json");
+      cfg << R"({"gate": {"min_new_psnr": 8, "min_replay_consistency_psnr": 10, "max_replay_drop_db": 10}})";
+    }
+    const std::string cmd = absl::StrFormat(
+        "CLNERF_CRASH_AT=%s exec timeout 120 %s --store %s --listen 127.0.0.1:0 --iters 30 --config %s.json "
+        "--log-level warn 2>%s.log",
+        point, bin, store, store, store);
+    FILE* proc = popen(cmd.c_str(), "r");
+    ASSERT_NE(proc, nullptr);
+    int port = 0;
+    char line[256];
+    while (port == 0 && std::fgets(line, sizeof(line), proc) != nullptr) std::sscanf(line, "clnerf-server listening on port %d", &port);
+    ASSERT_GT(port, 0) << "the server did not start; see " << store << ".log";
+    auto stub = v1::ClnerfService::NewStub(
+        grpc::CreateChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials()));
+    grpc::ClientContext ctx;
+    v1::UploadScanResponse ack;
+    auto writer = stub->UploadScan(&ctx, &ack);
+    for (const auto& m : UploadMessages(UploadOf(scene, 0))) writer->Write(m);
+    writer->WritesDone();
+    ASSERT_TRUE(writer->Finish().ok());
+    const int status = pclose(proc);  // Waits for the crash.
+    ASSERT_TRUE(WIFEXITED(status));
+    ASSERT_EQ(WEXITSTATUS(status), 137) << "the server did not crash at " << point << "; see " << store << ".log";
+
+    StartServer(TinyServerOptions(store));
+    grpc::ClientContext jctx;
+    v1::GetJobRequest req;
+    req.set_job_id(ack.job_id());
+    v1::Job job;
+    const grpc::Status s = stub_->GetJob(&jctx, req, &job);
+    ASSERT_TRUE(s.ok()) << "acknowledged job " << ack.job_id() << " is unknown after restart: " << s.error_message();
+    EXPECT_EQ(job.phase(), v1::JOB_PHASE_DONE);
+    EXPECT_EQ(job.version(), 1);
+    EXPECT_EQ(job.scan_name(), "scan_t0");
+    EXPECT_EQ(Info(stub_.get()).deployed_version(), 1);
+    EXPECT_EQ(StoredScans(store), 0u) << "the trained scan must not be trained again";
+    grpc::ClientContext lctx;
+    v1::ListJobsResponse list;
+    ASSERT_TRUE(stub_->ListJobs(&lctx, v1::ListJobsRequest(), &list).ok());
+    ASSERT_EQ(list.jobs_size(), 1);
+    EXPECT_EQ(list.jobs(0).job_id(), ack.job_id());
+    StopServer();
+    // And it stays known after one more restart (the record is durable).
+    StartServer(TinyServerOptions(store));
+    grpc::ClientContext j2;
+    EXPECT_TRUE(stub_->GetJob(&j2, req, &job).ok());
+    EXPECT_EQ(job.phase(), v1::JOB_PHASE_DONE);
+    StopServer();
+  }
 }
 
 TEST_F(ServerFixture, NegativeTimeStepIsInvalidArgument) {

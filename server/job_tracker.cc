@@ -166,7 +166,12 @@ void JobTracker::AddFinished(JobStatus job) {
   }
   if (job.finished_unix_ms == 0) job.finished_unix_ms = NowUnixMs();
   job.revision = 1;
-  InsertLocked(std::move(job));
+  // Keep creation order: a record restored at start-up may be older than
+  // jobs already known.
+  auto pos = std::find_if(order_.begin(), order_.end(),
+                          [&](const std::string& id) { return jobs_.at(id).created_unix_ms > job.created_unix_ms; });
+  order_.insert(pos, job.job_id);
+  jobs_.emplace(job.job_id, std::move(job));
   FinishedLocked();
   cv_.notify_all();
 }

@@ -58,6 +58,26 @@ absl::Status ModelHost::RecoverScans() {
   if (!pending.ok()) return pending.status();
   absl::StatusOr<std::vector<VersionInfo>> all = publisher_->versions().List();
   if (!all.ok()) return all.status();
+  // A crash between a publish and the job's DONE record (the history is
+  // written when a job finishes) would lose an acknowledged job: every
+  // version names the job that trained it, so restore that record as DONE.
+  for (const VersionInfo& v : *all) {
+    if (v.job_id.empty() || !v.unavailable.empty()) continue;
+    absl::StatusOr<JobStatus> known = jobs_.Get(v.job_id);
+    if (known.ok() && known->phase == JobPhase::kDone && known->version == v.version) continue;
+    JobStatus j;
+    j.job_id = v.job_id;
+    j.scan_id = v.scan_id;
+    j.scan_name = v.scan_name;
+    j.phase = JobPhase::kDone;
+    j.time_step = v.time_steps - 1;
+    j.version = v.version;
+    j.created_unix_ms = known.ok() ? known->created_unix_ms : v.created_unix_ms;
+    j.finished_unix_ms = v.created_unix_ms;
+    j.metrics = v.metrics;
+    jobs_.AddFinished(std::move(j));
+    spdlog::warn("recovery: job {} published version {} before a crash; recorded as done", v.job_id, v.version);
+  }
   int requeued = 0;
   for (const ScanRecord& r : *pending) {
     const bool trained = std::any_of(all->begin(), all->end(), [&](const VersionInfo& v) { return v.scan_id == r.scan_id; });

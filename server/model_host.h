@@ -16,7 +16,9 @@
 // front ends over this class; neither calls the other.
 //
 // Start-up recovery: the publisher finishes a publish that crashed between
-// the version and the manifest; scans already trained into a version are
+// the version and the manifest; a job whose version was published but whose
+// DONE record a crash lost is restored from the version's metadata (so every
+// acknowledged job id stays known); scans already trained into a version are
 // removed; a scan whose training was interrupted max_scan_attempts times
 // (crash, kill or hang) is parked with a FAILED job; every other stored scan
 // is re-queued in upload order with its original job id. So a crash at any

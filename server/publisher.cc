@@ -6,6 +6,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/io/durable_file.h"
+#include "server/crash_point.h"
 #include "server/job_tracker.h"
 #include "spdlog/spdlog.h"
 
@@ -161,8 +162,7 @@ absl::StatusOr<ReservedIds> Publisher::ReserveIds() {
   return ids;
 }
 
-absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int64_t parent,
-                                               const std::string& scan_id,
+absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int64_t parent, const Origin& origin,
                                                const std::map<std::string, double>& metrics) {
   std::lock_guard<std::mutex> lock(mu_);
   if (absl::Status s = RefusalLocked(); !s.ok()) return s;
@@ -171,7 +171,9 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
   info.parent = parent;
   info.time_steps = state.model->num_time_steps();
   info.created_unix_ms = NowUnixMs();
-  info.scan_id = scan_id;
+  info.scan_id = origin.scan_id;
+  info.scan_name = origin.scan_name;
+  info.job_id = origin.job_id;
   info.metrics = metrics;
   absl::StatusOr<VersionInfo> written = versions_->Write(*state.model, state.memory, info);
   if (!written.ok()) {
@@ -180,6 +182,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
     SetErrorLocked(written.status());
     return written.status();
   }
+  CrashPoint("publish:version-written");
   // The version is durable from here on: it is deployed now, and recovery
   // deploys it on the next start even if the manifest cannot be updated.
   manifest_.next_version = info.version + 1;
@@ -196,6 +199,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
                                                        s.message())));
     return *written;
   }
+  CrashPoint("publish:manifest-written");
   manifest_ = m;
   PruneLocked();
   return *written;

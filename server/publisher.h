@@ -65,8 +65,12 @@ class Publisher {
   std::string error() const;
 
   absl::StatusOr<ReservedIds> ReserveIds();
-  // Publishes θ_t and M_t trained from `parent` (0 = none) on `scan_id`.
-  absl::StatusOr<VersionInfo> Publish(const ContinualState& state, int64_t parent, const std::string& scan_id,
+  // Where a version came from: the scan and the job that trained it.
+  struct Origin {
+    std::string scan_id, scan_name, job_id;
+  };
+  // Publishes θ_t and M_t trained from `parent` (0 = none) on `origin`'s scan.
+  absl::StatusOr<VersionInfo> Publish(const ContinualState& state, int64_t parent, const Origin& origin,
                                       const std::map<std::string, double>& metrics);
   // NOT_FOUND for an unknown version, DATA_LOSS for a corrupt one.
   absl::StatusOr<VersionInfo> SetDeployed(int64_t version);

@@ -5,6 +5,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/continual/continual_update.h"
 #include "core/continual/deployment_gate.h"
+#include "server/crash_point.h"
 #include "server/log_util.h"
 #include "spdlog/spdlog.h"
 
@@ -189,7 +190,8 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   jobs_->Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kPublishing; });
   absl::StatusOr<VersionInfo> published;
   while (true) {
-    published = publisher_->Publish(*next, prev ? prev->info.version : 0, scan_id, gate.metrics);
+    published = publisher_->Publish(*next, prev ? prev->info.version : 0, {scan_id, job->scan_name, job_id},
+                                    gate.metrics);
     if (published.ok()) break;
     spdlog::error("job {}: publishing failed: {}; retrying when the store recovers", job_id,
                   std::string(published.status().message()));
@@ -203,6 +205,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
     }
   }
   if (absl::Status s = scans_->Remove(scan_id); !s.ok()) spdlog::warn("job {}: {}", job_id, s.ToString());
+  CrashPoint("publish:scan-removed");
   jobs_->Update(job_id, [&](JobStatus* j) {
     j->phase = JobPhase::kDone;
     j->version = published->version;

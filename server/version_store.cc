@@ -26,6 +26,7 @@ nlohmann::json InfoToJson(const VersionInfo& v) {
           {"time_steps", v.time_steps}, {"size_bytes", v.size_bytes},
           {"file_bytes", v.size_bytes}, {"model_bytes", v.model_bytes},
           {"created_unix_ms", v.created_unix_ms}, {"scan_id", v.scan_id},
+          {"job_id", v.job_id},         {"scan_name", v.scan_name},
           {"metrics", v.metrics}};
 }
 
@@ -40,6 +41,8 @@ absl::StatusOr<VersionInfo> InfoFromJson(const std::string& text, const std::str
     v.model_bytes = j.value("model_bytes", int64_t(0));  // Absent in older stores.
     v.created_unix_ms = j.at("created_unix_ms");
     v.scan_id = j.at("scan_id");
+    v.job_id = j.value("job_id", std::string());  // Absent in older stores.
+    v.scan_name = j.value("scan_name", std::string());
     v.metrics = j.at("metrics").get<std::map<std::string, double>>();
     return v;
   } catch (const std::exception& e) {

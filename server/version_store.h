@@ -35,6 +35,10 @@ struct VersionInfo {
   int64_t model_bytes = 0;  // The model's parameter bytes (NgpModel::num_bytes()).
   int64_t created_unix_ms = 0;
   std::string scan_id;  // The scan this version was trained on.
+  // The job that trained it and the scan's name ("" in stores written before
+  // they were recorded): start-up recovery restores that job's record as
+  // DONE from here when a crash lost it (model_host.h).
+  std::string job_id, scan_name;
   std::map<std::string, double> metrics;
   // Why this version cannot be used ("" = it can): its version.json is
   // missing or corrupt. List() reports such versions instead of failing, so
