@@ -7,6 +7,7 @@
 #include <zlib.h>
 
 #include <chrono>
+#include <csignal>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -17,6 +18,7 @@
 #include "core/io/durable_file.h"
 #include "grpcpp/generic/generic_stub.h"
 #include "gtest/gtest.h"
+#include "nlohmann/json.hpp"
 #include "server/server_fixture.h"
 #include "server/server_test_util.h"
 
@@ -251,6 +253,54 @@ std::string ServerBinary() {
   return (self.parent_path().parent_path() / "server" / "clnerf-server").string();
 }
 
+// The real server binary started through the shell: `env` prefixes the
+// command (e.g. "CLNERF_CRASH_AT=x"), stderr goes to `log`. Reads the gRPC
+// port from stdout; pid() is the server's (the shell execs it).
+class ServerProcess {
+ public:
+  ServerProcess(const std::string& env, const std::string& args, const std::string& log) {
+    const std::string cmd =
+        absl::StrFormat("echo $$; %s exec timeout 120 %s %s 2>%s", env, ServerBinary(), args, log);
+    proc_ = popen(cmd.c_str(), "r");
+    char line[256];
+    while (proc_ != nullptr && port_ == 0 && std::fgets(line, sizeof(line), proc_) != nullptr) {
+      if (pid_ == 0) std::sscanf(line, "%d", &pid_);
+      std::sscanf(line, "clnerf-server listening on port %d", &port_);
+    }
+  }
+  ~ServerProcess() {
+    if (proc_ != nullptr) pclose(proc_);
+  }
+  int port() const { return port_; }
+  int pid() const { return pid_; }
+  // Waits for the process to end; its wait status.
+  int Wait() {
+    const int status = pclose(proc_);
+    proc_ = nullptr;
+    return status;
+  }
+  std::unique_ptr<v1::ClnerfService::Stub> Stub() const {
+    return v1::ClnerfService::NewStub(
+        grpc::CreateChannel("127.0.0.1:" + std::to_string(port_), grpc::InsecureChannelCredentials()));
+  }
+
+ private:
+  FILE* proc_ = nullptr;
+  int pid_ = 0, port_ = 0;
+};
+
+grpc::Status UploadTo(v1::ClnerfService::Stub* stub, const std::vector<v1::UploadScanRequest>& msgs,
+                      v1::UploadScanResponse* ack) {
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  auto writer = stub->UploadScan(&ctx, ack);
+  for (const auto& m : msgs) {
+    if (!writer->Write(m)) break;
+  }
+  writer->WritesDone();
+  return writer->Finish();
+}
+
 // Issue 21: kill -9 during a publish used to lose the acknowledged job's
 // record (GetJob NOT_FOUND) although its version was finished and deployed on
 // restart. The real server binary is crashed at each publish step
@@ -267,25 +317,14 @@ TEST_F(ServerFixture, AJobCrashedAtAnyPublishStepIsKnownAfterRestart) {
       std::ofstream cfg(store + ".json");
       cfg << R"({"gate": {"min_new_psnr": 8, "min_replay_consistency_psnr": 10, "max_replay_drop_db": 10}})";
     }
-    const std::string cmd = absl::StrFormat(
-        "CLNERF_CRASH_AT=%s exec timeout 120 %s --store %s --listen 127.0.0.1:0 --iters 30 --config %s.json "
-        "--log-level warn 2>%s.log",
-        point, bin, store, store, store);
-    FILE* proc = popen(cmd.c_str(), "r");
-    ASSERT_NE(proc, nullptr);
-    int port = 0;
-    char line[256];
-    while (port == 0 && std::fgets(line, sizeof(line), proc) != nullptr) std::sscanf(line, "clnerf-server listening on port %d", &port);
-    ASSERT_GT(port, 0) << "the server did not start; see " << store << ".log";
-    auto stub = v1::ClnerfService::NewStub(
-        grpc::CreateChannel("127.0.0.1:" + std::to_string(port), grpc::InsecureChannelCredentials()));
-    grpc::ClientContext ctx;
+    ServerProcess proc(absl::StrCat("CLNERF_CRASH_AT=", point),
+                       absl::StrFormat("--store %s --listen 127.0.0.1:0 --iters 30 --config %s.json --log-level warn",
+                                       store, store),
+                       store + ".log");
+    ASSERT_GT(proc.port(), 0) << "the server did not start; see " << store << ".log";
     v1::UploadScanResponse ack;
-    auto writer = stub->UploadScan(&ctx, &ack);
-    for (const auto& m : UploadMessages(UploadOf(scene, 0))) writer->Write(m);
-    writer->WritesDone();
-    ASSERT_TRUE(writer->Finish().ok());
-    const int status = pclose(proc);  // Waits for the crash.
+    ASSERT_TRUE(UploadTo(proc.Stub().get(), UploadMessages(UploadOf(scene, 0)), &ack).ok());
+    const int status = proc.Wait();  // Waits for the crash.
     ASSERT_TRUE(WIFEXITED(status));
     ASSERT_EQ(WEXITSTATUS(status), 137) << "the server did not crash at " << point << "; see " << store << ".log";
 
@@ -314,6 +353,56 @@ TEST_F(ServerFixture, AJobCrashedAtAnyPublishStepIsKnownAfterRestart) {
     EXPECT_EQ(job.phase(), v1::JOB_PHASE_DONE);
     StopServer();
   }
+}
+
+// Issue 21: with --log-format json a client could make the server print
+// lines that are not JSON: libpng's "IDAT: incorrect data check" for a PNG
+// whose compressed data is damaged, and a "[libprotobuf ERROR ...]" line for a
+// name that is not UTF-8. Every stderr line must now parse as JSON.
+TEST_F(ServerFixture, JsonLogsStayJsonWhateverClientsSend) {
+  const std::string store = TempDir("srv_jsonlog");
+  const std::string log = store + ".log";
+  ServerProcess proc("", absl::StrFormat("--store %s --listen 127.0.0.1:0 --log-format json", store), log);
+  ASSERT_GT(proc.port(), 0) << "the server did not start; see " << log;
+  auto stub = proc.Stub();
+  const Scene scene = TinyScans(1);
+
+  // A PNG whose IDAT data fails zlib's check, with a valid chunk CRC.
+  ScanUpload bad_png = UploadOf(scene, 0);
+  std::string& png = bad_png.frames[0].image;
+  const size_t idat = png.find("IDAT");
+  ASSERT_NE(idat, std::string::npos);
+  const uint32_t len = (uint32_t(uint8_t(png[idat - 4])) << 24) | (uint32_t(uint8_t(png[idat - 3])) << 16) |
+                       (uint32_t(uint8_t(png[idat - 2])) << 8) | uint32_t(uint8_t(png[idat - 1]));
+  png[idat + 4 + len - 1] ^= 0x5a;  // The last byte of the zlib stream's Adler-32.
+  const uint32_t crc = uint32_t(crc32(0, reinterpret_cast<const Bytef*>(png.data() + idat), uInt(4 + len)));
+  for (int k = 0; k < 4; ++k) png[idat + 4 + len + size_t(k)] = char((crc >> (24 - 8 * k)) & 0xff);
+  v1::UploadScanResponse ack;
+  EXPECT_EQ(UploadTo(stub.get(), UploadMessages(bad_png), &ack).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+
+  // A scan name that is not UTF-8 (protobuf refuses to parse the message).
+  ScanUpload bad_name = UploadOf(scene, 0);
+  bad_name.name = "caf\xe9-latin1";
+  EXPECT_FALSE(UploadTo(stub.get(), UploadMessages(bad_name), &ack).ok());
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));  // Let the capture thread re-log.
+  ASSERT_EQ(kill(proc.pid(), SIGTERM), 0);
+  const int status = proc.Wait();
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << status;
+
+  std::ifstream in(log);
+  std::string line, all;
+  int lines = 0;
+  while (std::getline(in, line)) {
+    ++lines;
+    all += line + "\n";
+    const nlohmann::json j = nlohmann::json::parse(line, nullptr, /*allow_exceptions=*/false);
+    ASSERT_FALSE(j.is_discarded()) << "not JSON: " << line;
+    EXPECT_TRUE(j.contains("level") && j.contains("msg")) << line;
+  }
+  EXPECT_GT(lines, 3);
+  // Both third-party messages are there, wrapped.
+  EXPECT_TRUE(Contains(all, "IDAT")) << all;
+  EXPECT_TRUE(Contains(all, "UTF-8")) << all;
 }
 
 TEST_F(ServerFixture, NegativeTimeStepIsInvalidArgument) {

@@ -11,37 +11,8 @@
 
 #include "CLI/CLI.hpp"
 #include "server/grpc_server.h"
-#include "spdlog/pattern_formatter.h"
-#include "spdlog/sinks/stdout_color_sinks.h"
+#include "server/log_setup.h"
 #include "spdlog/spdlog.h"
-
-namespace {
-
-// %j: the log message, JSON-escaped, for one-object-per-line logs.
-class JsonMessageFlag : public spdlog::custom_flag_formatter {
- public:
-  void format(const spdlog::details::log_msg& msg, const std::tm&, spdlog::memory_buf_t& dest) override {
-    for (char c : std::string_view(msg.payload.data(), msg.payload.size())) {
-      switch (c) {
-        case '"': dest.append(std::string_view("\\\"")); break;
-        case '\\': dest.append(std::string_view("\\\\")); break;
-        case '\n': dest.append(std::string_view("\\n")); break;
-        case '\t': dest.append(std::string_view("\\t")); break;
-        default:
-          if (static_cast<unsigned char>(c) < 0x20) {
-            char buf[8];
-            std::snprintf(buf, sizeof(buf), "\\u%04x", c);
-            dest.append(std::string_view(buf));
-          } else {
-            dest.push_back(c);
-          }
-      }
-    }
-  }
-  std::unique_ptr<custom_flag_formatter> clone() const override { return std::make_unique<JsonMessageFlag>(); }
-};
-
-}  // namespace
 
 int main(int argc, char** argv) {
   using namespace clnerf;
@@ -84,31 +55,25 @@ int main(int argc, char** argv) {
     if (const char* env = std::getenv("CLNERF_TOKEN")) o.token = env;
   }
 
-  auto logger = spdlog::stderr_color_mt("clnerf-server");
-  spdlog::set_default_logger(logger);
-  spdlog::set_level(spdlog::level::from_str(log_level));
-  if (log_format == "json") {
-    auto f = std::make_unique<spdlog::pattern_formatter>();
-    f->add_flag<JsonMessageFlag>('j').set_pattern(
-        R"({"time":"%Y-%m-%dT%H:%M:%S.%e%z","level":"%l","thread":%t,"msg":"%j"})");
-    spdlog::set_formatter(std::move(f));
-  } else if (log_format == "text") {
-    spdlog::set_pattern("[%Y-%m-%d %H:%M:%S.%e] [%^%l%$] %v");
-  } else {
-    std::fprintf(stderr, "clnerf-server: --log-format must be text or json\n");
-    return 2;
-  }
-
-  // Block SIGINT/SIGTERM in every thread; the main thread waits for them.
+  // Block SIGINT/SIGTERM in every thread (so before any is started, the
+  // logger's included); the main thread waits for them.
   sigset_t sigs;
   sigemptyset(&sigs);
   sigaddset(&sigs, SIGINT);
   sigaddset(&sigs, SIGTERM);
   pthread_sigmask(SIG_BLOCK, &sigs, nullptr);
 
+  if (absl::Status s = SetUpServerLogging(log_level, log_format); !s.ok()) {
+    std::fprintf(stderr, "clnerf-server: %s\n", std::string(s.message()).c_str());
+    return 2;
+  }
+
   absl::StatusOr<std::unique_ptr<GrpcServer>> server = GrpcServer::Start(o);
   if (!server.ok()) {
-    std::fprintf(stderr, "clnerf-server: %s\n", server.status().ToString().c_str());
+    // Through the logger: in JSON mode fd 2 is the capture pipe, whose reader
+    // would not get to run before the exit.
+    spdlog::critical("clnerf-server: {}", server.status().ToString());
+    spdlog::shutdown();
     return 1;
   }
   // Machine-readable line for scripts (the port matters with :0).
