@@ -32,6 +32,7 @@ using testing_util::TinyScans;
 using testing_util::TinyServerOptions;
 using testing_util::UploadMessages;
 using testing_util::UploadOf;
+using testing_util::UploadVia;
 
 v1::Job GetJob(v1::ClnerfService::Stub* stub, const std::string& id) {
   grpc::ClientContext ctx;
@@ -289,17 +290,6 @@ class ServerProcess {
   int pid_ = 0, port_ = 0;
 };
 
-grpc::Status UploadTo(v1::ClnerfService::Stub* stub, const std::vector<v1::UploadScanRequest>& msgs,
-                      v1::UploadScanResponse* ack) {
-  grpc::ClientContext ctx;
-  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
-  auto writer = stub->UploadScan(&ctx, ack);
-  for (const auto& m : msgs) {
-    if (!writer->Write(m)) break;
-  }
-  writer->WritesDone();
-  return writer->Finish();
-}
 
 // Issue 21: kill -9 during a publish used to lose the acknowledged job's
 // record (GetJob NOT_FOUND) although its version was finished and deployed on
@@ -323,7 +313,7 @@ TEST_F(ServerFixture, AJobCrashedAtAnyPublishStepIsKnownAfterRestart) {
                        store + ".log");
     ASSERT_GT(proc.port(), 0) << "the server did not start; see " << store << ".log";
     v1::UploadScanResponse ack;
-    ASSERT_TRUE(UploadTo(proc.Stub().get(), UploadMessages(UploadOf(scene, 0)), &ack).ok());
+    ASSERT_TRUE(UploadVia(proc.Stub().get(), UploadMessages(UploadOf(scene, 0)), &ack).ok());
     const int status = proc.Wait();  // Waits for the crash.
     ASSERT_TRUE(WIFEXITED(status));
     ASSERT_EQ(WEXITSTATUS(status), 137) << "the server did not crash at " << point << "; see " << store << ".log";
@@ -378,12 +368,12 @@ TEST_F(ServerFixture, JsonLogsStayJsonWhateverClientsSend) {
   const uint32_t crc = uint32_t(crc32(0, reinterpret_cast<const Bytef*>(png.data() + idat), uInt(4 + len)));
   for (int k = 0; k < 4; ++k) png[idat + 4 + len + size_t(k)] = char((crc >> (24 - 8 * k)) & 0xff);
   v1::UploadScanResponse ack;
-  EXPECT_EQ(UploadTo(stub.get(), UploadMessages(bad_png), &ack).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(UploadVia(stub.get(), UploadMessages(bad_png), &ack).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
 
   // A scan name that is not UTF-8 (protobuf refuses to parse the message).
   ScanUpload bad_name = UploadOf(scene, 0);
   bad_name.name = "caf\xe9-latin1";
-  EXPECT_FALSE(UploadTo(stub.get(), UploadMessages(bad_name), &ack).ok());
+  EXPECT_FALSE(UploadVia(stub.get(), UploadMessages(bad_name), &ack).ok());
   std::this_thread::sleep_for(std::chrono::milliseconds(300));  // Let the capture thread re-log.
   ASSERT_EQ(kill(proc.pid(), SIGTERM), 0);
   const int status = proc.Wait();

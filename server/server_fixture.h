@@ -18,6 +18,20 @@
 namespace clnerf {
 namespace testing_util {
 
+// Streams an upload through `stub` (with a bearer token if given).
+inline grpc::Status UploadVia(v1::ClnerfService::Stub* stub, const std::vector<v1::UploadScanRequest>& msgs,
+                              v1::UploadScanResponse* resp, const std::string& token = "") {
+  grpc::ClientContext ctx;
+  if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
+  ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
+  auto writer = stub->UploadScan(&ctx, resp);
+  for (const auto& m : msgs) {
+    if (!writer->Write(m)) break;
+  }
+  writer->WritesDone();
+  return writer->Finish();
+}
+
 class ServerFixture : public ::testing::Test {
  protected:
   void StartServer(const ServerOptions& o) {
@@ -35,15 +49,7 @@ class ServerFixture : public ::testing::Test {
 
   grpc::Status Upload(const std::vector<v1::UploadScanRequest>& msgs, v1::UploadScanResponse* resp,
                       const std::string& token = "") {
-    grpc::ClientContext ctx;
-    if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
-    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(60));
-    auto writer = stub_->UploadScan(&ctx, resp);
-    for (const auto& m : msgs) {
-      if (!writer->Write(m)) break;
-    }
-    writer->WritesDone();
-    return writer->Finish();
+    return UploadVia(stub_.get(), msgs, resp, token);
   }
   // Streams the job until it ends; returns its final state.
   v1::Job Watch(const std::string& job_id) {
