@@ -50,6 +50,26 @@ TEST(ScanAssemblerTest, AssemblesChunksInOrder) {
   EXPECT_EQ(up->frames[1].mask, "mm");
 }
 
+// As the README says: chunks of different frames may interleave (each names
+// its frame and offset), but within a frame every chunk must start where the
+// frame's bytes end.
+TEST(ScanAssemblerTest, FramesMayInterleaveButNotReorderWithinAFrame) {
+  ScanAssembler a(Limits());
+  ASSERT_TRUE(a.Begin(Header({{5, 0}, {3, 2}})).ok());
+  ASSERT_TRUE(a.Add(1, false, 0, "xy").ok());
+  ASSERT_TRUE(a.Add(0, false, 0, "abc").ok());
+  ASSERT_TRUE(a.Add(1, true, 0, "mm").ok());
+  ASSERT_TRUE(a.Add(1, false, 2, "z").ok());
+  ExpectInvalid(a.Add(0, false, 4, "e"), "chunk at offset 4");  // A gap in frame 0.
+  ExpectInvalid(a.Add(0, false, 1, "bc"), "chunk at offset 1");  // An overlap.
+  ASSERT_TRUE(a.Add(0, false, 3, "de").ok());
+  absl::StatusOr<ScanUpload> up = a.Finish();
+  ASSERT_TRUE(up.ok()) << up.status();
+  EXPECT_EQ(up->frames[0].image, "abcde");
+  EXPECT_EQ(up->frames[1].image, "xyz");
+  EXPECT_EQ(up->frames[1].mask, "mm");
+}
+
 TEST(ScanAssemblerTest, DeclaredSizesCannotOverflowPastTheLimit) {
   // INT64_MAX + a small frame wraps a signed sum below the limit; the
   // assembler must refuse it before anything is buffered.

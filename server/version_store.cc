@@ -98,8 +98,20 @@ absl::StatusOr<LoadedVersion> VersionStore::Load(int64_t version) const {
   if (!ck.ok()) return ck.status();
   const std::string* mem = ck->extras.FindSection(kMemorySection);
   if (mem == nullptr) return absl::DataLossError(absl::StrCat("version ", version, " has no replay memory"));
+  // One rule for stored data: whatever check it fails (corrupt bytes, a
+  // format this build does not read, a memory that does not belong to its
+  // model), a stored version that cannot be used is DATA_LOSS.
   absl::StatusOr<ReplayMemory> memory = ReplayMemory::Deserialize(*mem);
-  if (!memory.ok()) return memory.status();
+  if (!memory.ok()) {
+    return absl::DataLossError(absl::StrCat("version ", version, ": ", memory.status().message()));
+  }
+  int max_step = -1;
+  for (const CameraRecord& c : memory->cameras()) max_step = std::max(max_step, int(c.time_step));
+  if (!memory->cameras().empty() && max_step != ck->model.num_time_steps() - 1) {
+    return absl::DataLossError(absl::StrCat("version ", version, ": its replay memory does not match its model (cameras "
+                                            "reach time step ", max_step, ", the model has ",
+                                            ck->model.num_time_steps(), " time steps)"));
+  }
   return LoadedVersion{*std::move(info), std::move(ck->model), *std::move(memory)};
 }
 

@@ -20,6 +20,28 @@ NgpModel TinyModel(uint64_t seed) {
   return *std::move(m);
 }
 
+// A replay memory that does not belong to its model (as a mutated file whose
+// CRC was fixed up would be: here written with a valid CRC) is DATA_LOSS at
+// load, the status every other check of stored data gives.
+TEST(VersionStoreTest, AMemoryThatDoesNotMatchItsModelIsDataLoss) {
+  const std::string root = testing_util::TempDir("versions_mismatch");
+  auto store = VersionStore::Open(root);
+  ASSERT_TRUE(store.ok());
+  const NgpModel model = TinyModel(1);  // 2 time steps.
+  ReplayMemory memory(3);
+  Camera cam;
+  cam.intrinsics = Intrinsics{8, 8, 10, 10, 4, 4};
+  cam.time_step = 5;
+  memory.AddCamera(cam);
+  VersionInfo info;
+  info.version = 1;
+  info.time_steps = 2;
+  ASSERT_TRUE((*store)->Write(model, memory, info).ok());
+  auto loaded = (*store)->Load(1);
+  EXPECT_EQ(loaded.status().code(), absl::StatusCode::kDataLoss) << loaded.status();
+  EXPECT_NE(loaded.status().message().find("does not match its model"), std::string::npos) << loaded.status();
+}
+
 TEST(VersionStoreTest, WriteLoadListAndManifest) {
   const std::string root = testing_util::TempDir("versions");
   auto store = VersionStore::Open(root);
