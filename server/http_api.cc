@@ -100,6 +100,16 @@ json JobJson(const JobStatus& j) {
   return o;
 }
 
+// Every version, the deployed one marked, and the deployed version's number.
+absl::StatusOr<json> VersionsJson(const ModelHost& host, int64_t* deployed) {
+  absl::StatusOr<std::vector<VersionInfo>> all = host.ListVersions();
+  if (!all.ok()) return all.status();
+  *deployed = host.deployed_version();
+  json list = json::array();
+  for (const VersionInfo& v : *all) list.push_back(VersionJson(v, *deployed));
+  return list;
+}
+
 // An optional integer query parameter in [lo, hi].
 absl::StatusOr<int64_t> IntParam(const httplib::Request& req, const char* name, int64_t fallback, int64_t lo,
                                  int64_t hi) {
@@ -148,12 +158,10 @@ void HttpApi::Register(httplib::Server* server) {
   });
 
   server->Get("/api/versions", [this](const httplib::Request&, httplib::Response& res) {
-    absl::StatusOr<std::vector<VersionInfo>> all = host_->ListVersions();
-    if (!all.ok()) return SendError(res, all.status());
-    const int64_t deployed = host_->deployed_version();
-    json list = json::array();
-    for (const VersionInfo& v : *all) list.push_back(VersionJson(v, deployed));
-    SendJson(res, json{{"deployed_version", deployed}, {"versions", list}});
+    int64_t deployed = 0;
+    absl::StatusOr<json> list = VersionsJson(*host_, &deployed);
+    if (!list.ok()) return SendError(res, list.status());
+    SendJson(res, json{{"deployed_version", deployed}, {"versions", *list}});
   });
 
   server->Get("/api/scene", [this](const httplib::Request& req, httplib::Response& res) {
@@ -161,11 +169,9 @@ void HttpApi::Register(httplib::Server* server) {
     if (!v.ok()) return SendError(res, v.status());
     absl::StatusOr<SceneSummary> s = host_->Scene(*v);
     if (!s.ok()) return SendError(res, s.status());
-    absl::StatusOr<std::vector<VersionInfo>> all = host_->ListVersions();
-    if (!all.ok()) return SendError(res, all.status());
-    const int64_t deployed = host_->deployed_version();
-    json versions = json::array();
-    for (const VersionInfo& vi : *all) versions.push_back(VersionJson(vi, deployed));
+    int64_t deployed = 0;
+    absl::StatusOr<json> versions = VersionsJson(*host_, &deployed);
+    if (!versions.ok()) return SendError(res, versions.status());
     json scans = json::array();
     for (const Camera& c : s->scan_cameras) scans.push_back(CameraJson(c, *s));
     SendJson(res, json{{"version", s->version},
@@ -178,7 +184,7 @@ void HttpApi::Register(httplib::Server* server) {
                        {"cameras", s->cameras},
                        {"scans", scans},
                        {"default_camera", CameraJson(s->default_camera, *s)},
-                       {"versions", versions},
+                       {"versions", *versions},
                        {"max_render_pixels", host_->max_pixels_per_render()},
                        {"auth_required", !token_.empty()}});
   });

@@ -105,9 +105,8 @@ absl::StatusOr<LoadedVersion> VersionStore::Load(int64_t version) const {
   if (!memory.ok()) {
     return absl::DataLossError(absl::StrCat("version ", version, ": ", memory.status().message()));
   }
-  int max_step = -1;
-  for (const CameraRecord& c : memory->cameras()) max_step = std::max(max_step, int(c.time_step));
-  if (!memory->cameras().empty() && max_step != ck->model.num_time_steps() - 1) {
+  const int max_step = memory->MaxTimeStep();
+  if (max_step >= 0 && max_step != ck->model.num_time_steps() - 1) {
     return absl::DataLossError(absl::StrCat("version ", version, ": its replay memory does not match its model (cameras "
                                             "reach time step ", max_step, ", the model has ",
                                             ck->model.num_time_steps(), " time steps)"));

@@ -20,6 +20,16 @@ NgpModel TinyModel(uint64_t seed) {
   return *std::move(m);
 }
 
+// A memory with one 8x8 camera of time step `t`.
+ReplayMemory OneCameraMemory(int t) {
+  ReplayMemory memory(3);
+  Camera cam;
+  cam.intrinsics = Intrinsics{8, 8, 10, 10, 4, 4};
+  cam.time_step = t;
+  memory.AddCamera(cam);
+  return memory;
+}
+
 // A replay memory that does not belong to its model (as a mutated file whose
 // CRC was fixed up would be: here written with a valid CRC) is DATA_LOSS at
 // load, the status every other check of stored data gives.
@@ -28,11 +38,7 @@ TEST(VersionStoreTest, AMemoryThatDoesNotMatchItsModelIsDataLoss) {
   auto store = VersionStore::Open(root);
   ASSERT_TRUE(store.ok());
   const NgpModel model = TinyModel(1);  // 2 time steps.
-  ReplayMemory memory(3);
-  Camera cam;
-  cam.intrinsics = Intrinsics{8, 8, 10, 10, 4, 4};
-  cam.time_step = 5;
-  memory.AddCamera(cam);
+  const ReplayMemory memory = OneCameraMemory(5);
   VersionInfo info;
   info.version = 1;
   info.time_steps = 2;
@@ -47,11 +53,7 @@ TEST(VersionStoreTest, WriteLoadListAndManifest) {
   auto store = VersionStore::Open(root);
   ASSERT_TRUE(store.ok());
   const NgpModel model = TinyModel(1);
-  ReplayMemory memory(3);
-  Camera cam;
-  cam.intrinsics = Intrinsics{8, 8, 10, 10, 4, 4};
-  cam.time_step = 1;
-  memory.AddCamera(cam);
+  const ReplayMemory memory = OneCameraMemory(1);
   VersionInfo info;
   info.version = 1;
   info.time_steps = 2;

@@ -99,8 +99,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
     // M_{t-1} must be the memory of θ_{t-1}'s version: its cameras cover time
     // steps 0..t-1. A memory from an older (or newer) version would silently
     // drop (or invent) scans from the replay.
-    int max_step = -1;
-    for (const CameraRecord& c : prev->memory.cameras()) max_step = std::max(max_step, int(c.time_step));
+    const int max_step = prev->memory.MaxTimeStep();
     if (max_step != t - 1) {
       return absl::FailedPreconditionError(absl::StrFormat(
           "the replay memory does not belong to the previous model: its cameras reach time step %d, the model has "

@@ -1,5 +1,6 @@
 #include "core/continual/replay_memory.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 
@@ -68,6 +69,12 @@ bool ReplayMemory::OfferReservoir(uint32_t camera_index, const Image& image, con
 }
 
 void ReplayMemory::SetBuffer(std::vector<BufferedImage> buffer) { buffer_ = std::move(buffer); }
+
+int ReplayMemory::MaxTimeStep() const {
+  int max_step = -1;
+  for (const CameraRecord& c : cameras_) max_step = std::max(max_step, int(c.time_step));
+  return max_step;
+}
 
 bool ReplayMemory::InBuffer(uint32_t i) const {
   for (const BufferedImage& b : buffer_) {

@@ -63,6 +63,9 @@ class ReplayMemory {
   void SetBuffer(std::vector<BufferedImage> buffer);
   // True if camera i's image is in the buffer.
   bool InBuffer(uint32_t i) const;
+  // The largest time step of any recorded camera; -1 with no cameras. The
+  // memory of a model with T time steps reaches exactly T - 1.
+  int MaxTimeStep() const;
 
   // Storage: camera records + intrinsics table, and buffered image pixels.
   size_t camera_bytes() const;
