@@ -170,12 +170,15 @@ TEST(HashGridLayoutTest, IndicesStayInsideEachLevel) {
 TEST(HashGridEncodeTest, MatchesManualTrilinear) {
   const HashGrid grid(SmallOptions());
   const std::vector<float> params = RandomParams(grid, 1);
-  const int n = 64;
+  // 71 = four blocks of the 16-wide vector path plus a 7-sample scalar tail.
+  const int n = 71;
   std::vector<float> pos = RandomPositions(n, 2);
-  // Include the box corners and faces.
+  // Include the box corners and faces (in both paths).
   for (int d = 0; d < 3; ++d) {
     pos[d] = 0.0f;
     pos[3 + d] = 1.0f;
+    pos[3 * 65 + d] = 0.0f;
+    pos[3 * 66 + d] = 1.0f;
   }
   std::vector<float> out(size_t(n) * grid.output_dim());
   grid.Encode(params.data(), pos.data(), n, out.data());

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <random>
 
+#include "core/field/dense_layer.h"
 #include "core/field/sh_encoding.h"
 
 namespace clnerf {
@@ -72,14 +73,19 @@ inline ConstMatrixMap W(const float* mlp, const Network::Layer& l) {
 }
 inline MatrixMap dW(float* d, const Network::Layer& l) { return MatrixMap(d + l.offset, l.rows, l.cols); }
 
-// Adds bias column r to the columns of segment r.
-template <typename M>
-void AddSegmentBias(M& a, const float* bias, const int* seg, int nrays) {
-  const int rows = int(a.rows());
+// bias[j] = the bias column of sample j's segment (for DenseForward).
+void SegmentBiasPointers(const float* bias, int rows, const int* seg, int nrays, int n,
+                         std::vector<const float*>* out) {
+  out->resize(n);
   for (int r = 0; r < nrays; ++r) {
-    const Eigen::Map<const Eigen::VectorXf> b(bias + size_t(r) * rows, rows);
-    for (int j = seg[r]; j < seg[r + 1]; ++j) a.col(j) += b;
+    for (int j = seg[r]; j < seg[r + 1]; ++j) (*out)[j] = bias + size_t(r) * rows;
   }
+}
+// out = act(layer * in) on the first n columns (no bias).
+void Apply(const float* mlp, const Network::Layer& l, const Eigen::MatrixXf& in, int n, Activation act,
+           Eigen::MatrixXf* out) {
+  DenseForward(mlp + l.offset, l.rows, l.cols, l.rows, in.data(), int(in.rows()), n, nullptr, act, out->data(),
+               int(out->rows()));
 }
 // out.col(r) = sum of columns of segment r.
 template <typename M>
@@ -119,49 +125,47 @@ void Network::RayColourBias(const float* mlp, const float* sh, const float* app_
 
 void Network::DensityHidden(const float* mlp, const float* feat, int n, const int* seg, int nrays,
                             const float* geo_bias, NetworkWorkspace* ws) const {
-  const ConstMatrixMap x(feat, grid_dim_, n);
   const int L = int(density_layers_.size());
-  auto a0 = ws->density_act[0].leftCols(n);
-  a0.noalias() = W(mlp, density_layers_[0]).leftCols(grid_dim_) * x;
-  if (options_.geo_dim() > 0) AddSegmentBias(a0, geo_bias, seg, nrays);
-  a0 = a0.cwiseMax(0.0f);
-  for (int k = 1; k < L - 1; ++k) {
-    auto ak = ws->density_act[k].leftCols(n);
-    ak.noalias() = W(mlp, density_layers_[k]) * ws->density_act[k - 1].leftCols(n);
-    ak = ak.cwiseMax(0.0f);
-  }
+  const Layer& l0 = density_layers_[0];
+  thread_local std::vector<const float*> bias;
+  const bool geo = options_.geo_dim() > 0;
+  if (geo) SegmentBiasPointers(geo_bias, l0.rows, seg, nrays, n, &bias);
+  DenseForward(mlp + l0.offset, l0.rows, grid_dim_, l0.rows, feat, grid_dim_, n, geo ? bias.data() : nullptr,
+               Activation::kRelu, ws->density_act[0].data(), l0.rows);
+  for (int k = 1; k < L - 1; ++k) Apply(mlp, density_layers_[k], ws->density_act[k - 1], n, Activation::kRelu,
+                                        &ws->density_act[k]);
 }
 
 void Network::DensityForward(const float* mlp, const float* feat, int n, const int* seg, int nrays,
                              const float* geo_bias, NetworkWorkspace* ws) const {
   DensityHidden(mlp, feat, n, seg, nrays, geo_bias, ws);
   const int L = int(density_layers_.size());
-  ws->h.leftCols(n).noalias() = W(mlp, density_layers_[L - 1]) * ws->density_act[L - 2].leftCols(n);
+  Apply(mlp, density_layers_[L - 1], ws->density_act[L - 2], n, Activation::kNone, &ws->h);
 }
 
 void Network::DensityOnly(const float* mlp, const float* feat, int n, const int* seg, int nrays,
                           const float* geo_bias, NetworkWorkspace* ws, float* h0) const {
   DensityHidden(mlp, feat, n, seg, nrays, geo_bias, ws);
   const int L = int(density_layers_.size());
-  Eigen::Map<Eigen::RowVectorXf> out(h0, n);
-  out.noalias() = W(mlp, density_layers_[L - 1]).row(0) * ws->density_act[L - 2].leftCols(n);
+  const Layer& last = density_layers_[L - 1];
+  // Only row 0 (sigma's pre-activation): a 1-row layer, strided weights.
+  DenseForward(mlp + last.offset, 1, last.cols, last.rows, ws->density_act[L - 2].data(), last.cols, n, nullptr,
+               Activation::kNone, h0, 1);
 }
 
 void Network::ColourForward(const float* mlp, int n, const int* seg, int nrays, const float* colour_bias,
                             NetworkWorkspace* ws) const {
   const int L = int(colour_layers_.size());
   const int dout = options_.density_out;
-  auto c0 = ws->colour_act[0].leftCols(n);
-  c0.noalias() = W(mlp, colour_layers_[0]).middleCols(kShDim, dout) * ws->h.leftCols(n);
-  AddSegmentBias(c0, colour_bias, seg, nrays);
-  c0 = c0.cwiseMax(0.0f);
-  for (int k = 1; k < L - 1; ++k) {
-    auto ck = ws->colour_act[k].leftCols(n);
-    ck.noalias() = W(mlp, colour_layers_[k]) * ws->colour_act[k - 1].leftCols(n);
-    ck = ck.cwiseMax(0.0f);
-  }
+  const Layer& l0 = colour_layers_[0];
+  thread_local std::vector<const float*> bias;
+  SegmentBiasPointers(colour_bias, l0.rows, seg, nrays, n, &bias);
+  DenseForward(mlp + l0.offset + size_t(kShDim) * l0.rows, l0.rows, dout, l0.rows, ws->h.data(), dout, n,
+               bias.data(), Activation::kRelu, ws->colour_act[0].data(), l0.rows);
+  for (int k = 1; k < L - 1; ++k) Apply(mlp, colour_layers_[k], ws->colour_act[k - 1], n, Activation::kRelu,
+                                        &ws->colour_act[k]);
+  Apply(mlp, colour_layers_[L - 1], ws->colour_act[L - 2], n, Activation::kNone, &ws->rgb);
   auto rgb = ws->rgb.leftCols(n);
-  rgb.noalias() = W(mlp, colour_layers_[L - 1]) * ws->colour_act[L - 2].leftCols(n);
   rgb = (1.0f + (-rgb.array()).exp()).inverse().matrix();
 }
 

@@ -16,6 +16,9 @@ namespace clnerf {
 
 absl::Status RenderOptions::Validate() const {
   if (block_rays < 1) return absl::InvalidArgumentError("render: block_rays must be >= 1");
+  if (!(min_weight >= 0.0f && min_weight <= 1.0f) || !(max_skipped_weight >= 0.0f && max_skipped_weight <= 1.0f)) {
+    return absl::InvalidArgumentError("render: min_weight and max_skipped_weight must be in [0, 1]");
+  }
   if (nerf_samples < 0 || nerf_samples > kMaxProposalSamples) {
     return absl::InvalidArgumentError("render: nerf_samples must be in [0, 1024]");
   }
@@ -30,12 +33,13 @@ struct RayState {
   int samples;  // Marched so far (at most kMaxMarchSamples).
   float rgb[3];
   float depth;
+  float coloured, skipped;  // Weight of the samples that got / skipped the colour MLP.
   bool alive;
 };
 
 // Renders one block of rays with a private workspace.
 long long RenderBlock(const FieldEvaluator& field, const float* origins, const float* dirs, int n, int time_step,
-                      float min_weight, int nerf_samples, float* rgb_out, float* opacity_out, float* depth_out) {
+                      const RenderOptions& options, float* rgb_out, float* opacity_out, float* depth_out) {
   const NgpModel& model = field.model();
   std::vector<RayState> st(n);
   // Scratch reused across blocks and calls on the same thread.
@@ -50,6 +54,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
     s.T = 1.0f;
     s.rgb[0] = s.rgb[1] = s.rgb[2] = 0.0f;
     s.depth = 0.0f;
+    s.coloured = s.skipped = 0.0f;
     s.samples = 0;
     s.alive = model.RayInterval(o, d, &s.t, &s.t_end);
   }
@@ -69,7 +74,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
     placed_seg.assign(1, 0);
     placed_ray.clear();
     ProposalSampler(field).Place(origins, dirs, n, /*seed=*/0, nullptr, /*anneal=*/1.0f, &prop, &placed, &placed_seg,
-                                 &placed_ray, nerf_samples);
+                                 &placed_ray, options.nerf_samples);
     next_placed.assign(n, -1);
     for (int r = 0; r < n; ++r) st[r].alive = false;
     for (size_t k = 0; k < placed_ray.size(); ++k) {
@@ -141,7 +146,13 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
         const float alpha = 1.0f - std::exp(-fc.sigma[j] * samples[j].dt);
         w[j] = T * alpha;
         T *= 1.0f - alpha;
-        if (w[j] >= min_weight) keep.push_back(j);
+        s.depth += w[j] * samples[j].t;  // Proposal samples: t is the interval midpoint.
+        if (w[j] >= options.min_weight || s.skipped + w[j] > options.max_skipped_weight) {
+          keep.push_back(j);
+          s.coloured += w[j];
+        } else {
+          s.skipped += w[j];
+        }
         if (T <= kMinTransmittance) {
           s.alive = false;
           break;
@@ -165,13 +176,20 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
         s.rgb[0] += w[j] * fc.ws.rgb(0, i);
         s.rgb[1] += w[j] * fc.ws.rgb(1, i);
         s.rgb[2] += w[j] * fc.ws.rgb(2, i);
-        s.depth += w[j] * samples[j].t;  // Proposal samples: t is the interval midpoint.
       }
     }
   }
   const Eigen::Vector3f& bg = model.background();
   for (int r = 0; r < n; ++r) {
-    const RayState& s = st[r];
+    RayState& s = st[r];
+    // The skipped samples' weight is given the mean colour of the ray's
+    // coloured samples instead of black: dropping it would darken every ray
+    // by up to its skipped weight; this way only the colour's deviation
+    // from that mean is lost.
+    if (s.skipped > 0.0f && s.coloured > 0.0f) {
+      const float scale = (s.coloured + s.skipped) / s.coloured;
+      for (float& c : s.rgb) c *= scale;
+    }
     for (int c = 0; c < 3; ++c) rgb_out[3 * r + c] = s.rgb[c] + s.T * bg[c];
     if (opacity_out) opacity_out[r] = 1.0f - s.T;
     if (depth_out) depth_out[r] = s.depth;
@@ -200,9 +218,7 @@ long long RenderRays(const NgpModel& model, const float* origins, const float* d
       continue;
     }
     const int begin = b * block, m = std::min(block, n - begin);
-    total += RenderBlock(field, origins + 3 * size_t(begin), dirs + 3 * size_t(begin), m, t, options.min_weight,
-                         options.nerf_samples,
-                         rgb + 3 * size_t(begin), opacity ? opacity + begin : nullptr,
+    total += RenderBlock(field, origins + 3 * size_t(begin), dirs + 3 * size_t(begin), m, t, options, rgb + 3 * size_t(begin), opacity ? opacity + begin : nullptr,
                          depth ? depth + begin : nullptr);
   }
   return stopped ? -1 : total;
@@ -219,24 +235,41 @@ absl::StatusOr<RenderedView> RenderView(const NgpModel& model, const Camera& wor
   const Camera cam = model.ToModelCamera(world_camera);
   const int W = cam.intrinsics.width, H = cam.intrinsics.height;
   const size_t n = size_t(W) * H;
-  std::vector<float> o(3 * n), d(3 * n);
-  for (int y = 0; y < H; ++y) {
-    for (int x = 0; x < W; ++x) {
-      Eigen::Vector3f oo, dd;
-      cam.Ray(x + 0.5f, y + 0.5f, &oo, &dd);
-      const size_t i = size_t(y) * W + x;
-      for (int c = 0; c < 3; ++c) {
-        o[3 * i + c] = oo[c];
-        d[3 * i + c] = dd[c];
+  // Rays go in tile order (kTileW x kTileH pixels, one block of rays each by
+  // default): neighbouring rays then share hash-grid and occupancy cells in
+  // both image directions, which keeps more lookups in cache than rows do.
+  constexpr int kTileW = 32, kTileH = 16;
+  std::vector<int> order;
+  order.reserve(n);
+  for (int ty = 0; ty < H; ty += kTileH) {
+    for (int tx = 0; tx < W; tx += kTileW) {
+      for (int y = ty; y < std::min(H, ty + kTileH); ++y) {
+        for (int x = tx; x < std::min(W, tx + kTileW); ++x) order.push_back(y * W + x);
       }
     }
   }
+  std::vector<float> o(3 * n), d(3 * n);
+  for (size_t k = 0; k < n; ++k) {
+    Eigen::Vector3f oo, dd;
+    cam.Ray(order[k] % W + 0.5f, order[k] / W + 0.5f, &oo, &dd);
+    for (int c = 0; c < 3; ++c) {
+      o[3 * k + c] = oo[c];
+      d[3 * k + c] = dd[c];
+    }
+  }
+  std::vector<float> rgb(3 * n), opacity(n), depth(n);
   RenderedView out;
+  out.samples = RenderRays(model, o.data(), d.data(), int(n), options.time_step, options, rgb.data(),
+                           opacity.data(), depth.data());
   out.rgb = Image(W, H);
   out.opacity.resize(n);
   out.depth.resize(n);
-  out.samples = RenderRays(model, o.data(), d.data(), int(n), options.time_step, options, out.rgb.rgb.data(),
-                           out.opacity.data(), out.depth.data());
+  for (size_t k = 0; k < n; ++k) {
+    const size_t i = size_t(order[k]);
+    for (int c = 0; c < 3; ++c) out.rgb.rgb[3 * i + c] = rgb[3 * k + c];
+    out.opacity[i] = opacity[k];
+    out.depth[i] = depth[k];
+  }
   if (out.samples < 0) return absl::CancelledError("render stopped before it finished");
   for (float& z : out.depth) z /= model.normalization().scale;
   return out;

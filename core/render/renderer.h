@@ -2,7 +2,8 @@
 // blocks; each block marches all live rays a few samples at a time ("waves"),
 // evaluates the density MLP on the whole wave, composites front to back, and
 // runs the colour MLP only on samples whose weight matters. Rays stop at
-// transmittance <= 1e-4 or when they leave the box.
+// transmittance <= 1e-4 or when they leave the box. RenderView orders its
+// rays in 32 x 16 pixel tiles, so a block's rays are image neighbours.
 //
 // All functions take the model by const reference and are safe to call from
 // many threads at once on the same model (each call uses its own scratch).
@@ -25,7 +26,15 @@ struct RenderOptions {
   int time_step = -1;       // Embedding row to use; -1 = the latest step.
   int block_rays = 512;     // Rays per parallel task.
   int threads = 0;          // OpenMP threads; 0 = all available.
-  float min_weight = 2e-5f; // Samples with smaller weight skip the colour MLP.
+  // Samples whose weight is below min_weight skip the colour MLP (92% of a
+  // fox_8 view's samples reach 2e-5, 71% reach 5e-4), as long as the ray's
+  // skipped weight stays within max_skipped_weight (so a hazy ray of many
+  // faint samples is still coloured). The skipped weight takes the mean
+  // colour of the ray's coloured samples. Measured on fox_8's service model:
+  // 5e-4 renders 57.3 dB PSNR against the colour-everything render (max
+  // pixel error 2/255) in ~13% less time; 0 colours every sample.
+  float min_weight = 5e-4f;
+  float max_skipped_weight = 0.01f;
   // Proposal models: full-field samples per ray (0 = the model's, which it
   // was trained with). Fewer is faster and less accurate.
   int nerf_samples = 0;

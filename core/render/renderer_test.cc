@@ -1,0 +1,170 @@
+// Renderer contracts: a view rendered in tiles equals its pixels rendered one
+// ray at a time in image order, and the colour MLP's skipping of faint
+// samples stays within its stated bound, including on hazy rays.
+#include "core/render/renderer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include "core/field/ngp_model.h"
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+ModelOptions SmallOptions() {
+  ModelOptions o;
+  o.grid.levels = 4;
+  o.grid.log2_table_size = 10;
+  o.grid.base_resolution = 4;
+  o.grid.finest_resolution = 32;
+  o.network.density_hidden = 16;
+  o.network.colour_hidden = 16;
+  o.network.appearance_dim = 8;
+  o.network.geometry_dim = 4;
+  o.occupancy.resolution = 16;
+  o.march.steps_per_diagonal = 256;  // ~150 samples across the box.
+  o.sampler = SamplerKind::kOccupancy;
+  return o;
+}
+
+NgpModel SmallModel(uint64_t seed) {
+  auto m = NgpModel::Create(SmallOptions(), Normalization{}, SceneKind::kBounded, Eigen::Vector3f(0.2f, 0.4f, 0.6f),
+                            /*num_time_steps=*/1, seed);
+  EXPECT_TRUE(m.ok()) << m.status();
+  return *std::move(m);
+}
+
+// A 37 x 23 camera (not a whole number of 32 x 16 tiles) at z = -1.3 looking
+// along +z (OpenCV), seeing the whole box [-0.5, 0.5]^3.
+Camera FrontCamera() {
+  Camera c;
+  c.intrinsics.width = 37;
+  c.intrinsics.height = 23;
+  c.intrinsics.fx = c.intrinsics.fy = 30.0f;
+  c.intrinsics.cx = 18.5f;
+  c.intrinsics.cy = 11.5f;
+  c.c2w = Pose::Identity();
+  c.c2w.col(3) = Eigen::Vector3f(0.0f, 0.0f, -1.3f);
+  return c;
+}
+
+// Random features: density and colour vary along every ray.
+NgpModel TexturedModel() {
+  NgpModel model = SmallModel(3);
+  std::mt19937_64 rng(4);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  for (float& v : model.mutable_params().grid) v = u(rng);
+  return model;
+}
+
+// Uniform haze of density sigma: constant features (so colour is constant
+// along a ray) and a density MLP that maps them to log(sigma).
+NgpModel HazeModel(float sigma) {
+  NgpModel model = SmallModel(5);
+  ModelParams& p = model.mutable_params();
+  std::fill(p.grid.begin(), p.grid.end(), 0.5f);
+  const Network& net = model.network();
+  const Network::Layer& l0 = net.density_layers()[0];
+  const Network::Layer& l1 = net.density_layers()[1];
+  std::fill(p.mlp.begin() + l0.offset, p.mlp.begin() + l0.offset + size_t(l0.rows) * l0.cols, 0.0f);
+  p.mlp[l0.offset] = 1.0f;  // Hidden unit 0 = relu(feature 0) = 0.5.
+  for (int c = 0; c < l1.cols; ++c) p.mlp[l1.offset + size_t(c) * l1.rows] = 0.0f;  // Row 0: h0 ...
+  p.mlp[l1.offset] = 2.0f * std::log(sigma);                                     // ... = log(sigma).
+  return model;
+}
+
+float MaxAbsDiff(const std::vector<float>& a, const std::vector<float>& b) {
+  float m = 0.0f;
+  for (size_t i = 0; i < a.size(); ++i) m = std::max(m, std::abs(a[i] - b[i]));
+  return m;
+}
+
+TEST(RendererTest, TiledViewEqualsItsPixelsRenderedOneByOne) {
+  const NgpModel model = TexturedModel();
+  const Camera cam = FrontCamera();
+  RenderOptions ro;
+  ro.threads = 2;
+  absl::StatusOr<RenderedView> view = RenderView(model, cam, ro);
+  ASSERT_TRUE(view.ok()) << view.status();
+  const Camera mc = model.ToModelCamera(cam);
+  RenderOptions one = ro;
+  one.threads = 1;
+  double opacity_sum = 0.0;
+  for (int y = 0; y < cam.intrinsics.height; ++y) {
+    for (int x = 0; x < cam.intrinsics.width; ++x) {
+      Eigen::Vector3f o, d;
+      mc.Ray(x + 0.5f, y + 0.5f, &o, &d);
+      float rgb[3], opacity, depth;
+      RenderRays(model, o.data(), d.data(), 1, -1, one, rgb, &opacity, &depth);
+      const size_t i = size_t(y) * cam.intrinsics.width + x;
+      for (int c = 0; c < 3; ++c) ASSERT_NEAR(view->rgb.rgb[3 * i + c], rgb[c], 1e-5f) << x << "," << y;
+      ASSERT_NEAR(view->opacity[i], opacity, 1e-5f) << x << "," << y;
+      ASSERT_NEAR(view->depth[i], depth, 1e-4f) << x << "," << y;
+      opacity_sum += opacity;
+    }
+  }
+  // Not a blank view: the rays cross the field.
+  EXPECT_GT(opacity_sum / (cam.intrinsics.width * cam.intrinsics.height), 0.05);
+}
+
+// Skipping the colour of faint samples changes a pixel by at most
+// max_skipped_weight times the colour's spread along the ray.
+TEST(RendererTest, SkippingFaintSamplesStaysWithinTheSkippedWeight) {
+  const NgpModel model = TexturedModel();
+  RenderOptions all;
+  all.min_weight = 0.0f;
+  absl::StatusOr<RenderedView> ref = RenderView(model, FrontCamera(), all);
+  absl::StatusOr<RenderedView> fast = RenderView(model, FrontCamera(), RenderOptions{});
+  ASSERT_TRUE(ref.ok() && fast.ok());
+  EXPECT_LE(MaxAbsDiff(fast->rgb.rgb, ref->rgb.rgb), RenderOptions{}.max_skipped_weight + 1e-5f);
+  EXPECT_LT(MaxAbsDiff(fast->opacity, ref->opacity), 1e-5f);  // Opacity and depth use every sample.
+  EXPECT_LT(MaxAbsDiff(fast->depth, ref->depth), 1e-4f);
+}
+
+// A hazy ray is made of samples that are each below min_weight. Once their
+// weight passes max_skipped_weight they are coloured, and the skipped ones
+// take the coloured ones' mean, so constant-colour haze renders exactly
+// where the ray has coloured samples (the centre) and within
+// max_skipped_weight everywhere (a short chord near the box's edge may not
+// reach the cap). Without the cap (max_skipped_weight = 1) the haze would go
+// black.
+TEST(RendererTest, HazeOfFaintSamplesKeepsItsColour) {
+  const NgpModel model = HazeModel(0.05f);
+  RenderOptions all;
+  all.min_weight = 0.0f;
+  absl::StatusOr<RenderedView> ref = RenderView(model, FrontCamera(), all);
+  ASSERT_TRUE(ref.ok());
+  const size_t centre = size_t(11) * 37 + 18;
+  ASSERT_GT(ref->opacity[centre], 0.03f);  // ~1 unit of sigma 0.05 haze.
+  ASSERT_LT(ref->opacity[centre], 0.1f);
+  RenderOptions capped;
+  ASSERT_GT(capped.min_weight, 0.05f * SmallOptions().march.min_step());  // Each sample's weight is below it.
+  absl::StatusOr<RenderedView> fast = RenderView(model, FrontCamera(), capped);
+  ASSERT_TRUE(fast.ok());
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(fast->rgb.rgb[3 * centre + c], ref->rgb.rgb[3 * centre + c], 1e-5f);
+  EXPECT_LE(MaxAbsDiff(fast->rgb.rgb, ref->rgb.rgb), capped.max_skipped_weight);
+  RenderOptions uncapped;
+  uncapped.max_skipped_weight = 1.0f;
+  absl::StatusOr<RenderedView> dark = RenderView(model, FrontCamera(), uncapped);
+  ASSERT_TRUE(dark.ok());
+  EXPECT_GT(MaxAbsDiff(dark->rgb.rgb, ref->rgb.rgb), 2.0f * capped.max_skipped_weight);
+}
+
+TEST(RendererTest, OptionsOutOfRangeAreRefused) {
+  RenderOptions o;
+  EXPECT_TRUE(o.Validate().ok());
+  o.min_weight = -1.0f;
+  EXPECT_FALSE(o.Validate().ok());
+  o = RenderOptions{};
+  o.max_skipped_weight = std::nanf("");
+  EXPECT_FALSE(o.Validate().ok());
+  o = RenderOptions{};
+  o.block_rays = 0;
+  EXPECT_FALSE(o.Validate().ok());
+}
+
+}  // namespace
+}  // namespace clnerf
