@@ -163,8 +163,10 @@ void EncodeLevel(const float* table, float scale, uint32_t stride, uint32_t mask
 // indices and weights in vector registers, each corner's entries fetched by
 // two 8-lane 64-bit gathers (an entry is a pair of floats), and the sums kept
 // in (feature 0, feature 1) pair order, which is the output order. Measured
-// on a fox_8 render: 2.3x fewer cycles than the scalar loop, whose time goes
-// into the per-corner index and weight arithmetic rather than cache misses.
+// on 4096 ray-ordered samples with 2^16-entry levels: 5.0 vs 10.1 ns per
+// sample and level for the scalar loop (whose time goes mostly into the
+// per-corner index and weight arithmetic); about 1.5x inside a fox_8 render,
+// where more of the table reads miss the caches.
 template <bool kDense>
 void EncodeLevel16(const float* table, float scale, uint32_t stride, uint32_t mask, const float* px,
                    const float* py, const float* pz, int n, int out_stride, float* out) {
