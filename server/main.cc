@@ -36,6 +36,8 @@ int main(int argc, char** argv) {
   app.add_option("--render-concurrency", o.render_concurrency, "Renders running at once")->capture_default_str();
   app.add_option("--render-threads", o.render_threads, "Threads per render (0 = adaptive: cores / renders running)")->capture_default_str();
   app.add_option("--train-threads", o.train_threads, "Threads of the update worker")->capture_default_str();
+  app.add_option("--train-nice", o.train_nice, "Nice value of training (0-19): renders get the cores first")
+      ->capture_default_str();
   app.add_option("--log-level", log_level, "trace|debug|info|warn|error")->capture_default_str();
   app.add_option("--log-format", log_format, "text|json (one JSON object per line)")->capture_default_str();
   CLI11_PARSE(app, argc, argv);

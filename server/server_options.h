@@ -6,9 +6,9 @@
 // How the cores are shared: one update worker trains with `train_threads`
 // OpenMP threads; at most `render_concurrency` renders run at once, each with
 // `render_threads` threads, and further render requests wait (up to
-// `render_wait_seconds`, then RESOURCE_EXHAUSTED). On the 2-core target the
-// defaults (2 training threads, 2 renders of 1 thread) let renders preempt
-// part of training rather than queue behind it.
+// `render_wait_seconds`, then RESOURCE_EXHAUSTED). Training runs at nice
+// `train_nice`, so a render preempts it rather than sharing the cores
+// evenly with it.
 //
 // A plain value type; not synchronised.
 #ifndef CLNERF_SERVER_SERVER_OPTIONS_H_
@@ -48,6 +48,11 @@ struct ServerOptions {
   int64_t small_render_pixels = 128 * 128;
   double render_wait_seconds = 30;      // Longest wait for a render slot.
   int train_threads = 2;                // OpenMP threads of the update worker.
+  // Nice value (0-19) of the update worker and its training threads: renders
+  // get the cores first and training the cycles they leave. 0 = same
+  // priority as renders. Measured on fox_8 in the viewer (bench/viewer.sh):
+  // see README "The web viewer".
+  int train_nice = 10;
   int grpc_threads = 16;                // Upper bound on gRPC's sync-server threads.
   int max_message_bytes = 4 << 20;      // Per gRPC message (upload chunks are <= 1 MiB).
   int64_t max_scan_bytes = int64_t(1) << 30;  // Encoded image + mask bytes of one scan.

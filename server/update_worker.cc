@@ -7,6 +7,7 @@
 #include "core/continual/deployment_gate.h"
 #include "server/crash_point.h"
 #include "server/log_util.h"
+#include "server/thread_priority.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {
@@ -58,6 +59,12 @@ bool UpdateWorker::Stop(std::chrono::duration<double> timeout) {
 }
 
 void UpdateWorker::Loop() {
+  // Before the first parallel region, so the OpenMP team inherits it.
+  if (options_.train_nice > 0) {
+    if (absl::Status s = SetCurrentThreadNice(options_.train_nice); !s.ok()) {
+      spdlog::warn("training keeps the renders' priority: {}", s.ToString());
+    }
+  }
   omp_set_num_threads(options_.train_threads);
   while (!stopping_) {
     std::optional<std::string> id = jobs_->WaitNext();
