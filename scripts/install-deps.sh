@@ -11,7 +11,7 @@ PKGS=(
   libgtest-dev libgmock-dev nlohmann-json3-dev libcli11-dev zlib1g-dev
   python3 python3-matplotlib linux-perf valgrind
   clang libclang-rt-dev libomp-dev
-  libcpp-httplib-dev
+  libcpp-httplib-dev prometheus-cpp-dev
 )
 # The web viewer's end-to-end test drives a real headless Chromium
 # (CLNERF_NO_BROWSER=1 skips these, e.g. for an image that builds no tests).

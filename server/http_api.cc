@@ -142,6 +142,23 @@ void HttpApi::Register(httplib::Server* server) {
     return true;
   };
 
+  // Operations: Prometheus metrics, liveness (the process answers) and
+  // readiness (it takes traffic: not shutting down; a read-only store or an
+  // empty one still serves what it can).
+  server->Get("/metrics", [this](const httplib::Request&, httplib::Response& res) {
+    host_->metrics().SetModelBytes(host_->Info().model_bytes);
+    res.set_content(host_->metrics().Text(), "text/plain; version=0.0.4; charset=utf-8");
+  });
+  server->Get("/healthz", [](const httplib::Request&, httplib::Response& res) {
+    res.set_content("ok\n", "text/plain; charset=utf-8");
+  });
+  server->Get("/readyz", [this](const httplib::Request&, httplib::Response& res) {
+    const HostInfo h = host_->Info();
+    const bool ready = !host_->shutting_down() && !stopping_.load();
+    SendJson(res, json{{"ready", ready}, {"deployed_version", h.deployed_version}, {"store_error", h.store_error}},
+             ready ? 200 : 503);
+  });
+
   server->Get("/api/info", [this](const httplib::Request&, httplib::Response& res) {
     const HostInfo h = host_->Info();
     SendJson(res, json{{"server_version", "clnerf-server 0.1.0"},

@@ -14,6 +14,9 @@
 //   GET  /api/jobs/ID                 one job
 //   POST /api/jobs/ID/cancel          cancel (needs the token, if one is set)
 //   POST /api/deploy?version=N        roll back / pin (needs the token)
+//   GET  /metrics                     Prometheus text format (metrics.h)
+//   GET  /healthz, /readyz            liveness; readiness (503 once shutting
+//                                     down)
 //
 // Errors are JSON {"error": message, "code": "INVALID_ARGUMENT"} with the
 // HTTP status of the absl code (400, 401, 404, 409, 429, 503, 504, ...).

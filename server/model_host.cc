@@ -21,6 +21,7 @@ double SecondsSince(std::chrono::steady_clock::time_point t) {
 ModelHost::ModelHost(const ServerOptions& options)
     : options_(options),
       started_(std::chrono::steady_clock::now()),
+      metrics_(std::make_unique<Metrics>()),
       jobs_(options.max_queue, (std::filesystem::path(options.store_dir) / "jobs.json").string()),
       render_slots_(options.render_concurrency),
       cores_(std::max(1, int(std::thread::hardware_concurrency()))) {}
@@ -33,6 +34,7 @@ absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& 
   po.cached_versions = options.cached_versions;
   po.keep_versions = options.keep_versions;
   po.retry_seconds = options.store_retry_seconds;
+  po.metrics = host->metrics_.get();
   absl::StatusOr<std::unique_ptr<Publisher>> publisher = Publisher::Open(po);
   if (!publisher.ok()) return publisher.status();
   host->publisher_ = *std::move(publisher);
@@ -41,7 +43,8 @@ absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& 
   host->scans_ = *std::move(scans);
   host->jobs_.LoadHistory();
   if (absl::Status s = host->RecoverScans(); !s.ok()) return s;
-  host->worker_ = std::make_unique<UpdateWorker>(options, host->scans_.get(), host->publisher_.get(), &host->jobs_);
+  host->worker_ = std::make_unique<UpdateWorker>(options, host->scans_.get(), host->publisher_.get(), &host->jobs_,
+                                                 host->metrics_.get());
   host->worker_->Start();
   return host;
 }
@@ -119,6 +122,12 @@ absl::Status ModelHost::WritableStatus() const {
 }
 
 absl::StatusOr<UploadAck> ModelHost::AcceptScan(const ScanUpload& upload) {
+  absl::StatusOr<UploadAck> ack = AcceptScanImpl(upload);
+  metrics_->UploadDone(ack.status().code(), ack.ok() ? ack->bytes : 0);
+  return ack;
+}
+
+absl::StatusOr<UploadAck> ModelHost::AcceptScanImpl(const ScanUpload& upload) {
   if (absl::Status s = WritableStatus(); !s.ok()) return s;
   // Uploads handed over in one piece (in-process callers) get the limits that
   // ScanAssembler applies to streamed ones.
@@ -164,6 +173,14 @@ int64_t ModelHost::max_pixels_per_render() const {
 
 absl::StatusOr<RenderResult> ModelHost::Render(const Camera& world_camera, std::optional<int> time_step,
                                                int64_t version, const std::function<bool()>& should_stop) {
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<RenderResult> r = RenderImpl(world_camera, time_step, version, should_stop);
+  metrics_->RenderDone(r.status().code(), SecondsSince(t0));
+  return r;
+}
+
+absl::StatusOr<RenderResult> ModelHost::RenderImpl(const Camera& world_camera, std::optional<int> time_step,
+                                                   int64_t version, const std::function<bool()>& should_stop) {
   if (absl::Status s = ValidateCamera(world_camera); !s.ok()) return s;
   const int64_t pixels = int64_t(world_camera.intrinsics.width) * world_camera.intrinsics.height;
   if (pixels > max_pixels_per_render()) {

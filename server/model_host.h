@@ -52,6 +52,7 @@
 #include "core/data/camera.h"
 #include "core/data/image.h"
 #include "server/job_tracker.h"
+#include "server/metrics.h"
 #include "server/model_registry.h"
 #include "server/publisher.h"
 #include "server/scan_store.h"
@@ -94,6 +95,8 @@ class ModelHost {
   ModelHost& operator=(const ModelHost&) = delete;
 
   absl::StatusOr<UploadAck> AcceptScan(const ScanUpload& upload);
+  // Counters of renders, uploads, updates and model loads (GET /metrics).
+  Metrics& metrics() const { return *metrics_; }
   // OK, or why uploads are refused now (shutting down, store read-only).
   absl::Status WritableStatus() const;
 
@@ -137,6 +140,9 @@ class ModelHost {
  private:
   explicit ModelHost(const ServerOptions& options);
   absl::Status RecoverScans();
+  absl::StatusOr<UploadAck> AcceptScanImpl(const ScanUpload& upload);
+  absl::StatusOr<RenderResult> RenderImpl(const Camera& world_camera, std::optional<int> time_step, int64_t version,
+                                          const std::function<bool()>& should_stop);
   // Version `version` (0 = deployed) from the registry; UNAVAILABLE naming the
   // store error when nothing is deployed because the store failed.
   absl::StatusOr<std::shared_ptr<const Servable>> Snapshot(int64_t version) const;
@@ -145,6 +151,7 @@ class ModelHost {
 
   const ServerOptions options_;
   const std::chrono::steady_clock::time_point started_;
+  const std::unique_ptr<Metrics> metrics_;  // Before the parts that report to it: destroyed after them.
   std::unique_ptr<Publisher> publisher_;
   std::unique_ptr<ScanStore> scans_;
   JobTracker jobs_;

@@ -1,6 +1,7 @@
 #include "server/publisher.h"
 
 #include <algorithm>
+#include <chrono>
 #include <filesystem>
 
 #include "absl/strings/str_cat.h"
@@ -8,6 +9,7 @@
 #include "core/io/durable_file.h"
 #include "server/crash_point.h"
 #include "server/job_tracker.h"
+#include "server/metrics.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {
@@ -38,7 +40,15 @@ absl::StatusOr<std::unique_ptr<Publisher>> Publisher::Open(const PublisherOption
 }
 
 absl::StatusOr<std::shared_ptr<const Servable>> Publisher::LoadServable(int64_t version) const {
+  const auto t0 = std::chrono::steady_clock::now();
   absl::StatusOr<LoadedVersion> lv = versions_->Load(version);
+  if (options_.metrics != nullptr) {
+    if (lv.ok()) {
+      options_.metrics->ModelLoaded(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
+    } else {
+      options_.metrics->ModelLoadFailed();
+    }
+  }
   if (!lv.ok()) return lv.status();
   auto s = std::make_shared<Servable>();
   s->info = lv->info;

@@ -35,11 +35,14 @@
 
 namespace clnerf {
 
+class Metrics;
+
 struct PublisherOptions {
   std::string store_dir;
   int cached_versions = 4;  // Non-deployed versions kept in memory.
   int keep_versions = 0;    // Versions kept on disk (0 = all; the deployed one is never pruned).
   double retry_seconds = 5;  // While the sticky error is set, writers re-check the store this often.
+  Metrics* metrics = nullptr;  // Counts model loads (optional; must outlive the publisher).
 };
 
 struct ReservedIds {

@@ -7,6 +7,7 @@
 #include "core/continual/deployment_gate.h"
 #include "server/crash_point.h"
 #include "server/log_util.h"
+#include "server/metrics.h"
 #include "server/thread_priority.h"
 #include "spdlog/spdlog.h"
 
@@ -90,7 +91,11 @@ bool UpdateWorker::WaitForWritableStore(const std::string& job_id) {
 }
 
 void UpdateWorker::Finish(const std::string& job_id, const std::string& scan_id, JobPhase phase,
-                          const std::string& error, bool remove_scan) {
+                          const std::string& error, bool remove_scan, const char* outcome) {
+  if (metrics_ != nullptr) {
+    metrics_->UpdateDone(outcome != nullptr ? outcome : (phase == JobPhase::kFailed ? "failed" : "cancelled"),
+                         SecondsSince(job_started_));
+  }
   if (remove_scan) {
     if (absl::Status s = scans_->Remove(scan_id); !s.ok()) spdlog::warn("job {}: {}", job_id, s.ToString());
   } else {
@@ -108,6 +113,7 @@ void UpdateWorker::Finish(const std::string& job_id, const std::string& scan_id,
 
 void UpdateWorker::RunJob(const std::string& job_id) {
   cancel_ = false;
+  job_started_ = std::chrono::steady_clock::now();
   absl::StatusOr<JobStatus> job = jobs_->Get(job_id);
   if (!job.ok()) return;
   const std::string scan_id = job->scan_id;
@@ -189,7 +195,9 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   if (report.depth_pixels > 0) gate.metrics["depth_pixels"] = double(report.depth_pixels);
   gate.metrics["update_seconds"] = SecondsSince(t0);
   jobs_->Update(job_id, [&](JobStatus* j) { j->metrics = gate.metrics; });
-  if (!gate.status.ok()) return Finish(job_id, scan_id, JobPhase::kFailed, std::string(gate.status.message()), true);
+  if (!gate.status.ok()) {
+    return Finish(job_id, scan_id, JobPhase::kFailed, std::string(gate.status.message()), true, "refused");
+  }
   if (stopping_) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
 
   // 4. Publish; on a store error keep the trained state and retry once the
@@ -218,6 +226,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
     j->version = published->version;
     j->error.clear();
   });
+  if (metrics_ != nullptr) metrics_->UpdateDone("published", SecondsSince(job_started_));
   spdlog::info("job {} done: version {} deployed ({} time steps, {:.1f} s)", job_id, published->version,
                published->time_steps, SecondsSince(t0));
 }

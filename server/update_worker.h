@@ -34,10 +34,14 @@
 
 namespace clnerf {
 
+class Metrics;
+
 class UpdateWorker {
  public:
-  UpdateWorker(const ServerOptions& options, ScanStore* scans, Publisher* publisher, JobTracker* jobs)
-      : options_(options), scans_(scans), publisher_(publisher), jobs_(jobs) {}
+  // `metrics` (optional) counts updates by outcome; it must outlive the worker.
+  UpdateWorker(const ServerOptions& options, ScanStore* scans, Publisher* publisher, JobTracker* jobs,
+               Metrics* metrics = nullptr)
+      : options_(options), scans_(scans), publisher_(publisher), jobs_(jobs), metrics_(metrics) {}
   ~UpdateWorker();
   UpdateWorker(const UpdateWorker&) = delete;
   UpdateWorker& operator=(const UpdateWorker&) = delete;
@@ -58,13 +62,17 @@ class UpdateWorker {
   // Blocks until the publisher accepts writes (retrying it every
   // store_retry_seconds) or Stop(); false on Stop.
   bool WaitForWritableStore(const std::string& job_id);
+  // `outcome` for the metrics: "refused" for a gate refusal; otherwise
+  // derived from the phase.
   void Finish(const std::string& job_id, const std::string& scan_id, JobPhase phase, const std::string& error,
-              bool remove_scan);
+              bool remove_scan, const char* outcome = nullptr);
 
   const ServerOptions options_;
   ScanStore* const scans_;
   Publisher* const publisher_;
   JobTracker* const jobs_;
+  Metrics* const metrics_;
+  std::chrono::steady_clock::time_point job_started_;  // Of the job RunJob runs (worker thread only).
   std::atomic<bool> cancel_{false};
   std::atomic<bool> stopping_{false};
   std::mutex mu_;
