@@ -29,10 +29,10 @@ absl::StatusOr<std::string> ReadPem(const std::string& path) {
 absl::StatusOr<std::unique_ptr<GrpcServer>> GrpcServer::Start(const ServerOptions& options) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;
   std::unique_ptr<GrpcServer> srv(new GrpcServer());
-  absl::StatusOr<std::unique_ptr<ModelHost>> host = ModelHost::Open(options);
-  if (!host.ok()) return host.status();
-  srv->host_ = *std::move(host);
-  srv->service_ = std::make_unique<ClnerfServiceImpl>(srv->host_.get(), options.token);
+  absl::StatusOr<std::unique_ptr<Places>> places = Places::Open(options);
+  if (!places.ok()) return places.status();
+  srv->places_ = *std::move(places);
+  srv->service_ = std::make_unique<ClnerfServiceImpl>(srv->places_.get(), options.token);
 
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
@@ -66,7 +66,7 @@ absl::StatusOr<std::unique_ptr<GrpcServer>> GrpcServer::Start(const ServerOption
   spdlog::info("clnerf-server listening on port {} (store {}, auth {}, tls {})", srv->port_, options.store_dir,
                options.token.empty() ? "off" : "on", options.tls_cert.empty() ? "off" : "on");
   if (!options.http_listen.empty()) {
-    absl::StatusOr<std::unique_ptr<HttpServer>> http = HttpServer::Start(options.http_listen, srv->host_.get(),
+    absl::StatusOr<std::unique_ptr<HttpServer>> http = HttpServer::Start(options.http_listen, srv->places_.get(),
                                                                          options.token);
     if (!http.ok()) return http.status();
     srv->http_ = *std::move(http);
@@ -85,9 +85,9 @@ bool GrpcServer::Shutdown() {
     if (http_) http_->Stop();
     // Stop training first so long WatchJob streams and the worker end
     // promptly; new uploads and renders are refused (UNAVAILABLE).
-    clean_ = host_->Shutdown();
+    clean_ = places_->Shutdown();
     const auto deadline = std::chrono::system_clock::now() +
-                          std::chrono::milliseconds(int64_t(host_->options().shutdown_grace_seconds * 1000));
+                          std::chrono::milliseconds(int64_t(places_->options().shutdown_grace_seconds * 1000));
     server_->Shutdown(deadline);
     spdlog::info(clean_ ? "shutdown complete" : "shutdown incomplete: the update worker is still running");
   });

@@ -1,4 +1,4 @@
-// GrpcServer: a running clnerf-server — the ModelHost plus a grpc::Server
+// GrpcServer: a running clnerf-server — its places (places.h) plus a grpc::Server
 // with the ClnerfService, the standard grpc.health.v1 health service and
 // server reflection (so grpcurl works), and, with options.http_listen, the
 // HTTP front end (http_server.h: the web viewer and its JSON API) over the
@@ -22,6 +22,7 @@
 #include "server/grpc_service.h"
 #include "server/http_server.h"
 #include "server/model_host.h"
+#include "server/places.h"
 #include "server/server_options.h"
 
 namespace clnerf {
@@ -34,7 +35,9 @@ class GrpcServer {
   int port() const { return port_; }  // The bound port (useful with port 0).
   // The bound HTTP port; 0 when HTTP is off.
   int http_port() const { return http_ ? http_->port() : 0; }
-  ModelHost& host() { return *host_; }
+  // The place "default" (what requests without a place reach).
+  ModelHost& host() { return *places_->Default(); }
+  Places& places() { return *places_; }
   // False if the update worker did not stop within the grace period (the
   // caller should then exit the process without running destructors).
   bool Shutdown();
@@ -42,11 +45,11 @@ class GrpcServer {
 
  private:
   GrpcServer() = default;
-  std::unique_ptr<ModelHost> host_;
+  std::unique_ptr<Places> places_;
   bool clean_ = true;
   std::unique_ptr<ClnerfServiceImpl> service_;
   std::unique_ptr<grpc::Server> server_;
-  std::unique_ptr<HttpServer> http_;  // Destroyed before host_.
+  std::unique_ptr<HttpServer> http_;  // Destroyed before places_.
   int port_ = 0;
   std::once_flag shutdown_once_;
 };

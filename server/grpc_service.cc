@@ -56,9 +56,9 @@ grpc::Status ClnerfServiceImpl::CheckAuth(const grpc::ServerContext* ctx) const 
 grpc::Status ClnerfServiceImpl::UploadScan(grpc::ServerContext* ctx, grpc::ServerReader<v1::UploadScanRequest>* reader,
                                            v1::UploadScanResponse* response) {
   if (grpc::Status a = CheckAuth(ctx); !a.ok()) return a;
-  if (host_->shutting_down()) return Unavailable();
-  if (absl::Status h = host_->WritableStatus(); !h.ok()) return ToGrpcStatus(h);
-  ScanAssembler assembler(host_->options().upload_limits());
+  if (places_->shutting_down()) return Unavailable();
+  ScanAssembler assembler(places_->options().upload_limits());
+  std::shared_ptr<ModelHost> host;  // The scan's place, from its header.
   v1::UploadScanRequest msg;
   bool first = true;
   while (reader->Read(&msg)) {
@@ -68,6 +68,15 @@ grpc::Status ClnerfServiceImpl::UploadScan(grpc::ServerContext* ctx, grpc::Serve
       absl::StatusOr<ScanHeaderDecl> decl =
           assembler.begun() ? absl::InvalidArgumentError("only one scan header is allowed per upload")
                             : HeaderFromProto(msg.header());
+      // The place first, so an upload to an unknown place or a read-only
+      // store fails before any image byte is buffered.
+      if (decl.ok()) {
+        absl::StatusOr<std::shared_ptr<ModelHost>> p = places_->Get(msg.header().place());
+        if (!p.ok()) return ToGrpcStatus(p.status());
+        host = *std::move(p);
+        if (host->shutting_down()) return Unavailable();
+        if (absl::Status h = host->WritableStatus(); !h.ok()) return ToGrpcStatus(h);
+      }
       s = decl.ok() ? assembler.Begin(*std::move(decl)) : decl.status();
     } else if (msg.has_chunk()) {
       const v1::Chunk& c = msg.chunk();
@@ -94,7 +103,7 @@ grpc::Status ClnerfServiceImpl::UploadScan(grpc::ServerContext* ctx, grpc::Serve
     return ToGrpcStatus(absl::InvalidArgumentError(absl::StrCat(
         upload.status().message(), " (the stream ended early, or a message failed to parse as protobuf)")));
   }
-  absl::StatusOr<UploadAck> ack = host_->AcceptScan(*upload);
+  absl::StatusOr<UploadAck> ack = host->AcceptScan(*upload);
   if (!ack.ok()) {
     spdlog::warn("upload '{}' rejected: {}", EscapeForLog(name), EscapeForLog(ack.status().ToString()));
     return ToGrpcStatus(ack.status());
@@ -107,7 +116,10 @@ grpc::Status ClnerfServiceImpl::UploadScan(grpc::ServerContext* ctx, grpc::Serve
 }
 
 grpc::Status ClnerfServiceImpl::GetJob(grpc::ServerContext*, const v1::GetJobRequest* req, v1::Job* resp) {
-  absl::StatusOr<JobStatus> j = host_->GetJob(req->job_id());
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  ModelHost* const host = place->get();
+  absl::StatusOr<JobStatus> j = host->GetJob(req->job_id());
   if (!j.ok()) return ToGrpcStatus(j.status());
   *resp = ToProto(*j);
   return grpc::Status::OK;
@@ -115,6 +127,9 @@ grpc::Status ClnerfServiceImpl::GetJob(grpc::ServerContext*, const v1::GetJobReq
 
 grpc::Status ClnerfServiceImpl::ListJobs(grpc::ServerContext*, const v1::ListJobsRequest* req,
                                          v1::ListJobsResponse* resp) {
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  ModelHost* const host = place->get();
   constexpr int kDefaultPage = 100, kMaxPage = 1000;
   if (req->page_size() < 0) return Invalid("page_size must be >= 0");
   const size_t limit = size_t(req->page_size() == 0 ? kDefaultPage : std::min(req->page_size(), kMaxPage));
@@ -123,7 +138,7 @@ grpc::Status ClnerfServiceImpl::ListJobs(grpc::ServerContext*, const v1::ListJob
     return Invalid(absl::StrCat("page_token '", EscapeForLog(req->page_token(), 64), "' was not issued by this server"));
   }
   size_t total = 0;
-  for (const JobStatus& j : host_->ListJobs(offset, limit, &total)) *resp->add_jobs() = ToProto(j);
+  for (const JobStatus& j : host->ListJobs(offset, limit, &total)) *resp->add_jobs() = ToProto(j);
   if (offset < total && limit < total - offset) resp->set_next_page_token(absl::StrCat(offset + limit));
   resp->set_total_jobs(int(total));
   return grpc::Status::OK;
@@ -131,25 +146,31 @@ grpc::Status ClnerfServiceImpl::ListJobs(grpc::ServerContext*, const v1::ListJob
 
 grpc::Status ClnerfServiceImpl::WatchJob(grpc::ServerContext* ctx, const v1::WatchJobRequest* req,
                                          grpc::ServerWriter<v1::Job>* writer) {
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  ModelHost* const host = place->get();
   uint64_t seen = 0;
   while (true) {
     if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "watch cancelled");
     // Wake up regularly to notice client cancellation and shutdown.
     absl::StatusOr<JobStatus> j =
-        host_->WaitJob(req->job_id(), seen, std::chrono::steady_clock::now() + std::chrono::milliseconds(500));
+        host->WaitJob(req->job_id(), seen, std::chrono::steady_clock::now() + std::chrono::milliseconds(500));
     if (!j.ok()) return ToGrpcStatus(j.status());
     if (j->revision > seen) {
       seen = j->revision;
       if (!writer->Write(ToProto(*j))) return grpc::Status(grpc::StatusCode::CANCELLED, "watcher went away");
       if (IsFinal(j->phase)) return grpc::Status::OK;
     }
-    if (host_->shutting_down()) return Unavailable();
+    if (host->shutting_down()) return Unavailable();
   }
 }
 
 grpc::Status ClnerfServiceImpl::CancelJob(grpc::ServerContext* ctx, const v1::CancelJobRequest* req, v1::Job* resp) {
   if (grpc::Status a = CheckAuth(ctx); !a.ok()) return a;
-  absl::StatusOr<JobStatus> j = host_->CancelJob(req->job_id());
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  ModelHost* const host = place->get();
+  absl::StatusOr<JobStatus> j = host->CancelJob(req->job_id());
   if (!j.ok()) return ToGrpcStatus(j.status());
   *resp = ToProto(*j);
   return grpc::Status::OK;
@@ -178,11 +199,14 @@ std::optional<int> TimeStepOf(bool has, int value) { return has ? std::optional<
 
 grpc::Status ClnerfServiceImpl::Render(grpc::ServerContext* ctx, const v1::RenderRequest* req,
                                        v1::RenderResponse* resp) {
-  if (host_->shutting_down()) return Unavailable();
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  ModelHost* const host = place->get();
+  if (host->shutting_down()) return Unavailable();
   absl::StatusOr<Camera> cam = CameraFromProto(req->camera(), "camera");
   if (!cam.ok()) return ToGrpcStatus(cam.status());
   absl::StatusOr<RenderResult> r =
-      host_->Render(*cam, TimeStepOf(req->has_time_step(), req->time_step()), req->version(), StopWhenAbandoned(ctx));
+      host->Render(*cam, TimeStepOf(req->has_time_step(), req->time_step()), req->version(), StopWhenAbandoned(ctx));
   if (absl::IsCancelled(r.status())) return AbandonedStatus(ctx, r.status());
   if (!r.ok()) return ToGrpcStatus(r.status());
   absl::StatusOr<std::string> bytes = EncodeRender(r->image, req->format());
@@ -199,6 +223,9 @@ grpc::Status ClnerfServiceImpl::Render(grpc::ServerContext* ctx, const v1::Rende
 
 grpc::Status ClnerfServiceImpl::RenderStream(grpc::ServerContext* ctx, const v1::RenderStreamRequest* req,
                                              grpc::ServerWriter<v1::RenderChunk>* writer) {
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  ModelHost* const host = place->get();
   if (req->cameras_size() == 0) return Invalid("RenderStream needs at least one camera");
   const int64_t chunk = req->max_chunk_bytes() > 0 ? std::min<int64_t>(req->max_chunk_bytes(), kMaxRenderChunkBytes)
                                                     : kMaxRenderChunkBytes;
@@ -213,13 +240,13 @@ grpc::Status ClnerfServiceImpl::RenderStream(grpc::ServerContext* ctx, const v1:
   // Pin the version for the whole stream: "deployed" means the one deployed
   // when the stream started.
   int64_t version = req->version();
-  if (version == 0) version = host_->deployed_version();
+  if (version == 0) version = host->deployed_version();
   if (version == 0) return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION, "no model is deployed yet: upload a scan first");
   const std::function<bool()> stop = StopWhenAbandoned(ctx);
   for (size_t i = 0; i < cams.size(); ++i) {
     if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "render stream cancelled");
-    if (host_->shutting_down()) return Unavailable();
-    absl::StatusOr<RenderResult> r = host_->Render(cams[i], t, version, stop);
+    if (host->shutting_down()) return Unavailable();
+    absl::StatusOr<RenderResult> r = host->Render(cams[i], t, version, stop);
     if (absl::IsCancelled(r.status())) return AbandonedStatus(ctx, r.status());
     if (!r.ok()) return ToGrpcStatus(r.status());
     absl::StatusOr<std::string> bytes = EncodeRender(r->image, req->format());
@@ -242,38 +269,50 @@ grpc::Status ClnerfServiceImpl::RenderStream(grpc::ServerContext* ctx, const v1:
   return grpc::Status::OK;
 }
 
-grpc::Status ClnerfServiceImpl::ListVersions(grpc::ServerContext*, const v1::ListVersionsRequest*,
+grpc::Status ClnerfServiceImpl::ListVersions(grpc::ServerContext*, const v1::ListVersionsRequest* req,
                                              v1::ListVersionsResponse* resp) {
-  absl::StatusOr<std::vector<VersionInfo>> all = host_->ListVersions();
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  ModelHost* const host = place->get();
+  absl::StatusOr<std::vector<VersionInfo>> all = host->ListVersions();
   if (!all.ok()) return ToGrpcStatus(all.status());
-  const int64_t deployed = host_->deployed_version();
+  const int64_t deployed = host->deployed_version();
   for (const VersionInfo& v : *all) *resp->add_versions() = ToProto(v, deployed);
   resp->set_deployed_version(deployed);
   return grpc::Status::OK;
 }
 
 grpc::Status ClnerfServiceImpl::GetVersion(grpc::ServerContext*, const v1::GetVersionRequest* req, v1::Version* resp) {
-  const int64_t v = req->version() == 0 ? host_->deployed_version() : req->version();
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  ModelHost* const host = place->get();
+  const int64_t v = req->version() == 0 ? host->deployed_version() : req->version();
   if (v == 0) return grpc::Status(grpc::StatusCode::FAILED_PRECONDITION, "no model is deployed yet");
-  absl::StatusOr<VersionInfo> info = host_->GetVersion(v);
+  absl::StatusOr<VersionInfo> info = host->GetVersion(v);
   if (!info.ok()) return ToGrpcStatus(info.status());
-  *resp = ToProto(*info, host_->deployed_version());
+  *resp = ToProto(*info, host->deployed_version());
   return grpc::Status::OK;
 }
 
 grpc::Status ClnerfServiceImpl::SetDeployedVersion(grpc::ServerContext* ctx, const v1::SetDeployedVersionRequest* req,
                                                    v1::Version* resp) {
   if (grpc::Status a = CheckAuth(ctx); !a.ok()) return a;
-  absl::StatusOr<VersionInfo> info = host_->SetDeployedVersion(req->version());
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  ModelHost* const host = place->get();
+  absl::StatusOr<VersionInfo> info = host->SetDeployedVersion(req->version());
   if (!info.ok()) return ToGrpcStatus(info.status());
-  *resp = ToProto(*info, host_->deployed_version());
+  *resp = ToProto(*info, host->deployed_version());
   return grpc::Status::OK;
 }
 
-grpc::Status ClnerfServiceImpl::GetServerInfo(grpc::ServerContext*, const v1::GetServerInfoRequest*,
+grpc::Status ClnerfServiceImpl::GetServerInfo(grpc::ServerContext*, const v1::GetServerInfoRequest* req,
                                               v1::ServerInfo* resp) {
-  const HostInfo h = host_->Info();
-  const ServerOptions& o = host_->options();
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  ModelHost* const host = place->get();
+  const HostInfo h = host->Info();
+  const ServerOptions& o = host->options();
   resp->set_server_version("clnerf-server 0.1.0");
   resp->set_deployed_version(h.deployed_version);
   resp->set_time_steps(h.time_steps);
@@ -291,6 +330,51 @@ grpc::Status ClnerfServiceImpl::GetServerInfo(grpc::ServerContext*, const v1::Ge
   resp->set_model_bytes(h.model_bytes);
   resp->set_replay_cameras(h.replay_cameras);
   resp->set_store_error(h.store_error);
+  return grpc::Status::OK;
+}
+
+namespace {
+
+v1::Place PlaceProto(const std::string& name, const ModelHost& host) {
+  const HostInfo h = host.Info();
+  v1::Place p;
+  p.set_name(name);
+  p.set_deployed_version(h.deployed_version);
+  p.set_time_steps(h.time_steps);
+  p.set_queued_jobs(h.queued_jobs);
+  p.set_running_job(h.running_job);
+  p.set_loaded(h.deployed_version > 0);  // A place's deployed model stays resident.
+  p.set_model_bytes(h.model_bytes);
+  p.set_store_error(h.store_error);
+  return p;
+}
+
+}  // namespace
+
+grpc::Status ClnerfServiceImpl::ListPlaces(grpc::ServerContext*, const v1::ListPlacesRequest*,
+                                           v1::ListPlacesResponse* resp) {
+  for (const std::string& name : places_->Names()) {
+    absl::StatusOr<std::shared_ptr<ModelHost>> host = places_->Get(name);
+    if (!host.ok()) continue;  // Deleted meanwhile.
+    *resp->add_places() = PlaceProto(name, **host);
+  }
+  return grpc::Status::OK;
+}
+
+grpc::Status ClnerfServiceImpl::CreatePlace(grpc::ServerContext* ctx, const v1::CreatePlaceRequest* req,
+                                            v1::Place* resp) {
+  if (grpc::Status a = CheckAuth(ctx); !a.ok()) return a;
+  absl::StatusOr<std::shared_ptr<ModelHost>> host = places_->Create(req->name());
+  if (!host.ok()) return ToGrpcStatus(host.status());
+  *resp = PlaceProto(req->name(), **host);
+  return grpc::Status::OK;
+}
+
+grpc::Status ClnerfServiceImpl::DeletePlace(grpc::ServerContext* ctx, const v1::DeletePlaceRequest* req,
+                                            v1::DeletePlaceResponse* resp) {
+  if (grpc::Status a = CheckAuth(ctx); !a.ok()) return a;
+  if (absl::Status s = places_->Delete(req->name()); !s.ok()) return ToGrpcStatus(s);
+  resp->set_name(req->name());
   return grpc::Status::OK;
 }
 

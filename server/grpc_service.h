@@ -1,9 +1,10 @@
 // ClnerfServiceImpl: the clnerf.v1.ClnerfService RPCs, each a thin shell that
-// checks auth, converts the request (proto_convert), calls the ModelHost and
-// converts the answer. No model logic lives here.
+// checks auth, converts the request (proto_convert), looks up the request's
+// place (places.h; "" = default), calls that place's ModelHost and converts
+// the answer. No model logic lives here.
 //
 // Auth: when a token is configured, mutating calls (UploadScan, CancelJob,
-// SetDeployedVersion) need "authorization: Bearer <token>" metadata, else
+// SetDeployedVersion, CreatePlace, DeletePlace) need "authorization: Bearer <token>" metadata, else
 // UNAUTHENTICATED. Read-only calls are open.
 //
 // Thread-safety: gRPC calls the handlers from its thread pool concurrently;
@@ -15,12 +16,13 @@
 
 #include "clnerf/v1/clnerf.grpc.pb.h"
 #include "server/model_host.h"
+#include "server/places.h"
 
 namespace clnerf {
 
 class ClnerfServiceImpl final : public v1::ClnerfService::Service {
  public:
-  ClnerfServiceImpl(ModelHost* host, std::string token) : host_(host), token_(std::move(token)) {}
+  ClnerfServiceImpl(Places* places, std::string token) : places_(places), token_(std::move(token)) {}
 
   grpc::Status UploadScan(grpc::ServerContext* ctx, grpc::ServerReader<v1::UploadScanRequest>* reader,
                           v1::UploadScanResponse* response) override;
@@ -39,10 +41,15 @@ class ClnerfServiceImpl final : public v1::ClnerfService::Service {
                                   v1::Version* resp) override;
   grpc::Status GetServerInfo(grpc::ServerContext* ctx, const v1::GetServerInfoRequest* req,
                              v1::ServerInfo* resp) override;
+  grpc::Status ListPlaces(grpc::ServerContext* ctx, const v1::ListPlacesRequest* req,
+                          v1::ListPlacesResponse* resp) override;
+  grpc::Status CreatePlace(grpc::ServerContext* ctx, const v1::CreatePlaceRequest* req, v1::Place* resp) override;
+  grpc::Status DeletePlace(grpc::ServerContext* ctx, const v1::DeletePlaceRequest* req,
+                           v1::DeletePlaceResponse* resp) override;
 
  private:
   grpc::Status CheckAuth(const grpc::ServerContext* ctx) const;
-  ModelHost* host_;
+  Places* const places_;
   const std::string token_;
 };
 

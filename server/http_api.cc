@@ -44,6 +44,11 @@ int HttpStatusFor(absl::StatusCode code) {
 
 namespace {
 
+// The place a request names with ?place= ("" or absent = default).
+absl::StatusOr<std::shared_ptr<ModelHost>> PlaceOf(const Places& places, const httplib::Request& req) {
+  return places.Get(req.has_param("place") ? req.get_param_value("place") : "");
+}
+
 void SendJson(httplib::Response& res, const json& body, int status = 200) {
   res.status = status;
   res.set_header("Cache-Control", "no-store");
@@ -146,21 +151,42 @@ void HttpApi::Register(httplib::Server* server) {
   // readiness (it takes traffic: not shutting down; a read-only store or an
   // empty one still serves what it can).
   server->Get("/metrics", [this](const httplib::Request&, httplib::Response& res) {
-    host_->metrics().SetModelBytes(host_->Info().model_bytes);
-    res.set_content(host_->metrics().Text(), "text/plain; version=0.0.4; charset=utf-8");
+    int64_t bytes = 0;
+    for (const std::string& name : places_->Names()) {
+      if (absl::StatusOr<std::shared_ptr<ModelHost>> h = places_->Get(name); h.ok()) bytes += (*h)->Info().model_bytes;
+    }
+    places_->metrics().SetModelBytes(bytes);
+    res.set_content(places_->metrics().Text(), "text/plain; version=0.0.4; charset=utf-8");
   });
   server->Get("/healthz", [](const httplib::Request&, httplib::Response& res) {
     res.set_content("ok\n", "text/plain; charset=utf-8");
   });
   server->Get("/readyz", [this](const httplib::Request&, httplib::Response& res) {
-    const HostInfo h = host_->Info();
-    const bool ready = !host_->shutting_down() && !stopping_.load();
-    SendJson(res, json{{"ready", ready}, {"deployed_version", h.deployed_version}, {"store_error", h.store_error}},
-             ready ? 200 : 503);
+    const bool ready = !places_->shutting_down() && !stopping_.load();
+    SendJson(res, json{{"ready", ready}, {"places", places_->Names().size()}}, ready ? 200 : 503);
+  });
+  server->Get("/api/places", [this](const httplib::Request&, httplib::Response& res) {
+    json list = json::array();
+    for (const std::string& name : places_->Names()) {
+      absl::StatusOr<std::shared_ptr<ModelHost>> h = places_->Get(name);
+      if (!h.ok()) continue;  // Deleted meanwhile.
+      const HostInfo i = (*h)->Info();
+      list.push_back(json{{"name", name},
+                          {"deployed_version", i.deployed_version},
+                          {"time_steps", i.time_steps},
+                          {"queued_jobs", i.queued_jobs},
+                          {"running_job", i.running_job},
+                          {"model_bytes", i.model_bytes},
+                          {"store_error", i.store_error}});
+    }
+    SendJson(res, json{{"places", list}});
   });
 
-  server->Get("/api/info", [this](const httplib::Request&, httplib::Response& res) {
-    const HostInfo h = host_->Info();
+  server->Get("/api/info", [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    ModelHost* const host = place->get();
+    const HostInfo h = host->Info();
     SendJson(res, json{{"server_version", "clnerf-server 0.1.0"},
                        {"deployed_version", h.deployed_version},
                        {"time_steps", h.time_steps},
@@ -170,24 +196,30 @@ void HttpApi::Register(httplib::Server* server) {
                        {"model_bytes", h.model_bytes},
                        {"replay_cameras", h.replay_cameras},
                        {"uptime_seconds", h.uptime_seconds},
-                       {"max_render_pixels", host_->max_pixels_per_render()},
+                       {"max_render_pixels", host->max_pixels_per_render()},
                        {"auth_required", !token_.empty()}});
   });
 
-  server->Get("/api/versions", [this](const httplib::Request&, httplib::Response& res) {
+  server->Get("/api/versions", [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    ModelHost* const host = place->get();
     int64_t deployed = 0;
-    absl::StatusOr<json> list = VersionsJson(*host_, &deployed);
+    absl::StatusOr<json> list = VersionsJson(*host, &deployed);
     if (!list.ok()) return SendError(res, list.status());
     SendJson(res, json{{"deployed_version", deployed}, {"versions", *list}});
   });
 
   server->Get("/api/scene", [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    ModelHost* const host = place->get();
     absl::StatusOr<int64_t> v = IntParam(req, "version", 0, 0, int64_t(1) << 62);
     if (!v.ok()) return SendError(res, v.status());
-    absl::StatusOr<SceneSummary> s = host_->Scene(*v);
+    absl::StatusOr<SceneSummary> s = host->Scene(*v);
     if (!s.ok()) return SendError(res, s.status());
     int64_t deployed = 0;
-    absl::StatusOr<json> versions = VersionsJson(*host_, &deployed);
+    absl::StatusOr<json> versions = VersionsJson(*host, &deployed);
     if (!versions.ok()) return SendError(res, versions.status());
     json scans = json::array();
     for (const Camera& c : s->scan_cameras) scans.push_back(CameraJson(c, *s));
@@ -202,12 +234,15 @@ void HttpApi::Register(httplib::Server* server) {
                        {"scans", scans},
                        {"default_camera", CameraJson(s->default_camera, *s)},
                        {"versions", *versions},
-                       {"max_render_pixels", host_->max_pixels_per_render()},
+                       {"max_render_pixels", host->max_pixels_per_render()},
                        {"auth_required", !token_.empty()}});
   });
 
   server->Get("/api/render", [this](const httplib::Request& req, httplib::Response& res) {
-    if (host_->shutting_down() || stopping_.load()) {
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    ModelHost* const host = place->get();
+    if (host->shutting_down() || stopping_.load()) {
       return SendError(res, absl::UnavailableError("server is shutting down"));
     }
     absl::StatusOr<HttpRenderRequest> r = ParseRenderQuery(req.params);
@@ -215,10 +250,10 @@ void HttpApi::Register(httplib::Server* server) {
     const ViewSessions::Ticket ticket = views_.Begin(r->view_id);
     const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(r->timeout_ms);
     auto stop = [&] {
-      return ticket.superseded() || stopping_.load() || host_->shutting_down() ||
+      return ticket.superseded() || stopping_.load() || host->shutting_down() ||
              std::chrono::steady_clock::now() >= deadline;
     };
-    absl::StatusOr<RenderResult> out = host_->Render(r->camera, r->time_step, r->version, stop);
+    absl::StatusOr<RenderResult> out = host->Render(r->camera, r->time_step, r->version, stop);
     if (absl::IsCancelled(out.status())) {
       if (ticket.superseded()) {
         return SendError(res, absl::CancelledError(absl::StrCat("superseded by a newer render of view '",
@@ -242,6 +277,9 @@ void HttpApi::Register(httplib::Server* server) {
   });
 
   server->Get("/api/jobs", [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    ModelHost* const host = place->get();
     absl::StatusOr<int64_t> limit = IntParam(req, "limit", 100, 1, 1000);
     if (!limit.ok()) return SendError(res, limit.status());
     absl::StatusOr<int64_t> offset = IntParam(req, "offset", 0, 0, int64_t(1) << 40);
@@ -252,15 +290,15 @@ void HttpApi::Register(httplib::Server* server) {
                                                                     "' is not newest or oldest")));
     }
     size_t total = 0;
-    host_->ListJobs(0, 0, &total);
+    host->ListJobs(0, 0, &total);
     std::vector<JobStatus> page;
     if (order == "oldest") {
-      page = host_->ListJobs(size_t(*offset), size_t(*limit), &total);
+      page = host->ListJobs(size_t(*offset), size_t(*limit), &total);
     } else if (size_t(*offset) < total) {
       // Newest first: the page [offset, offset + limit) counted from the end.
       const size_t end = total - size_t(*offset);
       const size_t begin = end > size_t(*limit) ? end - size_t(*limit) : 0;
-      page = host_->ListJobs(begin, end - begin, &total);
+      page = host->ListJobs(begin, end - begin, &total);
       std::reverse(page.begin(), page.end());
     }
     json list = json::array();
@@ -269,26 +307,35 @@ void HttpApi::Register(httplib::Server* server) {
   });
 
   server->Get(R"(/api/jobs/([^/]+))", [this](const httplib::Request& req, httplib::Response& res) {
-    absl::StatusOr<JobStatus> j = host_->GetJob(req.matches[1].str());
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    ModelHost* const host = place->get();
+    absl::StatusOr<JobStatus> j = host->GetJob(req.matches[1].str());
     if (!j.ok()) return SendError(res, j.status());
     SendJson(res, JobJson(*j));
   });
 
   server->Post(R"(/api/jobs/([^/]+)/cancel)", [this, authorized](const httplib::Request& req, httplib::Response& res) {
     if (!authorized(req, res)) return;
-    absl::StatusOr<JobStatus> j = host_->CancelJob(req.matches[1].str());
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    ModelHost* const host = place->get();
+    absl::StatusOr<JobStatus> j = host->CancelJob(req.matches[1].str());
     if (!j.ok()) return SendError(res, j.status());
     SendJson(res, JobJson(*j));
   });
 
   server->Post("/api/deploy", [this, authorized](const httplib::Request& req, httplib::Response& res) {
     if (!authorized(req, res)) return;
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    ModelHost* const host = place->get();
     if (!req.has_param("version")) return SendError(res, absl::InvalidArgumentError("parameter 'version' is required"));
     absl::StatusOr<int64_t> v = IntParam(req, "version", 0, 1, int64_t(1) << 62);
     if (!v.ok()) return SendError(res, v.status());
-    absl::StatusOr<VersionInfo> info = host_->SetDeployedVersion(*v);
+    absl::StatusOr<VersionInfo> info = host->SetDeployedVersion(*v);
     if (!info.ok()) return SendError(res, info.status());
-    SendJson(res, VersionJson(*info, host_->deployed_version()));
+    SendJson(res, VersionJson(*info, host->deployed_version()));
   });
 }
 

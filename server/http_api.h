@@ -1,9 +1,11 @@
 // HttpApi: the JSON + image API of clnerf-server over HTTP, which the web
 // viewer uses and curl users can call. Every handler is a thin front end over
-// ModelHost, the same service layer the gRPC service calls: there is no
+// the ModelHost of the request's place (?place=NAME on every /api route;
+// absent = "default"), the same service layer the gRPC service calls: there is no
 // second implementation of rendering, versions or jobs, and no hop through
 // gRPC. Routes (README "The web viewer" has curl examples):
 //
+//   GET  /api/places                  every place with its deployed version
 //   GET  /api/info                    server state (deployed version, queue)
 //   GET  /api/scene[?version=N]       time steps, versions, scans' cameras,
 //                                     up, focus, a default camera
@@ -34,6 +36,7 @@
 
 #include "absl/status/status.h"
 #include "server/model_host.h"
+#include "server/places.h"
 #include "server/view_sessions.h"
 
 namespace httplib {
@@ -49,13 +52,13 @@ class HttpApi {
  public:
   // `token` empty = no auth; otherwise mutating routes need
   // `Authorization: Bearer <token>`, as on gRPC.
-  HttpApi(ModelHost* host, std::string token) : host_(host), token_(std::move(token)) {}
+  HttpApi(Places* places, std::string token) : places_(places), token_(std::move(token)) {}
   void Register(httplib::Server* server);
   // Makes renders in flight stop (server shutdown).
   void Stop() { stopping_.store(true); }
 
  private:
-  ModelHost* const host_;
+  Places* const places_;
   const std::string token_;
   ViewSessions views_;
   std::atomic<bool> stopping_{false};

@@ -20,7 +20,7 @@ constexpr int kMaxSide = 16384;
 const std::set<std::string>& Known() {
   static const std::set<std::string> k = {"width", "height", "eye",  "target",  "up",   "c2w",     "convention",
                                           "fov",   "fx",     "fy",   "cx",      "cy",   "time",    "version",
-                                          "format", "quality", "view", "timeout_ms"};
+                                          "format", "quality", "view", "timeout_ms", "place"};
   return k;
 }
 

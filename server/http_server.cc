@@ -26,7 +26,7 @@ void SendJsonError(httplib::Response& res, int status, const std::string& code, 
 
 }  // namespace
 
-absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string& listen, ModelHost* host,
+absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string& listen, Places* places,
                                                               const std::string& token) {
   const size_t colon = listen.rfind(':');
   int port = -1;
@@ -41,7 +41,7 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string&
 
   std::unique_ptr<HttpServer> s(new HttpServer());
   s->server_ = std::make_unique<httplib::Server>();
-  s->api_ = std::make_unique<HttpApi>(host, token);
+  s->api_ = std::make_unique<HttpApi>(places, token);
   httplib::Server& srv = *s->server_;
   srv.set_payload_max_length(kMaxBodyBytes);
   srv.set_read_timeout(std::chrono::seconds(10));

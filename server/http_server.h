@@ -1,7 +1,7 @@
 // HttpServer: clnerf-server's optional HTTP front end (--http HOST:PORT): the
 // web viewer's page (web_assets.h) and the JSON + image API (http_api.h) on
 // cpp-httplib (Debian's libcpp-httplib-dev; no hand-written HTTP parsing).
-// It calls the same ModelHost as the gRPC service.
+// It calls the same places and ModelHosts as the gRPC service.
 //
 // Each request is logged at debug level (method, path, status, time);
 // client-supplied text is escaped. Request bodies are capped (the API takes
@@ -29,7 +29,7 @@ namespace clnerf {
 class HttpServer {
  public:
   // Binds `listen` ("HOST:PORT"; port 0 = any free port) and starts serving.
-  static absl::StatusOr<std::unique_ptr<HttpServer>> Start(const std::string& listen, ModelHost* host,
+  static absl::StatusOr<std::unique_ptr<HttpServer>> Start(const std::string& listen, Places* places,
                                                            const std::string& token);
   ~HttpServer();
   HttpServer(const HttpServer&) = delete;

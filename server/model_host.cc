@@ -18,17 +18,18 @@ double SecondsSince(std::chrono::steady_clock::time_point t) {
 
 }  // namespace
 
-ModelHost::ModelHost(const ServerOptions& options)
+ModelHost::ModelHost(const ServerOptions& options, std::shared_ptr<Metrics> metrics)
     : options_(options),
       started_(std::chrono::steady_clock::now()),
-      metrics_(std::make_unique<Metrics>()),
+      metrics_(std::move(metrics)),
       jobs_(options.max_queue, (std::filesystem::path(options.store_dir) / "jobs.json").string()),
       render_slots_(options.render_concurrency),
       cores_(std::max(1, int(std::thread::hardware_concurrency()))) {}
 
-absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& options) {
+absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& options,
+                                                           std::shared_ptr<Metrics> metrics) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;
-  std::unique_ptr<ModelHost> host(new ModelHost(options));
+  std::unique_ptr<ModelHost> host(new ModelHost(options, metrics ? std::move(metrics) : std::make_shared<Metrics>()));
   PublisherOptions po;
   po.store_dir = options.store_dir;
   po.cached_versions = options.cached_versions;

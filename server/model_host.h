@@ -89,7 +89,9 @@ struct HostInfo {
 
 class ModelHost {
  public:
-  static absl::StatusOr<std::unique_ptr<ModelHost>> Open(const ServerOptions& options);
+  // `metrics` (optional) is shared with other places; null = its own.
+  static absl::StatusOr<std::unique_ptr<ModelHost>> Open(const ServerOptions& options,
+                                                         std::shared_ptr<Metrics> metrics = nullptr);
   ~ModelHost();
   ModelHost(const ModelHost&) = delete;
   ModelHost& operator=(const ModelHost&) = delete;
@@ -138,7 +140,7 @@ class ModelHost {
   Publisher& publisher_for_testing() { return *publisher_; }
 
  private:
-  explicit ModelHost(const ServerOptions& options);
+  ModelHost(const ServerOptions& options, std::shared_ptr<Metrics> metrics);
   absl::Status RecoverScans();
   absl::StatusOr<UploadAck> AcceptScanImpl(const ScanUpload& upload);
   absl::StatusOr<RenderResult> RenderImpl(const Camera& world_camera, std::optional<int> time_step, int64_t version,
@@ -151,7 +153,7 @@ class ModelHost {
 
   const ServerOptions options_;
   const std::chrono::steady_clock::time_point started_;
-  const std::unique_ptr<Metrics> metrics_;  // Before the parts that report to it: destroyed after them.
+  const std::shared_ptr<Metrics> metrics_;  // Before the parts that report to it: destroyed after them.
   std::unique_ptr<Publisher> publisher_;
   std::unique_ptr<ScanStore> scans_;
   JobTracker jobs_;

@@ -1,0 +1,167 @@
+#include "server/places.h"
+
+#include <filesystem>
+#include <system_error>
+
+#include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
+#include "core/io/durable_file.h"
+#include "server/log_util.h"
+#include "server/place_name.h"
+#include "spdlog/spdlog.h"
+
+namespace clnerf {
+namespace fs = std::filesystem;
+
+namespace {
+constexpr char kDeletedPrefix[] = ".deleted-";
+}  // namespace
+
+Places::Places(const ServerOptions& options)
+    : options_(options),
+      metrics_(std::make_shared<Metrics>()),
+      places_dir_((fs::path(options.store_dir) / "places").string()) {}
+
+Places::~Places() { Shutdown(); }
+
+absl::StatusOr<std::unique_ptr<Places>> Places::Open(const ServerOptions& options) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  std::unique_ptr<Places> p(new Places(options));
+  std::error_code ec;
+  fs::create_directories(p->places_dir_, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot create '", p->places_dir_, "': ", ec.message()));
+  // "default" lives at the store's root, where the single-place server kept
+  // its files: such a store opens as the place "default" as it is.
+  std::vector<std::string> names = {std::string(kDefaultPlace)};
+  for (const fs::directory_entry& e : fs::directory_iterator(p->places_dir_, ec)) {
+    const std::string name = e.path().filename().string();
+    if (absl::StartsWith(name, kDeletedPrefix)) {  // A deletion a crash interrupted.
+      fs::remove_all(e.path(), ec);
+      if (ec) spdlog::warn("cannot remove '{}': {}", EscapeForLog(e.path().string()), ec.message());
+      continue;
+    }
+    if (!e.is_directory()) continue;
+    if (!ValidatePlaceName(name).ok() || name == kDefaultPlace) {
+      spdlog::warn("ignoring '{}' in {}: not a place name", EscapeForLog(name), p->places_dir_);
+      continue;
+    }
+    names.push_back(name);
+  }
+  if (ec) return absl::InternalError(absl::StrCat("cannot list '", p->places_dir_, "': ", ec.message()));
+  for (const std::string& name : names) {
+    absl::StatusOr<std::shared_ptr<ModelHost>> host = p->OpenHost(name);
+    if (!host.ok()) return absl::Status(host.status().code(), absl::StrCat("place '", name, "': ", host.status().message()));
+    p->hosts_[name] = *std::move(host);
+  }
+  spdlog::info("store {}: {} place(s)", options.store_dir, p->hosts_.size());
+  return p;
+}
+
+std::string Places::DirOf(const std::string& name) const {
+  if (name == kDefaultPlace) return options_.store_dir;
+  return (fs::path(places_dir_) / name).string();
+}
+
+absl::StatusOr<std::shared_ptr<ModelHost>> Places::OpenHost(const std::string& name) const {
+  ServerOptions o = options_;
+  o.store_dir = DirOf(name);
+  absl::StatusOr<std::unique_ptr<ModelHost>> host = ModelHost::Open(o, metrics_);
+  if (!host.ok()) return host.status();
+  return std::shared_ptr<ModelHost>(*std::move(host));
+}
+
+absl::StatusOr<std::shared_ptr<ModelHost>> Places::Get(std::string_view name) const {
+  const std::string n = PlaceOrDefault(name);
+  if (absl::Status s = ValidatePlaceName(n); !s.ok()) return s;
+  std::lock_guard<std::mutex> lock(mu_);
+  auto it = hosts_.find(n);
+  if (it != hosts_.end()) return it->second;
+  std::vector<std::string> known;
+  for (const auto& [k, v] : hosts_) known.push_back(k);
+  return UnknownPlace(n, known);
+}
+
+std::shared_ptr<ModelHost> Places::Default() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  auto it = hosts_.find(std::string(kDefaultPlace));
+  return it == hosts_.end() ? nullptr : it->second;
+}
+
+absl::StatusOr<std::shared_ptr<ModelHost>> Places::Create(std::string_view name) {
+  const std::string n(name);
+  if (absl::Status s = ValidatePlaceName(n); !s.ok()) return s;
+  std::lock_guard<std::mutex> lock(mu_);
+  if (shut_down_) return absl::UnavailableError("server is shutting down");
+  if (hosts_.count(n) > 0) return absl::AlreadyExistsError(absl::StrCat("place '", n, "' already exists"));
+  const std::string dir = DirOf(n);
+  std::error_code ec;
+  if (!fs::create_directory(dir, ec) && !ec && !fs::is_empty(dir, ec)) {
+    return absl::AlreadyExistsError(absl::StrCat("a directory for place '", n, "' already exists in the store"));
+  }
+  if (ec) return absl::InternalError(absl::StrCat("cannot create place '", n, "': ", ec.message()));
+  if (absl::Status s = SyncDirectory(places_dir_); !s.ok()) return s;
+  absl::StatusOr<std::shared_ptr<ModelHost>> host = OpenHost(n);
+  if (!host.ok()) return host.status();
+  hosts_[n] = *host;
+  spdlog::info("created place '{}'", n);
+  return *host;
+}
+
+absl::Status Places::Delete(std::string_view name) {
+  const std::string n(name);
+  if (absl::Status s = ValidatePlaceName(n); !s.ok()) return s;
+  if (n == kDefaultPlace) {
+    return absl::FailedPreconditionError("the place 'default' cannot be deleted (requests without a place use it)");
+  }
+  std::shared_ptr<ModelHost> host;
+  std::string trash;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = hosts_.find(n);
+    if (it == hosts_.end()) {
+      std::vector<std::string> known;
+      for (const auto& [k, v] : hosts_) known.push_back(k);
+      return UnknownPlace(n, known);
+    }
+    host = it->second;
+    hosts_.erase(it);
+    trash = (fs::path(places_dir_) / absl::StrCat(kDeletedPrefix, n, "-", ++deletions_)).string();
+  }
+  // Stop its update first (a request in flight keeps the host object, but
+  // no new scan is trained), then take the directory away atomically.
+  host->Shutdown();
+  std::error_code ec;
+  fs::rename(DirOf(n), trash, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot remove place '", n, "': ", ec.message()));
+  if (absl::Status s = SyncDirectory(places_dir_); !s.ok()) return s;
+  fs::remove_all(trash, ec);
+  if (ec) spdlog::warn("place '{}' deleted; removing its files: {}", n, ec.message());
+  spdlog::info("deleted place '{}'", n);
+  return absl::OkStatus();
+}
+
+std::vector<std::string> Places::Names() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  std::vector<std::string> names;
+  for (const auto& [k, v] : hosts_) names.push_back(k);
+  return names;
+}
+
+bool Places::shutting_down() const {
+  std::lock_guard<std::mutex> lock(mu_);
+  return shut_down_;
+}
+
+bool Places::Shutdown() {
+  std::map<std::string, std::shared_ptr<ModelHost>> hosts;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    shut_down_ = true;
+    hosts = hosts_;
+  }
+  bool clean = true;
+  for (auto& [name, host] : hosts) clean = host->Shutdown() && clean;
+  return clean;
+}
+
+}  // namespace clnerf

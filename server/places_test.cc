@@ -1,0 +1,200 @@
+// Places end to end through gRPC (in-process server on localhost:0): create,
+// upload and render per place, list, delete durably, restart; and bad place
+// names or unknown places get a clear status and leave the store unchanged.
+#include "server/places.h"
+
+#include <filesystem>
+#include <set>
+#include <string>
+
+#include "server/server_fixture.h"
+
+namespace clnerf {
+namespace {
+
+namespace fs = std::filesystem;
+using testing_util::ServerFixture;
+using testing_util::TempDir;
+using testing_util::TinyScans;
+using testing_util::TinyServerOptions;
+using testing_util::UploadMessages;
+using testing_util::UploadOf;
+
+// Every path under `dir` with its size (a snapshot to compare).
+std::set<std::string> Snapshot(const std::string& dir) {
+  std::set<std::string> out;
+  for (const auto& e : fs::recursive_directory_iterator(dir)) {
+    out.insert(e.path().string() + (e.is_regular_file() ? ":" + std::to_string(e.file_size()) : "/"));
+  }
+  return out;
+}
+
+class PlacesTest : public ServerFixture {
+ protected:
+  grpc::Status CreatePlace(const std::string& name, v1::Place* out = nullptr) {
+    grpc::ClientContext ctx;
+    v1::CreatePlaceRequest req;
+    req.set_name(name);
+    v1::Place p;
+    grpc::Status s = stub_->CreatePlace(&ctx, req, &p);
+    if (out != nullptr) *out = p;
+    return s;
+  }
+  grpc::Status DeletePlace(const std::string& name) {
+    grpc::ClientContext ctx;
+    v1::DeletePlaceRequest req;
+    req.set_name(name);
+    v1::DeletePlaceResponse r;
+    return stub_->DeletePlace(&ctx, req, &r);
+  }
+  std::vector<v1::Place> ListPlaces() {
+    grpc::ClientContext ctx;
+    v1::ListPlacesResponse r;
+    EXPECT_TRUE(stub_->ListPlaces(&ctx, v1::ListPlacesRequest(), &r).ok());
+    return {r.places().begin(), r.places().end()};
+  }
+  // Uploads step t of `scene` to `place` and waits for its job.
+  v1::Job UploadTo(const std::string& place, const Scene& scene, int t, grpc::Status* status = nullptr) {
+    std::vector<v1::UploadScanRequest> msgs = UploadMessages(UploadOf(scene, t));
+    msgs[0].mutable_header()->set_place(place);
+    v1::UploadScanResponse ack;
+    grpc::Status s = Upload(msgs, &ack);
+    if (status != nullptr) *status = s;
+    if (!s.ok()) return v1::Job();
+    grpc::ClientContext ctx;
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(600));
+    v1::WatchJobRequest req;
+    req.set_job_id(ack.job_id());
+    req.set_place(place);
+    auto reader = stub_->WatchJob(&ctx, req);
+    v1::Job job, last;
+    while (reader->Read(&job)) last = job;
+    EXPECT_TRUE(reader->Finish().ok());
+    return last;
+  }
+  grpc::Status RenderAt(const std::string& place, const Camera& cam, v1::RenderResponse* resp) {
+    grpc::ClientContext ctx;
+    v1::RenderRequest req;
+    testing_util::FillCamera(cam, req.mutable_camera());
+    req.set_place(place);
+    return stub_->Render(&ctx, req, resp);
+  }
+};
+
+TEST_F(PlacesTest, EachPlaceHasItsOwnScansVersionsAndModel) {
+  const std::string store = TempDir("srv_places");
+  StartServer(TinyServerOptions(store));
+  ASSERT_EQ(ListPlaces().size(), 1u);
+  EXPECT_EQ(ListPlaces()[0].name(), "default");
+  v1::Place created;
+  ASSERT_TRUE(CreatePlace("shop-a", &created).ok());
+  EXPECT_EQ(created.name(), "shop-a");
+  EXPECT_EQ(created.deployed_version(), 0);
+  EXPECT_EQ(CreatePlace("shop-a").error_code(), grpc::StatusCode::ALREADY_EXISTS);
+
+  const Scene scene = TinyScans(2);
+  const v1::Job a0 = UploadTo("shop-a", scene, 0);
+  ASSERT_EQ(a0.phase(), v1::JOB_PHASE_DONE) << a0.error();
+  EXPECT_EQ(a0.version(), 1);
+  // The default place is untouched: nothing to render there yet.
+  v1::RenderResponse r;
+  EXPECT_EQ(RenderAt("", scene.test[0].camera, &r).error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  ASSERT_TRUE(RenderAt("shop-a", scene.test[0].camera, &r).ok());
+  EXPECT_EQ(r.version(), 1);
+  // An upload without a place goes to "default", with its own version 1.
+  const v1::Job d0 = UploadTo("", scene, 0);
+  ASSERT_EQ(d0.phase(), v1::JOB_PHASE_DONE) << d0.error();
+  EXPECT_EQ(d0.version(), 1);
+  const v1::Job a1 = UploadTo("shop-a", scene, 1);
+  ASSERT_EQ(a1.phase(), v1::JOB_PHASE_DONE) << a1.error();
+  EXPECT_EQ(a1.version(), 2);
+  std::vector<v1::Place> places = ListPlaces();
+  ASSERT_EQ(places.size(), 2u);
+  EXPECT_EQ(places[0].name(), "default");
+  EXPECT_EQ(places[0].deployed_version(), 1);
+  EXPECT_EQ(places[1].name(), "shop-a");
+  EXPECT_EQ(places[1].deployed_version(), 2);
+  EXPECT_EQ(places[1].time_steps(), 2);
+  EXPECT_TRUE(places[1].loaded());
+  EXPECT_GT(places[1].model_bytes(), 0);
+  EXPECT_TRUE(fs::exists(store + "/places/shop-a/versions"));
+
+  // After a restart both places come back with their versions.
+  StopServer();
+  StartServer(TinyServerOptions(store));
+  places = ListPlaces();
+  ASSERT_EQ(places.size(), 2u);
+  EXPECT_EQ(places[1].deployed_version(), 2);
+  ASSERT_TRUE(RenderAt("shop-a", scene.test[0].camera, &r).ok());
+  EXPECT_EQ(r.version(), 2);
+
+  // Deleting removes the place and its files for good; "default" cannot go.
+  EXPECT_EQ(DeletePlace("default").error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  ASSERT_TRUE(DeletePlace("shop-a").ok());
+  EXPECT_FALSE(fs::exists(store + "/places/shop-a"));
+  EXPECT_EQ(RenderAt("shop-a", scene.test[0].camera, &r).error_code(), grpc::StatusCode::NOT_FOUND);
+  EXPECT_EQ(DeletePlace("shop-a").error_code(), grpc::StatusCode::NOT_FOUND);
+  StopServer();
+  StartServer(TinyServerOptions(store));
+  ASSERT_EQ(ListPlaces().size(), 1u);
+  ASSERT_TRUE(RenderAt("", scene.test[0].camera, &r).ok());  // default kept its version.
+}
+
+TEST_F(PlacesTest, BadOrUnknownPlacesGetAClearStatusAndChangeNothing) {
+  const std::string store = TempDir("srv_places_bad");
+  StartServer(TinyServerOptions(store));
+  ASSERT_TRUE(CreatePlace("flat-1").ok());
+  const std::set<std::string> before = Snapshot(store);
+  const Scene scene = TinyScans(1);
+  grpc::Status s;
+  UploadTo("nowhere", scene, 0, &s);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND);
+  EXPECT_NE(s.error_message().find("places: default, flat-1"), std::string::npos) << s.error_message();
+  UploadTo("../flat-1", scene, 0, &s);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << s.error_message();
+  EXPECT_EQ(CreatePlace("../../etc").error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(CreatePlace(".hidden").error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_EQ(DeletePlace("../flat-1").error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  // A 3 MB name (under gRPC's 4 MiB message limit, so it reaches the server).
+  const std::string huge(3 << 20, 'x');
+  grpc::Status hs = CreatePlace(huge);
+  EXPECT_EQ(hs.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_LT(hs.error_message().size(), 200u);
+  v1::RenderResponse r;
+  EXPECT_EQ(RenderAt(huge, scene.test[0].camera, &r).error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  // A 10 MB name is refused by gRPC's own message limit.
+  EXPECT_FALSE(CreatePlace(std::string(10 << 20, 'y')).ok());
+  grpc::ClientContext ctx;
+  v1::ListVersionsRequest lv;
+  lv.set_place("nowhere");
+  v1::ListVersionsResponse lr;
+  EXPECT_EQ(stub_->ListVersions(&ctx, lv, &lr).error_code(), grpc::StatusCode::NOT_FOUND);
+  EXPECT_EQ(Snapshot(store), before);
+}
+
+// A store the single-place server wrote (its files at the root) opens as the
+// place "default", as it is.
+TEST_F(PlacesTest, AStoreFromBeforePlacesOpensAsDefault) {
+  const std::string store = TempDir("srv_places_legacy");
+  {
+    ServerOptions o = TinyServerOptions(store);
+    absl::StatusOr<std::unique_ptr<ModelHost>> host = ModelHost::Open(o);  // The single-place server's core.
+    ASSERT_TRUE(host.ok()) << host.status();
+    const Scene scene = TinyScans(1);
+    absl::StatusOr<UploadAck> ack = (*host)->AcceptScan(UploadOf(scene, 0));
+    ASSERT_TRUE(ack.ok()) << ack.status();
+    for (int i = 0; i < 600 && (*host)->deployed_version() == 0; ++i) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    }
+    ASSERT_EQ((*host)->deployed_version(), 1);
+    (*host)->Shutdown();
+  }
+  StartServer(TinyServerOptions(store));
+  std::vector<v1::Place> places = ListPlaces();
+  ASSERT_EQ(places.size(), 1u);
+  EXPECT_EQ(places[0].name(), "default");
+  EXPECT_EQ(places[0].deployed_version(), 1);
+}
+
+}  // namespace
+}  // namespace clnerf
