@@ -24,7 +24,7 @@ CLI::App* BindWatch(CLI::App* parent, JobArgs* a) {
 int RunWatch(const JobArgs& a) {
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
   if (!client.ok()) return FailRemote("watch", client.status());
-  return ReportJob("watch", FollowJob(**client, a.job_id), a.remote);
+  return ReportJob("watch", FollowJob(**client, a.job_id, a.remote.place), a.remote);
 }
 
 CLI::App* BindJobs(CLI::App* parent, ListArgs* a) {
@@ -40,6 +40,7 @@ int RunJobs(const ListArgs& a) {
   clnerf::v1::ListJobsResponse response;
   clnerf::v1::ListJobsRequest request;
   request.set_page_size(1000);
+  request.set_place(a.remote.place);
   while (true) {
     clnerf::v1::ListJobsResponse page;
     grpc::Status s = (*client)->service().ListJobs((*client)->Context(kUnaryTimeoutSeconds).get(), request, &page);
@@ -89,6 +90,7 @@ int RunCancel(const JobArgs& a) {
   if (!client.ok()) return FailRemote("cancel", client.status());
   clnerf::v1::CancelJobRequest request;
   request.set_job_id(a.job_id);
+  request.set_place(a.remote.place);
   clnerf::v1::Job job;
   grpc::Status s = (*client)->service().CancelJob((*client)->Context(kUnaryTimeoutSeconds).get(), request, &job);
   if (!s.ok()) return FailRemote("cancel", s, a.remote);

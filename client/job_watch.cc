@@ -37,11 +37,12 @@ void LogPhase(const Job& job) {
 
 }  // namespace
 
-WatchOutcome FollowJob(RemoteClient& client, const std::string& job_id) {
+WatchOutcome FollowJob(RemoteClient& client, const std::string& job_id, const std::string& place) {
   WatchOutcome out;
   std::unique_ptr<grpc::ClientContext> ctx = client.Context(kNoDeadline);
   clnerf::v1::WatchJobRequest request;
   request.set_job_id(job_id);
+  request.set_place(place);
   std::unique_ptr<grpc::ClientReader<Job>> reader = client.service().WatchJob(ctx.get(), request);
   std::unique_ptr<ProgressBar> bar;
   bool first = true;

@@ -21,7 +21,7 @@ struct WatchOutcome {
 
 // Streams the job's states until it reaches a terminal phase or the stream
 // ends (no deadline unless --timeout was given).
-WatchOutcome FollowJob(RemoteClient& client, const std::string& job_id);
+WatchOutcome FollowJob(RemoteClient& client, const std::string& job_id, const std::string& place = "");
 
 // Prints the outcome and returns the exit code: 0 for DONE ("job <id> done:
 // version <v> ..."), kExitJobFailed / kExitJobCancelled with a one-line

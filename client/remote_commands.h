@@ -26,6 +26,7 @@ struct RemoteOptions {
   double timeout_seconds = -1;  // Per-RPC deadline; < 0 = the verb's default.
   std::string tls_ca;           // PEM root certificate file; empty = plaintext.
   bool json = false;            // Machine-readable output on stdout.
+  std::string place;            // The place meant; "" = "default" ($CLNERF_PLACE).
 };
 
 // $CLNERF_SERVER, else "localhost:50051".
@@ -58,6 +59,13 @@ struct RollbackArgs {
   int64_t version = 0;
 };
 
+struct PlacesArgs {
+  RemoteOptions remote;
+  std::string action = "list";  // list | create | delete.
+  std::string name;
+  bool yes = false;             // delete: confirmed.
+};
+
 struct BenchServeArgs {
   RemoteOptions remote;
   std::string data = "../shared/data/lego_100";  // Dataset cut into tasks, or "procedural".
@@ -79,6 +87,7 @@ CLI::App* BindCancel(CLI::App* parent, JobArgs* args);
 CLI::App* BindVersions(CLI::App* parent, ListArgs* args);
 CLI::App* BindRollback(CLI::App* parent, RollbackArgs* args);
 CLI::App* BindInfo(CLI::App* parent, ListArgs* args);
+CLI::App* BindPlaces(CLI::App* parent, PlacesArgs* args);
 
 int RunUpload(const UploadArgs& args);
 int RunBenchServe(const BenchServeArgs& args);
@@ -88,6 +97,7 @@ int RunCancel(const JobArgs& args);
 int RunVersions(const ListArgs& args);
 int RunRollback(const RollbackArgs& args);
 int RunInfo(const ListArgs& args);
+int RunPlaces(const PlacesArgs& args);
 
 }  // namespace clnerf
 

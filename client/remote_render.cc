@@ -192,6 +192,7 @@ int RunRemoteRender(const RenderArgs& a) {
     if (a.time_step >= 0) request.set_time_step(a.time_step);
     request.set_version(a.version);
     request.set_format(clnerf::v1::IMAGE_FORMAT_PNG);
+    request.set_place(a.remote.place);
     clnerf::v1::RenderResponse response;
     grpc::Status s = (*client)->service().Render((*client)->Context(kRenderTimeoutSeconds).get(), request, &response);
     if (!s.ok()) return FailRemote(kVerb, s, a.remote);
@@ -204,6 +205,7 @@ int RunRemoteRender(const RenderArgs& a) {
     if (a.time_step >= 0) request.set_time_step(a.time_step);
     request.set_version(a.version);
     request.set_format(clnerf::v1::IMAGE_FORMAT_PNG);
+    request.set_place(a.remote.place);
     std::unique_ptr<grpc::ClientContext> ctx = (*client)->Context(kNoDeadline);
     std::unique_ptr<grpc::ClientReader<clnerf::v1::RenderChunk>> reader =
         (*client)->service().RenderStream(ctx.get(), request);

@@ -56,6 +56,7 @@ int RunUpload(const UploadArgs& a) {
   const std::string name = a.name.empty() ? scene->name : a.name;
   absl::StatusOr<EncodedScan> scan = EncodeScan(name, scene->kind, scene->train, *test, scene->sparse_points);
   if (!scan.ok()) return FailRemote(kVerb, scan.status());
+  scan->header.mutable_header()->set_place(a.remote.place);
   scene->train.clear();  // Only the encoded copy is needed from here on.
   test->clear();
   const clnerf::v1::ScanHeader* header = &scan->header.header();
@@ -92,7 +93,7 @@ int RunUpload(const UploadArgs& a) {
     if (a.remote.json) std::printf("%s\n", j.dump(2).c_str());
     return 0;
   }
-  return ReportJob(kVerb, FollowJob(**client, response.job_id()), a.remote, a.remote.json ? j : nullptr);
+  return ReportJob(kVerb, FollowJob(**client, response.job_id(), a.remote.place), a.remote, a.remote.json ? j : nullptr);
 }
 
 }  // namespace clnerf

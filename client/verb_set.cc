@@ -1,5 +1,7 @@
 #include "client/verb_set.h"
 
+#include <cstdlib>
+
 namespace clnerf {
 
 VerbSet::VerbSet(CLI::App* app) : app_(app) { BindRemoteFlags(app_, &global_remote_); }
@@ -14,6 +16,7 @@ int VerbSet::RunChosen() {
       if (before("--timeout")) verb.remote->timeout_seconds = global_remote_.timeout_seconds;
       if (before("--tls-ca")) verb.remote->tls_ca = global_remote_.tls_ca;
       if (before("--json")) verb.remote->json = true;
+      if (before("--place")) verb.remote->place = global_remote_.place;
     }
     return verb.run();
   }
@@ -29,6 +32,8 @@ void BindRemoteFlags(CLI::App* c, RemoteOptions* o) {
                 "Deadline per RPC in seconds (default: 30 for calls, 600 for a render, none for streams)");
   c->add_option("--tls-ca", o->tls_ca, "PEM root certificate: connect with TLS");
   c->add_flag("--json", o->json, "Machine-readable JSON on stdout");
+  if (const char* p = std::getenv("CLNERF_PLACE")) o->place = p;
+  c->add_option("--place", o->place, "The place (default: \"default\"; env CLNERF_PLACE)");
 }
 
 CLI::Option* BindThreadsFlag(CLI::App* c, int* threads) {

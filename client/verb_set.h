@@ -65,7 +65,7 @@ class VerbSet {
   std::vector<Verb> verbs_;
 };
 
-// The remote flags (--server, --token, --timeout, --tls-ca, --json), bound
+// The remote flags (--server, --token, --timeout, --tls-ca, --json, --place), bound
 // onto `options`; the server and token default to $CLNERF_SERVER and
 // $CLNERF_TOKEN.
 void BindRemoteFlags(CLI::App* command, RemoteOptions* options);

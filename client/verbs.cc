@@ -20,6 +20,7 @@ void RegisterVerbs(VerbSet* verbs) {
   verbs->Add(BindVersions, RunVersions);
   verbs->Add(BindRollback, RunRollback);
   verbs->Add(BindInfo, RunInfo);
+  verbs->Add(BindPlaces, RunPlaces);
   // Benchmarks.
   CLI::App* bench = verbs->app()->add_subcommand("bench", "Benchmarks (print figures and JSON)");
   bench->require_subcommand(1);

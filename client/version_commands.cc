@@ -23,8 +23,10 @@ int RunVersions(const ListArgs& a) {
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
   if (!client.ok()) return FailRemote("versions", client.status());
   clnerf::v1::ListVersionsResponse response;
-  grpc::Status s = (*client)->service().ListVersions((*client)->Context(kUnaryTimeoutSeconds).get(),
-                                                     clnerf::v1::ListVersionsRequest(), &response);
+  clnerf::v1::ListVersionsRequest request;
+  request.set_place(a.remote.place);
+  grpc::Status s = (*client)->service().ListVersions((*client)->Context(kUnaryTimeoutSeconds).get(), request,
+                                                     &response);
   if (!s.ok()) return FailRemote("versions", s, a.remote);
   if (a.remote.json) {
     std::printf("%s\n", ProtoToJson(response).dump(2).c_str());
@@ -63,6 +65,7 @@ int RunRollback(const RollbackArgs& a) {
   if (!client.ok()) return FailRemote("rollback", client.status());
   clnerf::v1::SetDeployedVersionRequest request;
   request.set_version(a.version);
+  request.set_place(a.remote.place);
   clnerf::v1::Version v;
   grpc::Status s =
       (*client)->service().SetDeployedVersion((*client)->Context(kUnaryTimeoutSeconds).get(), request, &v);
@@ -87,8 +90,10 @@ int RunInfo(const ListArgs& a) {
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
   if (!client.ok()) return FailRemote("info", client.status());
   clnerf::v1::ServerInfo info;
-  grpc::Status s = (*client)->service().GetServerInfo((*client)->Context(kUnaryTimeoutSeconds).get(),
-                                                      clnerf::v1::GetServerInfoRequest(), &info);
+  clnerf::v1::GetServerInfoRequest info_request;
+  info_request.set_place(a.remote.place);
+  grpc::Status s =
+      (*client)->service().GetServerInfo((*client)->Context(kUnaryTimeoutSeconds).get(), info_request, &info);
   if (!s.ok()) return FailRemote("info", s, a.remote);
   // The overall health ("" = the whole server).
   grpc::health::v1::HealthCheckResponse health;
