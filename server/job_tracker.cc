@@ -185,6 +185,20 @@ std::optional<std::string> JobTracker::WaitNext() {
   return running_;
 }
 
+bool JobTracker::WaitQueued() {
+  std::unique_lock<std::mutex> lock(mu_);
+  cv_.wait(lock, [&] { return shutdown_ || !queue_.empty(); });
+  return !shutdown_;
+}
+
+std::optional<std::string> JobTracker::TryNext() {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (shutdown_ || queue_.empty()) return std::nullopt;
+  running_ = queue_.front();
+  queue_.pop_front();
+  return running_;
+}
+
 void JobTracker::Update(const std::string& id, const std::function<void(JobStatus*)>& mutate) {
   std::lock_guard<std::mutex> lock(mu_);
   auto it = jobs_.find(id);

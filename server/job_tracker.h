@@ -74,6 +74,10 @@ class JobTracker {
   void AddFinished(JobStatus job);
   // Blocks until a job is queued (returns its id) or Shutdown() (nullopt).
   std::optional<std::string> WaitNext();
+  // Blocks until a job is queued (true) or Shutdown() (false); pops nothing.
+  bool WaitQueued();
+  // Pops the next queued job like WaitNext, or nullopt at once if none.
+  std::optional<std::string> TryNext();
   // Applies `mutate` to the job and notifies watchers.
   void Update(const std::string& id, const std::function<void(JobStatus*)>& mutate);
   absl::StatusOr<JobStatus> Get(const std::string& id) const;

@@ -36,6 +36,9 @@ int main(int argc, char** argv) {
   app.add_option("--render-concurrency", o.render_concurrency, "Renders running at once")->capture_default_str();
   app.add_option("--render-threads", o.render_threads, "Threads per render (0 = adaptive: cores / renders running)")->capture_default_str();
   app.add_option("--train-threads", o.train_threads, "Threads of the update worker")->capture_default_str();
+  app.add_option("--max-concurrent-trainings", o.max_concurrent_trainings,
+                 "Updates training at once across all places (oldest first, round robin)")
+      ->capture_default_str();
   app.add_option("--train-nice", o.train_nice, "Nice value of training (0-19): renders get the cores first")
       ->capture_default_str();
   app.add_option("--log-level", log_level, "trace|debug|info|warn|error")->capture_default_str();

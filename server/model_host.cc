@@ -18,18 +18,21 @@ double SecondsSince(std::chrono::steady_clock::time_point t) {
 
 }  // namespace
 
-ModelHost::ModelHost(const ServerOptions& options, std::shared_ptr<Metrics> metrics)
+ModelHost::ModelHost(const ServerOptions& options, SharedServices shared)
     : options_(options),
       started_(std::chrono::steady_clock::now()),
-      metrics_(std::move(metrics)),
+      metrics_(std::move(shared.metrics)),
       jobs_(options.max_queue, (std::filesystem::path(options.store_dir) / "jobs.json").string()),
-      render_slots_(options.render_concurrency),
+      trainings_(std::move(shared.trainings)),
+      render_slots_(std::move(shared.render_slots)),
       cores_(std::max(1, int(std::thread::hardware_concurrency()))) {}
 
-absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& options,
-                                                           std::shared_ptr<Metrics> metrics) {
+absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& options, SharedServices shared,
+                                                           const std::string& place) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;
-  std::unique_ptr<ModelHost> host(new ModelHost(options, metrics ? std::move(metrics) : std::make_shared<Metrics>()));
+  if (!shared.metrics) shared.metrics = std::make_shared<Metrics>();
+  if (!shared.render_slots) shared.render_slots = std::make_shared<RenderSlots>(options.render_concurrency);
+  std::unique_ptr<ModelHost> host(new ModelHost(options, shared));
   PublisherOptions po;
   po.store_dir = options.store_dir;
   po.cached_versions = options.cached_versions;
@@ -45,7 +48,7 @@ absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& 
   host->jobs_.LoadHistory();
   if (absl::Status s = host->RecoverScans(); !s.ok()) return s;
   host->worker_ = std::make_unique<UpdateWorker>(options, host->scans_.get(), host->publisher_.get(), &host->jobs_,
-                                                 host->metrics_.get());
+                                                 host->metrics_.get(), host->trainings_.get(), place);
   host->worker_->Start();
   return host;
 }
@@ -210,7 +213,7 @@ absl::StatusOr<RenderResult> ModelHost::RenderImpl(const Camera& world_camera, s
     const auto give_up = std::chrono::steady_clock::now() +
                          std::chrono::duration_cast<std::chrono::steady_clock::duration>(
                              std::chrono::duration<double>(options_.render_wait_seconds));
-    while (!render_slots_.try_acquire_for(std::chrono::milliseconds(50))) {
+    while (!render_slots_->slots.try_acquire_for(std::chrono::milliseconds(50))) {
       if (should_stop && should_stop()) return absl::CancelledError("render abandoned while waiting for a slot");
       if (std::chrono::steady_clock::now() >= give_up) {
         return absl::ResourceExhaustedError("all render slots stayed busy; retry later");
@@ -221,7 +224,7 @@ absl::StatusOr<RenderResult> ModelHost::RenderImpl(const Camera& world_camera, s
   // small render lasts milliseconds, so it does not count: otherwise a
   // viewer's last preview, still finishing when its full frame starts, would
   // halve that frame's threads for its whole duration.
-  const int big_running = small ? active_renders_.load() + 1 : active_renders_.fetch_add(1) + 1;
+  const int big_running = small ? render_slots_->active.load() + 1 : render_slots_->active.fetch_add(1) + 1;
   const auto t0 = std::chrono::steady_clock::now();
   RenderOptions ro;
   ro.threads = options_.render_threads > 0 ? options_.render_threads : std::max(1, cores_ / big_running);
@@ -229,8 +232,8 @@ absl::StatusOr<RenderResult> ModelHost::RenderImpl(const Camera& world_camera, s
   ro.should_stop = should_stop;
   absl::StatusOr<RenderedView> view = RenderView(model, world_camera, ro);
   if (!small) {
-    active_renders_.fetch_sub(1);
-    render_slots_.release();
+    render_slots_->active.fetch_sub(1);
+    render_slots_->slots.release();
   }
   if (!view.ok()) return view.status();
   return RenderResult{(*snap)->info.version, t, std::move(view->rgb), SecondsSince(t0)};

@@ -53,6 +53,7 @@
 #include "core/data/image.h"
 #include "server/job_tracker.h"
 #include "server/metrics.h"
+#include "server/training_scheduler.h"
 #include "server/model_registry.h"
 #include "server/publisher.h"
 #include "server/scan_store.h"
@@ -76,6 +77,22 @@ struct RenderResult {
   double seconds = 0;
 };
 
+// The render slots of a server: at most render_concurrency big renders at
+// once, across every place.
+struct RenderSlots {
+  explicit RenderSlots(int n) : slots(n) {}
+  std::counting_semaphore<1024> slots;
+  std::atomic<int> active{0};  // Big renders running now (small ones excluded).
+};
+
+// What the places of one server share (places.h). Null members: the host
+// makes its own (a lone host, as in tests).
+struct SharedServices {
+  std::shared_ptr<Metrics> metrics;
+  std::shared_ptr<TrainingScheduler> trainings;  // Null: this host trains whenever a job is queued.
+  std::shared_ptr<RenderSlots> render_slots;
+};
+
 struct HostInfo {
   int64_t deployed_version = 0;
   int time_steps = 0;
@@ -89,9 +106,10 @@ struct HostInfo {
 
 class ModelHost {
  public:
-  // `metrics` (optional) is shared with other places; null = its own.
-  static absl::StatusOr<std::unique_ptr<ModelHost>> Open(const ServerOptions& options,
-                                                         std::shared_ptr<Metrics> metrics = nullptr);
+  // `shared`: what it shares with the other places of the server; `place`:
+  // its name (for the training scheduler and logs).
+  static absl::StatusOr<std::unique_ptr<ModelHost>> Open(const ServerOptions& options, SharedServices shared = {},
+                                                         const std::string& place = "default");
   ~ModelHost();
   ModelHost(const ModelHost&) = delete;
   ModelHost& operator=(const ModelHost&) = delete;
@@ -140,7 +158,7 @@ class ModelHost {
   Publisher& publisher_for_testing() { return *publisher_; }
 
  private:
-  ModelHost(const ServerOptions& options, std::shared_ptr<Metrics> metrics);
+  ModelHost(const ServerOptions& options, SharedServices shared);
   absl::Status RecoverScans();
   absl::StatusOr<UploadAck> AcceptScanImpl(const ScanUpload& upload);
   absl::StatusOr<RenderResult> RenderImpl(const Camera& world_camera, std::optional<int> time_step, int64_t version,
@@ -159,9 +177,9 @@ class ModelHost {
   JobTracker jobs_;
   std::unique_ptr<UpdateWorker> worker_;
   std::mutex upload_mu_;  // Serialises uploads (id reservation, save, enqueue).
-  std::counting_semaphore<1024> render_slots_;
+  const std::shared_ptr<TrainingScheduler> trainings_;
+  const std::shared_ptr<RenderSlots> render_slots_;
   const int cores_;                     // For adaptive render threads.
-  std::atomic<int> active_renders_{0};  // Big renders running now (small ones excluded).
   std::atomic<bool> stopping_{false};
   std::once_flag shutdown_once_;
   bool shutdown_clean_ = true;

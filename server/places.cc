@@ -19,7 +19,9 @@ constexpr char kDeletedPrefix[] = ".deleted-";
 
 Places::Places(const ServerOptions& options)
     : options_(options),
-      metrics_(std::make_shared<Metrics>()),
+      shared_{std::make_shared<Metrics>(), std::make_shared<TrainingScheduler>(options.max_concurrent_trainings),
+              std::make_shared<RenderSlots>(options.render_concurrency)},
+      metrics_(shared_.metrics),
       places_dir_((fs::path(options.store_dir) / "places").string()) {}
 
 Places::~Places() { Shutdown(); }
@@ -65,7 +67,7 @@ std::string Places::DirOf(const std::string& name) const {
 absl::StatusOr<std::shared_ptr<ModelHost>> Places::OpenHost(const std::string& name) const {
   ServerOptions o = options_;
   o.store_dir = DirOf(name);
-  absl::StatusOr<std::unique_ptr<ModelHost>> host = ModelHost::Open(o, metrics_);
+  absl::StatusOr<std::unique_ptr<ModelHost>> host = ModelHost::Open(o, shared_, name);
   if (!host.ok()) return host.status();
   return std::shared_ptr<ModelHost>(*std::move(host));
 }

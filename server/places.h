@@ -17,7 +17,9 @@
 // (atomic; such names cannot be place names), syncs, then removes it; a
 // leftover from a crash is removed at the next start.
 //
-// Shared by all places: the metrics (one registry, no per-place labels).
+// Shared by all places: the training slots (max_concurrent_trainings, taken
+// in turn: training_scheduler.h), the render slots (render_concurrency) and
+// the metrics (one registry, no per-place labels).
 //
 // Thread-safety: every method is thread-safe. Hosts are handed out as
 // shared_ptr, so a request in flight keeps its place's host alive while the
@@ -70,6 +72,7 @@ class Places {
   absl::StatusOr<std::shared_ptr<ModelHost>> OpenHost(const std::string& name) const;
 
   const ServerOptions options_;
+  const SharedServices shared_;
   const std::shared_ptr<Metrics> metrics_;
   std::string places_dir_;
   mutable std::mutex mu_;        // Guards hosts_ and serialises create/delete.

@@ -172,6 +172,46 @@ TEST_F(PlacesTest, BadOrUnknownPlacesGetAClearStatusAndChangeNothing) {
   EXPECT_EQ(Snapshot(store), before);
 }
 
+// Places share max_concurrent_trainings (1): uploads to two places train
+// one after the other, never at once, and both finish.
+TEST_F(PlacesTest, PlacesTakeTurnsForTheTrainingSlot) {
+  ServerOptions o = TinyServerOptions(TempDir("srv_places_turns"));
+  o.max_concurrent_trainings = 1;
+  StartServer(o);
+  ASSERT_TRUE(CreatePlace("a").ok());
+  ASSERT_TRUE(CreatePlace("b").ok());
+  const Scene scene = TinyScans(1);
+  std::vector<std::string> jobs;
+  for (const char* place : {"a", "b"}) {
+    std::vector<v1::UploadScanRequest> msgs = UploadMessages(UploadOf(scene, 0));
+    msgs[0].mutable_header()->set_place(place);
+    v1::UploadScanResponse ack;
+    ASSERT_TRUE(Upload(msgs, &ack).ok());
+    jobs.push_back(ack.job_id());
+  }
+  int both = 0, one = 0, waited = 0;
+  for (int i = 0; i < 3000; ++i) {
+    const std::vector<v1::Place> places = ListPlaces();
+    int training = 0, queued = 0, deployed = 0;
+    for (const v1::Place& p : places) {
+      training += !p.running_job().empty();
+      queued += p.queued_jobs();
+      deployed += p.deployed_version() > 0;
+    }
+    both += training > 1;
+    one += training == 1;
+    waited += training == 1 && queued == 1;  // The other place's scan waits, queued.
+    if (deployed == 2) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  EXPECT_EQ(both, 0);
+  EXPECT_GT(one, 0);
+  EXPECT_GT(waited, 0);
+  for (const v1::Place& p : ListPlaces()) {
+    if (p.name() != "default") EXPECT_EQ(p.deployed_version(), 1) << p.name();
+  }
+}
+
 // A store the single-place server wrote (its files at the root) opens as the
 // place "default", as it is.
 TEST_F(PlacesTest, AStoreFromBeforePlacesOpensAsDefault) {

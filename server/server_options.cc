@@ -41,6 +41,7 @@ absl::Status ServerOptions::Validate() const {
   if (small_render_pixels < 0) return absl::InvalidArgumentError("small_render_pixels must be >= 0");
   if (!(render_wait_seconds > 0)) return absl::InvalidArgumentError("render_wait_seconds must be > 0");
   if (train_threads < 1) return absl::InvalidArgumentError("train_threads must be >= 1");
+  if (max_concurrent_trainings < 1) return absl::InvalidArgumentError("max_concurrent_trainings must be >= 1");
   if (train_nice < 0 || train_nice > 19) return absl::InvalidArgumentError("train_nice must be in [0, 19]");
   if (grpc_threads < 2) return absl::InvalidArgumentError("grpc_threads must be >= 2");
   if (max_message_bytes < (1 << 20) + 4096) {
@@ -120,6 +121,7 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "render_wait_seconds") s = Get(*it, "render_wait_seconds", &o->render_wait_seconds);
     else if (k == "train_threads") s = Get(*it, "train_threads", &o->train_threads);
     else if (k == "train_nice") s = Get(*it, "train_nice", &o->train_nice);
+    else if (k == "max_concurrent_trainings") s = Get(*it, "max_concurrent_trainings", &o->max_concurrent_trainings);
     else if (k == "grpc_threads") s = Get(*it, "grpc_threads", &o->grpc_threads);
     else if (k == "max_message_bytes") s = Get(*it, "max_message_bytes", &o->max_message_bytes);
     else if (k == "max_scan_bytes") s = Get(*it, "max_scan_bytes", &o->max_scan_bytes);

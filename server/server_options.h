@@ -48,6 +48,9 @@ struct ServerOptions {
   int64_t small_render_pixels = 128 * 128;
   double render_wait_seconds = 30;      // Longest wait for a render slot.
   int train_threads = 2;                // OpenMP threads of the update worker.
+  // Updates training at once across all places (each uses train_threads);
+  // the others wait their turn, oldest first, round robin among places.
+  int max_concurrent_trainings = 1;
   // Nice value (0-19) of the update worker and its training threads: renders
   // get the cores first and training the cycles they leave. 0 = same
   // priority as renders. Measured on fox_8 in the viewer (bench/viewer.sh):

@@ -14,10 +14,15 @@
 // Time is a logical clock (enqueues and finishes), so the order does not
 // depend on timer resolution and tests are deterministic.
 //
+// Two ways to use it: a dispatcher (Enqueue, Next, Finish), or one update
+// worker per place asking for a slot for its next job (Acquire, Finish),
+// which is how the server shares max_concurrent_trainings among places.
+//
 // Thread-safety: every method is thread-safe; Next() blocks.
 #ifndef CLNERF_SERVER_TRAINING_SCHEDULER_H_
 #define CLNERF_SERVER_TRAINING_SCHEDULER_H_
 
+#include <atomic>
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
@@ -47,6 +52,15 @@ class TrainingScheduler {
   std::optional<ScheduledJob> Next();
   // Ends the running job of `place` and frees its slot.
   void Finish(const std::string& place);
+
+  // The form used by one update worker per place: waits its turn for a slot
+  // as if a job of `place` had been queued now (so a worker coming back for
+  // its place's next scan queues behind places already waiting), and takes
+  // it. False when `cancelled` became true (checked on every Wake()) or on
+  // Shutdown(); the caller then holds no slot. Release with Finish(place).
+  bool Acquire(const std::string& place, const std::atomic<bool>* cancelled);
+  // Makes waiting Acquire calls re-check their `cancelled` flags.
+  void Wake();
   // Wakes every Next() with nullopt; queued jobs stay queued.
   void Shutdown();
 
@@ -56,6 +70,9 @@ class TrainingScheduler {
   int max_concurrent() const { return max_concurrent_; }
 
  private:
+  // The waiting place to start next (free slot assumed), or null.
+  const std::string* BestLocked();
+
   struct Place {
     std::deque<std::pair<std::string, uint64_t>> queue;  // (job id, enqueue time).
     uint64_t last_finished = 0;
@@ -68,6 +85,7 @@ class TrainingScheduler {
   std::map<std::string, Place> places_;
   uint64_t clock_ = 0;
   int running_ = 0;
+  uint64_t tickets_ = 0;
   bool shutdown_ = false;
 };
 

@@ -1,6 +1,8 @@
 #include "server/training_scheduler.h"
 
+#include <atomic>
 #include <chrono>
+#include <thread>
 #include <future>
 #include <string>
 #include <vector>
@@ -92,6 +94,41 @@ TEST(TrainingSchedulerTest, CancelRemovesAQueuedJobAndShutdownWakesWaiters) {
   s.Shutdown();
   ASSERT_EQ(next.wait_for(std::chrono::seconds(5)), std::future_status::ready);
   EXPECT_FALSE(next.get().has_value());
+}
+
+// One worker per place asking for a slot (the server's use): a worker that
+// comes back for its place's next scan queues behind places already waiting.
+TEST(TrainingSchedulerTest, WorkersTakeTurnsAndACancelledWaitLeavesNoSlot) {
+  TrainingScheduler s(1);
+  std::atomic<bool> no{false};
+  ASSERT_TRUE(s.Acquire("a", &no));
+  std::future<bool> b = std::async(std::launch::async, [&] { return s.Acquire("b", &no); });
+  EXPECT_EQ(b.wait_for(std::chrono::milliseconds(50)), std::future_status::timeout);
+  s.Finish("a");
+  ASSERT_EQ(b.wait_for(std::chrono::seconds(5)), std::future_status::ready);
+  EXPECT_TRUE(b.get());
+  // a asks again while b trains; c asks after a: a goes next, then c.
+  std::future<bool> a2 = std::async(std::launch::async, [&] { return s.Acquire("a", &no); });
+  while (s.queued("a") == 0) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  std::future<bool> c = std::async(std::launch::async, [&] { return s.Acquire("c", &no); });
+  while (s.queued("c") == 0) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  s.Finish("b");
+  ASSERT_EQ(a2.wait_for(std::chrono::seconds(5)), std::future_status::ready);
+  EXPECT_TRUE(a2.get());
+  EXPECT_EQ(c.wait_for(std::chrono::milliseconds(50)), std::future_status::timeout);
+  // A waiting worker that is stopped gives up without taking a slot.
+  std::atomic<bool> stop_d{false};
+  std::future<bool> d = std::async(std::launch::async, [&] { return s.Acquire("d", &stop_d); });
+  while (s.queued("d") == 0) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  stop_d = true;
+  s.Wake();
+  ASSERT_EQ(d.wait_for(std::chrono::seconds(5)), std::future_status::ready);
+  EXPECT_FALSE(d.get());
+  EXPECT_EQ(s.queued("d"), 0);
+  s.Finish("a");
+  ASSERT_EQ(c.wait_for(std::chrono::seconds(5)), std::future_status::ready);
+  EXPECT_TRUE(c.get());
+  EXPECT_EQ(s.running(), 1);
 }
 
 }  // namespace

@@ -8,6 +8,7 @@
 #include "server/crash_point.h"
 #include "server/log_util.h"
 #include "server/metrics.h"
+#include "server/training_scheduler.h"
 #include "server/thread_priority.h"
 #include "spdlog/spdlog.h"
 
@@ -33,6 +34,7 @@ JobPhase ToJobPhase(UpdatePhase p) {
 UpdateWorker::~UpdateWorker() {
   stopping_ = true;
   cancel_ = true;
+  if (trainings_ != nullptr) trainings_->Wake();
   cv_.notify_all();
   if (thread_.joinable()) thread_.join();
 }
@@ -50,6 +52,7 @@ bool UpdateWorker::Stop(std::chrono::duration<double> timeout) {
   stopping_ = true;
   cancel_ = true;
   jobs_->Shutdown();
+  if (trainings_ != nullptr) trainings_->Wake();  // A wait for a training slot ends.
   cv_.notify_all();
   {
     std::unique_lock<std::mutex> lock(mu_);
@@ -68,9 +71,19 @@ void UpdateWorker::Loop() {
   }
   omp_set_num_threads(options_.train_threads);
   while (!stopping_) {
-    std::optional<std::string> id = jobs_->WaitNext();
-    if (!id) return;
-    RunJob(*id);
+    if (trainings_ == nullptr) {
+      std::optional<std::string> id = jobs_->WaitNext();
+      if (!id) return;
+      RunJob(*id);
+      continue;
+    }
+    // A training slot shared with the other places first; the job stays
+    // queued (and cancellable as such) until it has one.
+    if (!jobs_->WaitQueued()) return;
+    if (!trainings_->Acquire(place_, &stopping_)) return;
+    std::optional<std::string> id = jobs_->TryNext();  // Cancelled meanwhile: none.
+    if (id) RunJob(*id);
+    trainings_->Finish(place_);
   }
 }
 

@@ -35,13 +35,23 @@
 namespace clnerf {
 
 class Metrics;
+class TrainingScheduler;
 
 class UpdateWorker {
  public:
   // `metrics` (optional) counts updates by outcome; it must outlive the worker.
+  // `trainings` (optional) is the slot scheduler shared by every place's
+  // worker: a queued job waits for a slot there (as `place`) before it
+  // starts, and its phase stays QUEUED meanwhile.
   UpdateWorker(const ServerOptions& options, ScanStore* scans, Publisher* publisher, JobTracker* jobs,
-               Metrics* metrics = nullptr)
-      : options_(options), scans_(scans), publisher_(publisher), jobs_(jobs), metrics_(metrics) {}
+               Metrics* metrics = nullptr, TrainingScheduler* trainings = nullptr, std::string place = "default")
+      : options_(options),
+        scans_(scans),
+        publisher_(publisher),
+        jobs_(jobs),
+        metrics_(metrics),
+        trainings_(trainings),
+        place_(std::move(place)) {}
   ~UpdateWorker();
   UpdateWorker(const UpdateWorker&) = delete;
   UpdateWorker& operator=(const UpdateWorker&) = delete;
@@ -72,6 +82,8 @@ class UpdateWorker {
   Publisher* const publisher_;
   JobTracker* const jobs_;
   Metrics* const metrics_;
+  TrainingScheduler* const trainings_;
+  const std::string place_;
   std::chrono::steady_clock::time_point job_started_;  // Of the job RunJob runs (worker thread only).
   std::atomic<bool> cancel_{false};
   std::atomic<bool> stopping_{false};
