@@ -2,6 +2,7 @@
 
 #include <string>
 
+#include "absl/strings/str_cat.h"
 #include "gtest/gtest.h"
 
 namespace clnerf {
@@ -45,7 +46,7 @@ TEST(PlaceNameTest, UnknownPlaceListsShortListsAndCountsLongOnes) {
   EXPECT_EQ(s.code(), absl::StatusCode::kNotFound);
   EXPECT_NE(s.message().find("places: a, b"), std::string::npos) << s;
   std::vector<std::string> many;
-  for (int i = 0; i < 50; ++i) many.push_back("p" + std::to_string(i));
+  for (int i = 0; i < 50; ++i) many.push_back(absl::StrCat("p", i));
   s = UnknownPlace("nope", many);
   EXPECT_NE(s.message().find("50 places"), std::string::npos) << s;
   s = UnknownPlace("nope", {});

@@ -208,7 +208,9 @@ TEST_F(PlacesTest, PlacesTakeTurnsForTheTrainingSlot) {
   EXPECT_GT(one, 0);
   EXPECT_GT(waited, 0);
   for (const v1::Place& p : ListPlaces()) {
-    if (p.name() != "default") EXPECT_EQ(p.deployed_version(), 1) << p.name();
+    if (p.name() != "default") {
+      EXPECT_EQ(p.deployed_version(), 1) << p.name();
+    }
   }
 }
 

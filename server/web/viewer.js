@@ -34,6 +34,9 @@
   const fmt = (v) => v.map((x) => +x.toFixed(5)).join(',');
 
   const state = {
+    // The place looked at ("" = the server's "default"); from the URL, and
+    // every /api/ request carries it. Changing it reloads the page.
+    place: new URLSearchParams(location.hash.slice(1)).get('place') || '',
     scene: null,          // GET /api/scene of the deployed version.
     versions: [],         // [{version, time_steps, ...}]
     cam: null,            // {eye, target, up, fov}
@@ -104,10 +107,14 @@
   const isShown = (bmp) => Object.values(panels).some((p) => p.shown && p.shown.bmp === bmp);
 
   // ---- HTTP -----------------------------------------------------------------
+  function withPlace(path) {
+    if (!state.place) return path;
+    return path + (path.includes('?') ? '&' : '?') + 'place=' + encodeURIComponent(state.place);
+  }
   async function api(path, opts = {}) {
     let r;
     try {
-      r = await fetch(path, opts);
+      r = await fetch(withPlace(path), opts);
     } catch (e) {
       if (e.name === 'AbortError') throw e;
       state.httpErrors.push(path + ': ' + e);
@@ -130,8 +137,9 @@
     } catch (e) {
       state.scene = null;
       const msg = e.status === 409
-        ? 'No model is deployed yet.<br>Upload a scan: <code>clnerf upload SCAN_DIR --watch</code>'
-        : 'Cannot load the scene: ' + e.message;
+        ? 'No model is deployed yet.<br>Upload a scan: <code>clnerf upload SCAN_DIR' +
+          (state.place ? ' --place ' + escapeHtml(state.place) : '') + ' --watch</code>'
+        : 'Cannot load the scene: ' + escapeHtml(e.message);
       for (const p of Object.values(panels)) showMessage(p, msg);
       $('status').textContent = e.status === 409 ? 'no model deployed yet' : 'error';
       return false;
@@ -206,6 +214,7 @@
     try {
       const j = await apiJson('/api/jobs?limit=6');
       running = renderJobs(j.jobs);
+      await loadPlaces();
     } catch (e) { /* shown by the next successful poll */ }
     jobsTimer = setTimeout(pollJobs, running ? 700 : 2500);
   }
@@ -586,6 +595,39 @@
     });
   }
   $('mode').addEventListener('change', (e) => setMode(e.target.value));
+  $('place').addEventListener('change', (e) => {
+    // Another place is another scene: start over there, at its default camera.
+    const q = new URLSearchParams({ place: e.target.value, res: state.res.join('x'), mode: state.mode });
+    location.hash = q.toString();
+    location.reload();
+  });
+  async function loadPlaces() {
+    const sel = $('place');
+    try {
+      const r = await fetch('/api/places');
+      const body = await r.json();
+      // Polled with the jobs: rebuild only when places or their versions changed.
+      const key = JSON.stringify((body.places || []).map((p) => [p.name, p.deployed_version]));
+      if (key === loadPlaces.last) return;
+      loadPlaces.last = key;
+      sel.innerHTML = '';
+      for (const p of body.places || []) {
+        const o = document.createElement('option');
+        o.value = p.name === 'default' ? '' : p.name;
+        o.textContent = p.name + (p.deployed_version ? ' (v' + p.deployed_version + ')' : ' (no model yet)');
+        sel.appendChild(o);
+      }
+      if (![...sel.options].some((o) => o.value === state.place)) {
+        const o = document.createElement('option');  // A place the URL names but the server does not have.
+        o.value = state.place;
+        o.textContent = state.place + ' (unknown)';
+        sel.appendChild(o);
+      }
+      sel.value = state.place;
+    } catch (e) {
+      state.httpErrors.push('/api/places: ' + e);
+    }
+  }
   $('resolution').addEventListener('change', (e) => {
     state.res = e.target.value.split('x').map(Number);
     requestAll();
@@ -630,6 +672,7 @@
     const c = state.cam;
     const q = new URLSearchParams({ eye: fmt(c.eye), target: fmt(c.target), up: fmt(c.up), fov: c.fov.toFixed(2),
       res: state.res.join('x'), mode: state.mode });
+    if (state.place) q.set('place', state.place);
     const put = (p, k) => {
       if (p.version) q.set('v' + k, String(p.version));
       if (p.time !== null) q.set('t' + k, String(p.time));
@@ -672,6 +715,7 @@
   // ---- Start ---------------------------------------------------------------------
   async function start() {
     const mode = readHashSettings();
+    await loadPlaces();
     // Panel B starts on the first scan, so "compare" shows then and now.
     if (!new URLSearchParams(location.hash.slice(1)).has('tb')) panels.B.time = 0;
     while (!(await loadScene())) await new Promise((r) => setTimeout(r, 3000));

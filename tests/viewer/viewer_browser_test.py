@@ -12,6 +12,7 @@ checks what a user sees:
     first image;
   * two different versions differ, the same version twice does not;
   * the jobs panel shows the progress of a running update;
+  * picking another place shows that place's model, and the URL names it;
   * no page error, no HTTP 5xx;
   * SIGTERM with the page still open stops the server within 5 s;
 and saves screenshots under --out. Never skips: a missing browser or driver
@@ -159,7 +160,26 @@ def main():
         wait_for("the update to finish and appear in the panel",
                  lambda: "view v3" in driver.find_element(By.ID, "jobs").text, timeout=120)
 
-        # 7. No page errors, no HTTP 5xx, no severe console messages.
+        # 7. Places: a second place, picked in the page, shows its own model (one
+        # scan, version 1) while "default" has three; the place is in the URL.
+        run_client(args.client, ["places", "create", "lab"], env, "places create")
+        run_client(args.client, ["upload", f"{work}/scans/scan_000", "--place", "lab", "--watch"], env,
+                   "upload to place lab")
+        Select(driver.find_element(By.ID, "place")).select_by_value("lab")
+        wait_for("the page to reload on place lab",
+                 lambda: driver.execute_script("return (window.clnerfViewer.scene || {}).time_steps;") == 1,
+                 timeout=60)
+        wait_for("a full frame of place lab", lambda: full_shown(driver), timeout=60)
+        if "place=lab" not in driver.current_url:
+            fail(f"the place is not in the URL: {driver.current_url}")
+        lab = canvas_pixels(driver)
+        if variance(lab) < 20:
+            fail("place lab renders a blank canvas")
+        print(f"places: picked 'lab' (1 time step, v{driver.execute_script('return window.clnerfViewer.scene.version;')}),"
+              f" url ...{driver.current_url[-40:]}", flush=True)
+        driver.save_screenshot(os.path.join(args.out, "viewer_place.png"))
+
+        # 8. No page errors, no HTTP 5xx, no severe console messages.
         errs = driver.execute_script("return window.clnerfViewer.pageErrors.concat(window.clnerfViewer.httpErrors);")
         severe = [e["message"] for e in driver.get_log("browser") if e["level"] == "SEVERE"]
         if errs or severe:
@@ -167,7 +187,7 @@ def main():
         with open(os.path.join(args.out, "server.log")) as f:
             if re.search(r"http .* -> 5\d\d", f.read()):
                 fail("the server answered 5xx")
-        # 8. SIGTERM with the page open (its keep-alive connections idle) stops the server promptly.
+        # 9. SIGTERM with the page open (its keep-alive connections idle) stops the server promptly.
         rc, took = server.terminate_timed()
         print(f"SIGTERM with the viewer open: exit code {rc} after {took:.2f} s", flush=True)
         if rc != 0 or took > 5:
