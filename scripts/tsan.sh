@@ -6,12 +6,13 @@
 # registry readers and writer) are all still there.
 # Usage: scripts/tsan.sh [gtest filter]
 # The default filter is what CI runs: the concurrency tests (registry under a
-# swapping writer, renders during an update, the job queue) and a few
+# swapping writer, renders during an update, the job queue, the training-slot
+# scheduler, the model cache's single-flight loads) and a few
 # end-to-end ones; training under TSan is ~50x slower, so the rest (which
 # repeat the same threads on more scenarios) is left to `scripts/tsan.sh '*'`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-FILTER=${1:-'ModelRegistry*:JobTracker*:ServerFixture.RendersDuringAnUpdate*:ServerFixture.UploadTrainPublishRenderAnyTimeStep:ServerFixture.FullQueue*:ServerFixture.HealthServiceAnswers'}
+FILTER=${1:-'ModelRegistry*:JobTracker*:TrainingScheduler*:ModelCache*:ServerFixture.RendersDuringAnUpdate*:ServerFixture.UploadTrainPublishRenderAnyTimeStep:ServerFixture.FullQueue*:ServerFixture.HealthServiceAnswers'}
 cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCLNERF_TSAN=ON > build-tsan.configure.log 2>&1 || {
   cat build-tsan.configure.log; exit 1; }
 cmake --build build-tsan -j "${JOBS:-$(nproc)}" --target server_tests

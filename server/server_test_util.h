@@ -70,6 +70,11 @@ inline ServerOptions TinyServerOptions(const std::string& store, int iterations 
   o.store_dir = store;
   o.train_threads = 2;
   o.render_threads = 1;
+  // Training at the renders' priority: tests that render in a loop during an
+  // update (and TSan, ~50x slower) would otherwise wait minutes for the
+  // niced training (measured: RendersDuringAnUpdate 174 s under TSan). The
+  // default (10) is covered by thread_priority_test and the browser test.
+  o.train_nice = 0;
   o.update.train.iterations = iterations;
   o.update.train.target_samples = 1 << 13;
   o.update.train.batch_rays = 512;
