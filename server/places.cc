@@ -21,7 +21,6 @@ Places::Places(const ServerOptions& options)
     : options_(options),
       shared_{std::make_shared<Metrics>(), std::make_shared<TrainingScheduler>(options.max_concurrent_trainings),
               std::make_shared<RenderSlots>(options.render_concurrency)},
-      metrics_(shared_.metrics),
       places_dir_((fs::path(options.store_dir) / "places").string()) {}
 
 Places::~Places() { Shutdown(); }

@@ -60,7 +60,7 @@ class Places {
   // Every place, sorted by name.
   std::vector<std::string> Names() const;
 
-  Metrics& metrics() const { return *metrics_; }
+  Metrics& metrics() const { return *shared_.metrics; }
   const ServerOptions& options() const { return options_; }
   bool shutting_down() const;
   // Shuts every place's host down; false if any worker did not stop in time.
@@ -73,7 +73,6 @@ class Places {
 
   const ServerOptions options_;
   const SharedServices shared_;
-  const std::shared_ptr<Metrics> metrics_;
   std::string places_dir_;
   mutable std::mutex mu_;        // Guards hosts_ and serialises create/delete.
   std::map<std::string, std::shared_ptr<ModelHost>> hosts_;
