@@ -343,7 +343,7 @@ v1::Place PlaceProto(const std::string& name, const ModelHost& host) {
   p.set_time_steps(h.time_steps);
   p.set_queued_jobs(h.queued_jobs);
   p.set_running_job(h.running_job);
-  p.set_loaded(h.deployed_version > 0);  // A place's deployed model stays resident.
+  p.set_loaded(h.loaded);
   p.set_model_bytes(h.model_bytes);
   p.set_store_error(h.store_error);
   return p;

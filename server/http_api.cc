@@ -151,11 +151,7 @@ void HttpApi::Register(httplib::Server* server) {
   // readiness (it takes traffic: not shutting down; a read-only store or an
   // empty one still serves what it can).
   server->Get("/metrics", [this](const httplib::Request&, httplib::Response& res) {
-    int64_t bytes = 0;
-    for (const std::string& name : places_->Names()) {
-      if (absl::StatusOr<std::shared_ptr<ModelHost>> h = places_->Get(name); h.ok()) bytes += (*h)->Info().model_bytes;
-    }
-    places_->metrics().SetModelBytes(bytes);
+    places_->metrics().SetModelBytes(places_->models().stats().bytes);
     res.set_content(places_->metrics().Text(), "text/plain; version=0.0.4; charset=utf-8");
   });
   server->Get("/healthz", [](const httplib::Request&, httplib::Response& res) {
@@ -176,6 +172,7 @@ void HttpApi::Register(httplib::Server* server) {
                           {"time_steps", i.time_steps},
                           {"queued_jobs", i.queued_jobs},
                           {"running_job", i.running_job},
+                          {"loaded", i.loaded},
                           {"model_bytes", i.model_bytes},
                           {"store_error", i.store_error}});
     }

@@ -39,6 +39,11 @@ int main(int argc, char** argv) {
   app.add_option("--max-concurrent-trainings", o.max_concurrent_trainings,
                  "Updates training at once across all places (oldest first, round robin)")
       ->capture_default_str();
+  app.add_option("--model-memory-budget", o.model_memory_budget,
+                 "Bytes of loaded models kept in memory across places, least recently used evicted first "
+                 "(e.g. 512MB, 2GB; 0 = half the machine's memory)")
+      ->transform(CLI::AsSizeValue(false))
+      ->capture_default_str();
   app.add_option("--train-nice", o.train_nice, "Nice value of training (0-19): renders get the cores first")
       ->capture_default_str();
   app.add_option("--log-level", log_level, "trace|debug|info|warn|error")->capture_default_str();

@@ -43,8 +43,13 @@ class ModelCache {
   using Loader = std::function<absl::StatusOr<std::shared_ptr<const T>>()>;
   using SizeOf = std::function<int64_t(const T&)>;
 
-  // budget_bytes <= 0: no limit.
-  ModelCache(int64_t budget_bytes, SizeOf size_of) : budget_(budget_bytes), size_of_(std::move(size_of)) {}
+  // budget_bytes <= 0: no limit. `on_evict` (optional) runs for each entry
+  // evicted under the budget, with the cache's lock held: keep it trivial
+  // (e.g. a counter).
+  ModelCache(int64_t budget_bytes, SizeOf size_of, std::function<void()> on_evict = {})
+      : budget_(budget_bytes), size_of_(std::move(size_of)), on_evict_(std::move(on_evict)) {}
+
+  int64_t budget_bytes() const { return budget_; }
 
   // The cached value of `key`, or the loader's result (cached on success).
   absl::StatusOr<std::shared_ptr<const T>> GetOrLoad(const std::string& key, const Loader& loader) {
@@ -88,6 +93,14 @@ class ModelCache {
     cv_.notify_all();
     return *loaded;
   }
+
+  // Inserts (or replaces) `key` with an already loaded value, e.g. a version
+  // just trained in this process, evicting others to fit the budget.
+  void Put(const std::string& key, std::shared_ptr<const T> value) { Insert(key, std::move(value), true); }
+  // As Put, but only if it fits the budget without evicting anything (a
+  // version verified at start-up: it stays loaded only while there is room,
+  // otherwise it loads on first use). Returns whether it was kept.
+  bool Offer(const std::string& key, std::shared_ptr<const T> value) { return Insert(key, std::move(value), false); }
 
   // The cached value, or null (no load).
   std::shared_ptr<const T> Peek(const std::string& key) const {
@@ -142,6 +155,24 @@ class ModelCache {
   };
   using Map = std::map<std::string, Entry>;
 
+  bool Insert(const std::string& key, std::shared_ptr<const T> value, bool evict) {
+    std::lock_guard<std::mutex> lock(mu_);
+    const int64_t bytes = size_of_(*value);
+    auto it = entries_.find(key);
+    if (it != entries_.end() && it->second.load != nullptr) return false;  // Being loaded: the load wins.
+    const int64_t freed = it != entries_.end() ? it->second.bytes : 0;
+    if (!evict && budget_ > 0 && stats_.bytes - freed + bytes > budget_) return false;
+    if (it != entries_.end()) RemoveLocked(it);
+    Entry& e = entries_[key];
+    e.value = std::move(value);
+    e.bytes = bytes;
+    stats_.bytes += bytes;
+    lru_.push_front(key);
+    e.lru = lru_.begin();
+    if (evict) EvictLocked(key);
+    return true;
+  }
+
   void Touch(typename Map::iterator it) { lru_.splice(lru_.begin(), lru_, it->second.lru); }
 
   void RemoveLocked(typename Map::iterator it) {
@@ -162,11 +193,13 @@ class ModelCache {
       lit = std::next(lit);  // RemoveLocked invalidates the current node.
       RemoveLocked(it);
       ++stats_.evictions;
+      if (on_evict_) on_evict_();
     }
   }
 
   const int64_t budget_;
   const SizeOf size_of_;
+  const std::function<void()> on_evict_;
   mutable std::mutex mu_;
   std::condition_variable cv_;
   Map entries_;

@@ -129,5 +129,32 @@ TEST(ModelCacheTest, ErasePrefixDropsOnePlaceOnly) {
   EXPECT_EQ(cache.stats().entries, 1);
 }
 
+// Put (a version trained here) evicts to fit and replaces a key; Offer (a
+// version verified at start-up) joins only if it fits without evicting.
+TEST(ModelCacheTest, PutEvictsToFitAndOfferOnlyTakesFreeRoom) {
+  int evicted = 0;
+  Cache cache(250, [](const std::string& v) { return int64_t(v.size()); }, [&] { ++evicted; });
+  const std::string hundred(100, 'x');
+  EXPECT_TRUE(cache.Offer("a@1", std::make_shared<const std::string>(hundred)));
+  EXPECT_TRUE(cache.Offer("b@1", std::make_shared<const std::string>(hundred)));
+  EXPECT_FALSE(cache.Offer("c@1", std::make_shared<const std::string>(hundred)));  // 300 > 250.
+  EXPECT_EQ(cache.Peek("c@1"), nullptr);
+  EXPECT_EQ(evicted, 0);
+  // Replacing a key with a same-sized value fits without evicting.
+  EXPECT_TRUE(cache.Offer("b@1", std::make_shared<const std::string>(std::string(100, 'y'))));
+  EXPECT_EQ(*cache.Peek("b@1"), std::string(100, 'y'));
+  cache.Put("c@1", std::make_shared<const std::string>(hundred));  // Evicts a (least recent).
+  EXPECT_EQ(cache.Keys(), (std::vector<std::string>{"c@1", "b@1"}));
+  EXPECT_EQ(evicted, 1);
+  EXPECT_EQ(cache.stats().evictions, 1);
+  EXPECT_EQ(cache.stats().bytes, 200);
+  // A put value larger than the budget stays (it is the one just deployed),
+  // and everything else that nobody holds goes.
+  const std::shared_ptr<const std::string> held = cache.Peek("b@1");
+  cache.Put("d@1", std::make_shared<const std::string>(std::string(300, 'z')));
+  EXPECT_EQ(cache.Keys(), (std::vector<std::string>{"d@1", "b@1"}));  // b is held by a reader.
+  EXPECT_EQ(evicted, 2);
+}
+
 }  // namespace
 }  // namespace clnerf

@@ -35,7 +35,9 @@ absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& 
   std::unique_ptr<ModelHost> host(new ModelHost(options, shared));
   PublisherOptions po;
   po.store_dir = options.store_dir;
-  po.cached_versions = options.cached_versions;
+  po.models = shared.models ? shared.models
+                            : MakeServableCache(ResolvedModelMemoryBudget(options), host->metrics_);
+  po.place = place;
   po.keep_versions = options.keep_versions;
   po.retry_seconds = options.store_retry_seconds;
   po.metrics = host->metrics_.get();
@@ -56,8 +58,8 @@ absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& 
 ModelHost::~ModelHost() { Shutdown(); }
 
 int ModelHost::PredictedTimeStep() const {
-  const std::shared_ptr<const Servable> deployed = publisher_->registry().Deployed();
-  return (deployed ? deployed->model().num_time_steps() : 0) + jobs_.running_or_queued();
+  const std::optional<DeployedSummary> deployed = publisher_->registry().deployed();
+  return (deployed ? deployed->info.time_steps : 0) + jobs_.running_or_queued();
 }
 
 absl::Status ModelHost::RecoverScans() {
@@ -276,12 +278,12 @@ absl::StatusOr<VersionInfo> ModelHost::SetDeployedVersion(int64_t v) {
 
 HostInfo ModelHost::Info() const {
   HostInfo info;
-  auto d = publisher_->registry().Deployed();
-  if (d) {
+  if (const std::optional<DeployedSummary> d = publisher_->registry().deployed()) {
     info.deployed_version = d->info.version;
-    info.time_steps = d->model().num_time_steps();
-    info.model_bytes = int64_t(d->model().num_bytes());
-    info.replay_cameras = int64_t(d->memory().num_cameras());
+    info.time_steps = d->info.time_steps;
+    info.model_bytes = d->model_bytes;
+    info.replay_cameras = d->replay_cameras;
+    info.loaded = publisher_->registry().loaded();
   }
   info.queued_jobs = jobs_.queued();
   info.running_job = jobs_.running();

@@ -91,6 +91,9 @@ struct SharedServices {
   std::shared_ptr<Metrics> metrics;
   std::shared_ptr<TrainingScheduler> trainings;  // Null: this host trains whenever a job is queued.
   std::shared_ptr<RenderSlots> render_slots;
+  // The loaded models of every place under --model-memory-budget (null: the
+  // host makes its own with that budget).
+  std::shared_ptr<ServableCache> models;
 };
 
 struct HostInfo {
@@ -99,8 +102,9 @@ struct HostInfo {
   int queued_jobs = 0;
   std::string running_job;
   std::string store_error;  // The publisher's sticky error ("" = healthy).
-  int64_t model_bytes = 0;
+  int64_t model_bytes = 0;     // The deployed model's parameter bytes.
   int64_t replay_cameras = 0;
+  bool loaded = false;         // The deployed model is in memory now.
   double uptime_seconds = 0;
 };
 

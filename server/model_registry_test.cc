@@ -27,7 +27,7 @@ TEST(ModelRegistryTest, GetBeforeDeployIsFailedPreconditionAndUnknownIsNotFound)
   ModelRegistry reg([](int64_t v) -> absl::StatusOr<std::shared_ptr<const Servable>> {
     if (v == 3) return MakeServable(3);
     return absl::NotFoundError(absl::StrCat("version ", v, " does not exist"));
-  }, 2);
+  }, nullptr);
   EXPECT_EQ(reg.Get(0).status().code(), absl::StatusCode::kFailedPrecondition);
   EXPECT_EQ(reg.Get(9).status().code(), absl::StatusCode::kNotFound);
   auto three = reg.Get(3);
@@ -47,7 +47,7 @@ TEST(ModelRegistryTest, ReadersSeeMonotonicCompleteSnapshotsWhileAWriterSwaps) {
   for (int v = 1; v <= kVersions; ++v) prepared.push_back(MakeServable(v));
   ModelRegistry reg([](int64_t v) -> absl::StatusOr<std::shared_ptr<const Servable>> {
     return absl::NotFoundError("not on disk");
-  }, 2);
+  }, nullptr);
   reg.Deploy(prepared[0]);
   std::atomic<bool> done{false};
   std::atomic<int> failures{0};

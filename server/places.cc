@@ -17,10 +17,22 @@ namespace {
 constexpr char kDeletedPrefix[] = ".deleted-";
 }  // namespace
 
+namespace {
+
+SharedServices MakeSharedServices(const ServerOptions& options) {
+  SharedServices s;
+  s.metrics = std::make_shared<Metrics>();
+  s.trainings = std::make_shared<TrainingScheduler>(options.max_concurrent_trainings);
+  s.render_slots = std::make_shared<RenderSlots>(options.render_concurrency);
+  s.models = MakeServableCache(ResolvedModelMemoryBudget(options), s.metrics);
+  return s;
+}
+
+}  // namespace
+
 Places::Places(const ServerOptions& options)
     : options_(options),
-      shared_{std::make_shared<Metrics>(), std::make_shared<TrainingScheduler>(options.max_concurrent_trainings),
-              std::make_shared<RenderSlots>(options.render_concurrency)},
+      shared_(MakeSharedServices(options)),
       places_dir_((fs::path(options.store_dir) / "places").string()) {}
 
 Places::~Places() { Shutdown(); }

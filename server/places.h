@@ -61,6 +61,8 @@ class Places {
   std::vector<std::string> Names() const;
 
   Metrics& metrics() const { return *shared_.metrics; }
+  // The loaded models of every place, under --model-memory-budget.
+  const ServableCache& models() const { return *shared_.models; }
   const ServerOptions& options() const { return options_; }
   bool shutting_down() const;
   // Shuts every place's host down; false if any worker did not stop in time.

@@ -238,5 +238,59 @@ TEST_F(PlacesTest, AStoreFromBeforePlacesOpensAsDefault) {
   EXPECT_EQ(places[0].deployed_version(), 1);
 }
 
+// Six places under a memory budget for two models: at start-up only what fits
+// stays loaded, every render succeeds (evicted models reload on use), the
+// resident bytes stay within the budget between requests, and the evictions
+// are counted in the cache and in /metrics' counter.
+TEST_F(PlacesTest, SixPlacesUnderABudgetForTwoAllRenderAndEvictionsAreCounted) {
+  const std::string store = TempDir("srv_places_budget");
+  const Scene scene = TinyScans(1);
+  StartServer(TinyServerOptions(store));
+  const std::vector<std::string> names = {"p0", "p1", "p2", "p3", "p4", "p5"};
+  for (const std::string& n : names) {
+    ASSERT_TRUE(CreatePlace(n).ok());
+    const v1::Job j = UploadTo(n, scene, 0);
+    ASSERT_EQ(j.phase(), v1::JOB_PHASE_DONE) << j.error();
+  }
+  int64_t one = 0;  // The bytes one loaded model holds.
+  {
+    auto h = server_->places().Get("p0");
+    ASSERT_TRUE(h.ok());
+    auto s = (*h)->publisher_for_testing().registry().Get(0);
+    ASSERT_TRUE(s.ok());
+    one = ServableBytes(**s);
+  }
+  StopServer();
+
+  ServerOptions o = TinyServerOptions(store);
+  o.model_memory_budget = one * 5 / 2;  // Two fit, three do not.
+  StartServer(o);
+  int loaded = 0;
+  for (const v1::Place& p : ListPlaces()) loaded += p.loaded() ? 1 : 0;
+  EXPECT_EQ(loaded, 2) << "at start-up the verified models stay loaded only while they fit";
+  for (int round = 0; round < 2; ++round) {
+    for (const std::string& n : names) {
+      v1::RenderResponse r;
+      const grpc::Status s = RenderAt(n, scene.test[0].camera, &r);
+      ASSERT_TRUE(s.ok()) << n << ": " << s.error_message();
+      EXPECT_EQ(r.version(), 1);
+      const ModelCacheStats st = server_->places().models().stats();
+      EXPECT_LE(st.bytes, o.model_memory_budget) << "after rendering " << n;
+      EXPECT_LE(st.entries, 2);
+    }
+  }
+  const ModelCacheStats st = server_->places().models().stats();
+  // Round robin over 6 places with room for 2: every render after the first
+  // two loads evicts one.
+  EXPECT_GE(st.evictions, 8);
+  EXPECT_GE(st.loads, 10);
+  const std::string text = server_->places().metrics().Text();
+  const std::string line = "clnerf_model_evictions_total " + std::to_string(st.evictions);
+  EXPECT_NE(text.find(line), std::string::npos) << text;
+  loaded = 0;
+  for (const v1::Place& p : ListPlaces()) loaded += p.loaded() ? 1 : 0;
+  EXPECT_EQ(loaded, 2);
+}
+
 }  // namespace
 }  // namespace clnerf

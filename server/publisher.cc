@@ -16,7 +16,7 @@ namespace clnerf {
 
 Publisher::Publisher(const PublisherOptions& options)
     : options_(options),
-      registry_([this](int64_t v) { return LoadServable(v); }, options.cached_versions) {}
+      registry_([this](int64_t v) { return LoadServable(v); }, options.models, options.place) {}
 
 absl::StatusOr<std::unique_ptr<Publisher>> Publisher::Open(const PublisherOptions& options) {
   std::error_code ec;
@@ -94,7 +94,7 @@ absl::Status Publisher::RecoverLocked() {
                           absl::StrCat("deployed version ", m.deployed, " cannot be loaded (", s.status().message(),
                                        "); deploy another version (clnerf rollback VERSION) to resume updates"));
     }
-    registry_.Deploy(*s);
+    registry_.Deploy(*s, /*keep_loaded=*/false);  // Verified; stays loaded only if the budget has room.
   }
   if (absl::Status s = versions_->WriteManifest(m); !s.ok()) {
     return absl::Status(s.code(), absl::StrCat("cannot write the manifest: ", s.message()));

@@ -39,7 +39,10 @@ class Metrics;
 
 struct PublisherOptions {
   std::string store_dir;
-  int cached_versions = 4;  // Non-deployed versions kept in memory.
+  // The loaded models of every place (model_registry.h); null: a cache of
+  // this publisher's own with no budget.
+  std::shared_ptr<ServableCache> models;
+  std::string place = "default";  // For the cache's keys and logs.
   int keep_versions = 0;    // Versions kept on disk (0 = all; the deployed one is never pruned).
   double retry_seconds = 5;  // While the sticky error is set, writers re-check the store this often.
   Metrics* metrics = nullptr;  // Counts model loads (optional; must outlive the publisher).

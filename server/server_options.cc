@@ -1,5 +1,7 @@
 #include "server/server_options.h"
 
+#include <unistd.h>
+
 #include <fstream>
 #include <sstream>
 
@@ -15,6 +17,13 @@ UpdateOptions ServerOptions::DefaultUpdateOptions() {
   u.replay = ReplayMode::kOffline;
   u.train.iterations = 300;
   return u;
+}
+
+int64_t ResolvedModelMemoryBudget(const ServerOptions& options) {
+  if (options.model_memory_budget > 0) return options.model_memory_budget;
+  const long pages = sysconf(_SC_PHYS_PAGES), page = sysconf(_SC_PAGE_SIZE);
+  if (pages <= 0 || page <= 0) return int64_t(4) << 30;  // Unknown: 4 GiB.
+  return int64_t(pages) * int64_t(page) / 2;
 }
 
 UploadLimits ServerOptions::upload_limits() const {
@@ -55,7 +64,7 @@ absl::Status ServerOptions::Validate() const {
   }
   if (max_scan_attempts < 1) return absl::InvalidArgumentError("max_scan_attempts must be >= 1");
   if (!(store_retry_seconds > 0)) return absl::InvalidArgumentError("store_retry_seconds must be > 0");
-  if (cached_versions < 0) return absl::InvalidArgumentError("cached_versions must be >= 0");
+  if (model_memory_budget < 0) return absl::InvalidArgumentError("model_memory_budget must be >= 0 (0 = auto)");
   if (keep_versions < 0) return absl::InvalidArgumentError("keep_versions must be >= 0");
   if (!(shutdown_grace_seconds >= 0)) return absl::InvalidArgumentError("shutdown_grace_seconds must be >= 0");
   if (update.method == ContinualMethod::kEWC) {
@@ -130,7 +139,7 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "render_pixel_budget") s = Get(*it, "render_pixel_budget", &o->render_pixel_budget);
     else if (k == "max_scan_attempts") s = Get(*it, "max_scan_attempts", &o->max_scan_attempts);
     else if (k == "store_retry_seconds") s = Get(*it, "store_retry_seconds", &o->store_retry_seconds);
-    else if (k == "cached_versions") s = Get(*it, "cached_versions", &o->cached_versions);
+    else if (k == "model_memory_budget") s = Get(*it, "model_memory_budget", &o->model_memory_budget);
     else if (k == "keep_versions") s = Get(*it, "keep_versions", &o->keep_versions);
     else if (k == "shutdown_grace_seconds") s = Get(*it, "shutdown_grace_seconds", &o->shutdown_grace_seconds);
     else if (k == "iterations_per_update") s = Get(*it, k.c_str(), &o->update.train.iterations);

@@ -70,7 +70,12 @@ struct ServerOptions {
   // ended by a restart) this many times is parked, not retried.
   int max_scan_attempts = 3;
   double store_retry_seconds = 5;       // After a store write error, how often to re-check it.
-  int cached_versions = 4;              // Non-deployed versions kept in memory.
+  // Bytes of loaded models (every place's, every version's) kept in memory;
+  // beyond it the least recently used are evicted and reload on their next
+  // use (model_registry.h). A model a render or a training holds is never
+  // evicted under it, so the resident bytes can exceed the budget by those.
+  // 0 = auto: half the machine's physical memory.
+  int64_t model_memory_budget = 0;
   int keep_versions = 0;                // Versions kept on disk (oldest pruned, never the deployed one); 0 = all.
   double shutdown_grace_seconds = 20;   // In-flight RPCs get this long on shutdown.
 
@@ -84,6 +89,9 @@ struct ServerOptions {
   // The limits ScanAssembler checks for each upload.
   UploadLimits upload_limits() const;
 };
+
+// model_memory_budget with "auto" (0) resolved.
+int64_t ResolvedModelMemoryBudget(const ServerOptions& options);
 
 // Applies a JSON config (an object whose keys are field names above; unknown
 // keys are errors so typos do not pass silently) on top of `options`.

@@ -140,7 +140,15 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   }
 
   // 1. Load the scan as the next time step of the deployed model.
-  const std::shared_ptr<const Servable> prev = publisher_->registry().Deployed();
+  std::shared_ptr<const Servable> prev;  // Held for the whole update: the cache never evicts it meanwhile.
+  if (absl::StatusOr<std::shared_ptr<const Servable>> d = publisher_->registry().Get(0); d.ok()) {
+    prev = *std::move(d);
+  } else if (!absl::IsFailedPrecondition(d.status())) {  // FAILED_PRECONDITION: nothing deployed yet.
+    return Finish(job_id, scan_id, JobPhase::kFailed,
+                  absl::StrCat("cannot load the deployed version ", publisher_->registry().deployed_version(), ": ",
+                               d.status().message(), "; the scan is kept and retried after a restart"),
+                  false);
+  }
   const int t = prev ? prev->model().num_time_steps() : 0;
   absl::StatusOr<Scene> scene =
       scans_->Load(scan_id, t, prev ? std::optional<Eigen::Vector3f>(prev->model().background()) : std::nullopt);
@@ -226,7 +234,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
     if (!WaitForWritableStore(job_id)) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
     // Recovery may itself have deployed a version of this scan (a write whose
     // error was reported after it landed): then the job is done.
-    const std::shared_ptr<const Servable> now = publisher_->registry().Deployed();
+    const std::optional<DeployedSummary> now = publisher_->registry().deployed();
     if (now && now->info.scan_id == scan_id) {
       published = now->info;
       break;
