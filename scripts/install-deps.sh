@@ -12,6 +12,7 @@ PKGS=(
   python3 python3-matplotlib linux-perf valgrind
   clang libclang-rt-dev libomp-dev
   libcpp-httplib-dev prometheus-cpp-dev
+  etcd-server
 )
 # The web viewer's end-to-end test drives a real headless Chromium
 # (CLNERF_NO_BROWSER=1 skips these, e.g. for an image that builds no tests).

@@ -1,0 +1,180 @@
+// The coordinator of replicas (coordinator.h) against a real etcd on
+// loopback: one trainer per place, fenced commits after a lost lease, a
+// moved head refused, and an unreachable etcd a clear error. The local
+// coordinator (no etcd) keeps the generation check.
+#include "server/coordinator.h"
+
+#include <chrono>
+#include <thread>
+
+#include "gtest/gtest.h"
+#include "server/etcd_client.h"
+#include "server/etcd_test_util.h"
+#include "server/metrics.h"
+#include "server/server_test_util.h"
+
+namespace clnerf {
+namespace {
+
+using testing_util::LocalEtcd;
+
+class EtcdTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    if (LocalEtcd::Find().empty()) GTEST_SKIP() << "no etcd binary (Debian etcd-server; scripts/install-deps.sh)";
+    const std::string why = etcd_.Start(testing_util::TempDir("etcd"));
+    ASSERT_EQ(why, "");
+  }
+  EtcdCoordinatorOptions Options(const std::string& id, int64_t ttl = 1) {
+    EtcdCoordinatorOptions o;
+    o.endpoint = etcd_.endpoint();
+    o.replica_id = id;
+    o.lease_ttl_seconds = ttl;
+    o.metrics = &metrics_;
+    return o;
+  }
+  LocalEtcd etcd_;
+  Metrics metrics_;
+};
+
+TEST_F(EtcdTest, ClientPutsGetsAndCompareAndSets) {
+  auto c = EtcdClient::Connect(etcd_.endpoint());
+  ASSERT_TRUE(c.ok()) << c.status();
+  EtcdClient& e = **c;
+  auto none = e.Get("/t/a");
+  ASSERT_TRUE(none.ok());
+  EXPECT_FALSE(none->has_value());
+  ASSERT_TRUE(e.Put("/t/a", "1").ok());
+  ASSERT_TRUE(e.Put("/t/b", "2").ok());
+  ASSERT_TRUE(e.Put("/u", "3").ok());
+  auto a = e.Get("/t/a");
+  ASSERT_TRUE(a.ok() && a->has_value());
+  EXPECT_EQ((*a)->value, "1");
+  auto list = e.GetPrefix("/t/");
+  ASSERT_TRUE(list.ok());
+  ASSERT_EQ(list->size(), 2u);
+  EXPECT_EQ((*list)[1].key, "/t/b");
+  // CAS on the mod revision: the first wins, a second with the old revision fails.
+  etcdserverpb::TxnRequest txn;
+  *txn.add_compare() = EtcdClient::ModRevisionIs("/t/a", (*a)->mod_revision);
+  *txn.add_success() = EtcdClient::PutOp("/t/a", "x");
+  auto r1 = e.Txn(txn);
+  ASSERT_TRUE(r1.ok());
+  EXPECT_TRUE(r1->succeeded());
+  auto r2 = e.Txn(txn);
+  ASSERT_TRUE(r2.ok());
+  EXPECT_FALSE(r2->succeeded());
+  EXPECT_EQ((*e.Get("/t/a"))->value, "x");
+  // A key on a lease goes with the lease.
+  auto lease = e.GrantLease(1);
+  ASSERT_TRUE(lease.ok());
+  ASSERT_TRUE(e.Put("/t/leased", "v", *lease).ok());
+  auto ttl = e.KeepAliveOnce(*lease);
+  ASSERT_TRUE(ttl.ok()) << ttl.status();
+  EXPECT_GT(*ttl, 0);
+  ASSERT_TRUE(e.RevokeLease(*lease).ok());
+  EXPECT_FALSE((*e.Get("/t/leased"))->has_value());
+  auto gone = e.KeepAliveOnce(*lease);
+  ASSERT_TRUE(gone.ok());
+  EXPECT_LE(*gone, 0);
+}
+
+TEST_F(EtcdTest, OneTrainerPerPlaceAndCommitsAreFenced) {
+  auto a = MakeEtcdCoordinator(Options("A", 5));
+  auto b = MakeEtcdCoordinator(Options("B", 5));
+  ASSERT_TRUE(a.ok()) << a.status();
+  ASSERT_TRUE(b.ok()) << b.status();
+  EXPECT_TRUE(*(*a)->TryAcquire("shop"));
+  EXPECT_TRUE(*(*a)->TryAcquire("shop"));  // Idempotent for the holder.
+  EXPECT_FALSE(*(*b)->TryAcquire("shop"));
+  EXPECT_TRUE(*(*b)->TryAcquire("flat"));  // Leases are per place.
+  EXPECT_TRUE((*a)->Holds("shop"));
+  EXPECT_FALSE((*b)->Holds("shop"));
+
+  auto head = (*a)->ReadHead("shop");
+  ASSERT_TRUE(head.ok());
+  EXPECT_EQ(head->version, 0);
+  EXPECT_EQ(head->generation, 0);
+  auto v1 = (*a)->CommitHead("shop", *head, 1);
+  ASSERT_TRUE(v1.ok()) << v1.status();
+  EXPECT_EQ(v1->version, 1);
+  EXPECT_GT(v1->generation, 0);
+  EXPECT_EQ((*b)->ReadHead("shop")->version, 1);
+  // A commit from a stale read of the head is refused.
+  auto stale = (*a)->CommitHead("shop", *head, 2);
+  EXPECT_EQ(stale.status().code(), absl::StatusCode::kAborted);
+  EXPECT_NE(stale.status().message().find("head moved"), std::string::npos) << stale.status();
+  // A replica without the lease cannot commit, even with the current generation.
+  auto not_owner = (*b)->CommitHead("shop", *v1, 2);
+  EXPECT_EQ(not_owner.status().code(), absl::StatusCode::kAborted);
+  EXPECT_NE(not_owner.status().message().find("holds it now"), std::string::npos) << not_owner.status();
+  EXPECT_EQ((*a)->ReadHead("shop")->version, 1);
+  // Released, the other may take it.
+  (*a)->Release("shop");
+  EXPECT_TRUE(*(*b)->TryAcquire("shop"));
+  EXPECT_NE(metrics_.Text().find("clnerf_fenced_commits_total 2"), std::string::npos) << metrics_.Text();
+}
+
+// A SIGSTOP in miniature: A's renewals stop past its TTL, B takes the place
+// and publishes; when A resumes, its publish (from the head it read while it
+// owned the place) is refused and the head stays B's; A learns it lost the
+// place and opens a new session.
+TEST_F(EtcdTest, APausedOwnerLosesThePlaceAndItsLateCommitIsRefused) {
+  auto a = MakeEtcdCoordinator(Options("A", 1));
+  auto b = MakeEtcdCoordinator(Options("B", 1));
+  ASSERT_TRUE(a.ok() && b.ok());
+  ASSERT_TRUE(*(*a)->TryAcquire("shop"));
+  const PlaceHead read_by_a = *(*a)->ReadHead("shop");
+  PauseRenewalsForTesting(a->get(), true);
+  bool taken = false;
+  for (int i = 0; i < 100 && !taken; ++i) {  // etcd's lease expiry: ~TTL plus up to a second.
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    taken = *(*b)->TryAcquire("shop");
+  }
+  ASSERT_TRUE(taken) << "B never got the expired lease";
+  auto by_b = (*b)->CommitHead("shop", read_by_a, 1);
+  ASSERT_TRUE(by_b.ok()) << by_b.status();
+  PauseRenewalsForTesting(a->get(), false);
+  EXPECT_TRUE((*a)->Holds("shop")) << "A cannot know yet: it was paused";
+  auto late = (*a)->CommitHead("shop", read_by_a, 1);
+  EXPECT_EQ(late.status().code(), absl::StatusCode::kAborted);
+  EXPECT_NE(late.status().message().find("lease expired"), std::string::npos) << late.status();
+  EXPECT_FALSE((*a)->Holds("shop"));
+  const PlaceHead now = *(*b)->ReadHead("shop");
+  EXPECT_EQ(now.version, 1);
+  EXPECT_EQ(now.generation, by_b->generation);
+  // A's session was renewed or replaced: it can take other places again.
+  bool a_alive = false;
+  for (int i = 0; i < 50 && !a_alive; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    a_alive = *(*a)->TryAcquire("other");
+  }
+  EXPECT_TRUE(a_alive);
+}
+
+TEST(CoordinatorTest, UnreachableEtcdIsUnavailableQuickly) {
+  EtcdCoordinatorOptions o;
+  o.endpoint = "127.0.0.1:" + std::to_string(testing_util::FreeLoopbackPort());
+  o.call_timeout_seconds = 0.5;
+  const auto t0 = std::chrono::steady_clock::now();
+  auto c = MakeEtcdCoordinator(o);
+  EXPECT_EQ(c.status().code(), absl::StatusCode::kUnavailable) << c.status();
+  EXPECT_LT(std::chrono::steady_clock::now() - t0, std::chrono::seconds(3));
+  o.lease_ttl_seconds = 0;
+  EXPECT_EQ(MakeEtcdCoordinator(o).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+TEST(CoordinatorTest, LocalCoordinatorHoldsEverythingAndChecksTheGeneration) {
+  auto c = MakeLocalCoordinator();
+  EXPECT_TRUE(*c->TryAcquire("any"));
+  const PlaceHead h0 = *c->ReadHead("p");
+  auto h1 = c->CommitHead("p", h0, 1);
+  ASSERT_TRUE(h1.ok());
+  EXPECT_EQ(c->CommitHead("p", h0, 2).status().code(), absl::StatusCode::kAborted);
+  EXPECT_EQ(c->ReadHead("p")->version, 1);
+  ASSERT_TRUE(c->Forget("p").ok());
+  EXPECT_EQ(c->ReadHead("p")->version, 0);
+}
+
+}  // namespace
+}  // namespace clnerf
