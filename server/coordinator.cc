@@ -95,6 +95,10 @@ class EtcdCoordinator final : public Coordinator {
     *txn.add_success() = EtcdClient::PutOp(owner, id_, s);
     txn.add_failure()->mutable_request_range()->set_key(owner);
     absl::StatusOr<etcdserverpb::TxnResponse> r = client_->Txn(txn);
+    if (!r.ok() && absl::IsNotFound(r.status())) {  // "requested lease not found": the session expired.
+      SessionLost(s);
+      return false;
+    }
     if (!r.ok()) return r.status();
     bool held = r->succeeded();
     std::string holder = id_;
@@ -181,6 +185,15 @@ class EtcdCoordinator final : public Coordinator {
     return absl::OkStatus();
   }
 
+  // etcd says session `s` is gone: forget its places and have the renewer
+  // open a new session now.
+  void SessionLost(int64_t s) {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (s != session_) return;
+    lost_ = true;
+    cv_.notify_all();
+  }
+
   void SetPaused(bool paused) {
     std::lock_guard<std::mutex> lock(mu_);
     paused_ = paused;
@@ -215,13 +228,17 @@ class EtcdCoordinator final : public Coordinator {
     const auto period = std::chrono::milliseconds(std::max<int64_t>(100, options_.lease_ttl_seconds * 1000 / 3));
     std::unique_lock<std::mutex> lock(mu_);
     while (!stop_) {
-      cv_.wait_for(lock, period, [&] { return stop_; });
+      cv_.wait_for(lock, period, [&] { return stop_ || (lost_ && !paused_); });
       if (stop_) break;
       if (paused_) continue;
       const int64_t s = session_;
-      lock.unlock();
-      absl::StatusOr<int64_t> ttl = client_->KeepAliveOnce(s);
-      lock.lock();
+      absl::StatusOr<int64_t> ttl = int64_t(0);
+      if (!lost_) {
+        lock.unlock();
+        ttl = client_->KeepAliveOnce(s);
+        lock.lock();
+        if (s != session_) continue;
+      }
       if (ttl.ok() && *ttl > 0) {
         last_renewed_ = Clock::now();
         continue;
@@ -239,6 +256,7 @@ class EtcdCoordinator final : public Coordinator {
       lock.lock();
       if (fresh.ok()) {
         session_ = *fresh;
+        lost_ = false;
         last_renewed_ = Clock::now();
         spdlog::info("etcd: replica {} opened a new session", id_);
       }
@@ -255,6 +273,7 @@ class EtcdCoordinator final : public Coordinator {
   std::set<std::string> held_;
   bool stop_ = false;
   bool paused_ = false;
+  bool lost_ = false;  // etcd said the session is gone; the renewer replaces it.
   std::thread renewer_;
 };
 
