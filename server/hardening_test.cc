@@ -188,7 +188,13 @@ TEST_F(ForgedStoreTest, ForgedCheckpointIsDataLossWhileOtherVersionsServe) {
 TEST_F(ForgedStoreTest, CorruptDeployedVersionStartsReadOnlyUntilAnotherIsPinned) {
   const Scene scene = TinyScans(2);
   PublishTwoVersionsAndForge(TempDir("srv_forged_deployed"), scene, 2);
-  EXPECT_TRUE(Contains(Info(stub_.get()).store_error(), "deployed version 2 cannot be loaded"));
+  // The start-up warm-up checks the deployed model after the ports open.
+  std::string error;
+  for (int i = 0; i < 200 && error.empty(); ++i) {
+    error = Info(stub_.get()).store_error();
+    if (error.empty()) std::this_thread::sleep_for(std::chrono::milliseconds(25));
+  }
+  EXPECT_TRUE(Contains(error, "deployed version 2 cannot be loaded")) << error;
   v1::RenderResponse r;
   EXPECT_EQ(Render(scene.test[0].camera, -1, 0, &r).error_code(), grpc::StatusCode::UNAVAILABLE);
   EXPECT_TRUE(Render(scene.test[0].camera, -1, 1, &r).ok());

@@ -38,6 +38,7 @@ absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& 
   po.models = shared.models ? shared.models
                             : MakeServableCache(ResolvedModelMemoryBudget(options), host->metrics_);
   po.place = place;
+  po.verify_deployed_at_open = !shared.defer_model_load;
   po.keep_versions = options.keep_versions;
   po.retry_seconds = options.store_retry_seconds;
   po.metrics = host->metrics_.get();
@@ -283,7 +284,10 @@ HostInfo ModelHost::Info() const {
     info.time_steps = d->info.time_steps;
     info.model_bytes = d->model_bytes;
     info.replay_cameras = d->replay_cameras;
-    info.loaded = publisher_->registry().loaded();
+    if (const std::shared_ptr<const Servable> s = publisher_->registry().Peek(); s != nullptr) {
+      info.loaded = true;
+      info.replay_cameras = int64_t(s->memory().num_cameras());
+    }
   }
   info.queued_jobs = jobs_.queued();
   info.running_job = jobs_.running();

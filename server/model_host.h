@@ -94,6 +94,10 @@ struct SharedServices {
   // The loaded models of every place under --model-memory-budget (null: the
   // host makes its own with that budget).
   std::shared_ptr<ServableCache> models;
+  // Open reads only the deployed version's metadata; VerifyDeployed() loads
+  // and checks it later (Places does, in the background, so a server of
+  // many places answers at once). false: Open loads it.
+  bool defer_model_load = false;
 };
 
 struct HostInfo {
@@ -153,6 +157,9 @@ class ModelHost {
   int64_t deployed_version() const { return publisher_->registry().deployed_version(); }
 
   HostInfo Info() const;
+  // Loads the deployed version if it is not in memory; one that cannot load
+  // makes the store read-only, as at start-up (publisher.h).
+  absl::Status VerifyDeployed() { return publisher_->VerifyDeployed(); }
   const ServerOptions& options() const { return options_; }
   bool shutting_down() const { return stopping_.load(); }
   // Stops the worker (waiting up to shutdown_grace_seconds). Returns false if

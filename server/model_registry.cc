@@ -44,9 +44,9 @@ std::optional<DeployedSummary> ModelRegistry::deployed() const {
   return deployed_;
 }
 
-bool ModelRegistry::loaded(int64_t version) const {
+std::shared_ptr<const Servable> ModelRegistry::Peek(int64_t version) const {
   if (version == 0) version = deployed_version();
-  return version > 0 && cache_->Peek(Key(version)) != nullptr;
+  return version > 0 ? cache_->Peek(Key(version)) : nullptr;
 }
 
 absl::StatusOr<std::shared_ptr<const Servable>> ModelRegistry::Get(int64_t version) const {
@@ -56,6 +56,21 @@ absl::StatusOr<std::shared_ptr<const Servable>> ModelRegistry::Get(int64_t versi
   }
   if (version < 0) return absl::InvalidArgumentError(absl::StrCat("version ", version, " is negative"));
   return cache_->GetOrLoad(Key(version), [&] { return loader_(version); });
+}
+
+void ModelRegistry::DeployUnloaded(const VersionInfo& info) {
+  std::lock_guard<std::mutex> lock(mu_);
+  deployed_ = DeployedSummary{info, info.model_bytes, 0};
+}
+
+void ModelRegistry::ClearDeployed(int64_t version) {
+  std::lock_guard<std::mutex> lock(mu_);
+  if (deployed_ && deployed_->info.version == version) deployed_.reset();
+}
+
+void ModelRegistry::Offer(std::shared_ptr<const Servable> servable) {
+  const int64_t v = servable->info.version;
+  cache_->Offer(Key(v), std::move(servable));
 }
 
 void ModelRegistry::Evict(int64_t version) { cache_->Erase(Key(version)); }

@@ -80,12 +80,22 @@ class ModelRegistry {
   // The deployed version's summary (nullopt before the first), without loading it.
   std::optional<DeployedSummary> deployed() const;
   // Whether version `version` (0 = deployed) is in memory now.
-  bool loaded(int64_t version = 0) const;
+  bool loaded(int64_t version = 0) const { return Peek(version) != nullptr; }
+  // Version `version` (0 = deployed) if it is in memory now, else null (no
+  // load, and no change to the eviction order).
+  std::shared_ptr<const Servable> Peek(int64_t version = 0) const;
   // Makes `servable` the deployed version (a publish or a rollback). It joins
   // the cache first (evicting others if the budget needs it), or with
   // `keep_loaded` false only if it fits without evicting anything (a version
   // verified at start-up: otherwise it loads on its first use).
   void Deploy(std::shared_ptr<const Servable> servable, bool keep_loaded = true);
+  // Makes version `info` the deployed one without loading it (start-up:
+  // Publisher::VerifyDeployed loads it later, or its first use does).
+  void DeployUnloaded(const VersionInfo& info);
+  // Nothing is deployed any more (its model turned out unloadable).
+  void ClearDeployed(int64_t version);
+  // Keeps a loaded version in the cache if it fits without evicting anything.
+  void Offer(std::shared_ptr<const Servable> servable);
   // Drops a version from the cache, e.g. after it was pruned.
   void Evict(int64_t version);
 

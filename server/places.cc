@@ -25,6 +25,7 @@ SharedServices MakeSharedServices(const ServerOptions& options) {
   s.trainings = std::make_shared<TrainingScheduler>(options.max_concurrent_trainings);
   s.render_slots = std::make_shared<RenderSlots>(options.render_concurrency);
   s.models = MakeServableCache(ResolvedModelMemoryBudget(options), s.metrics);
+  s.defer_model_load = true;  // Warm-up (below) loads them after the ports open.
   return s;
 }
 
@@ -67,6 +68,7 @@ absl::StatusOr<std::unique_ptr<Places>> Places::Open(const ServerOptions& option
     p->hosts_[name] = *std::move(host);
   }
   spdlog::info("store {}: {} place(s)", options.store_dir, p->hosts_.size());
+  p->warmup_ = std::thread([raw = p.get(), names] { raw->WarmUp(names); });
   return p;
 }
 
@@ -165,6 +167,31 @@ bool Places::shutting_down() const {
   return shut_down_;
 }
 
+// Loads and checks each place's deployed model in turn, while the server
+// already answers: a model that cannot load makes its place read-only (as a
+// check at open would), and models stay loaded while the budget has room.
+void Places::WarmUp(const std::vector<std::string>& names) {
+  const auto t0 = std::chrono::steady_clock::now();
+  int checked = 0;
+  for (const std::string& name : names) {
+    std::shared_ptr<ModelHost> host;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      if (shut_down_) return;
+      auto it = hosts_.find(name);
+      if (it == hosts_.end()) continue;  // Deleted meanwhile.
+      host = it->second;
+    }
+    if (absl::Status s = host->VerifyDeployed(); !s.ok()) {
+      spdlog::error("place '{}': {}", name, std::string(s.message()));
+    }
+    ++checked;
+  }
+  spdlog::info("warm-up: checked {} place(s) in {:.2f} s; {} model(s), {} bytes in memory", checked,
+               std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(),
+               shared_.models->stats().entries, shared_.models->stats().bytes);
+}
+
 bool Places::Shutdown() {
   std::map<std::string, std::shared_ptr<ModelHost>> hosts;
   {
@@ -172,6 +199,7 @@ bool Places::Shutdown() {
     shut_down_ = true;
     hosts = hosts_;
   }
+  if (warmup_.joinable() && warmup_.get_id() != std::this_thread::get_id()) warmup_.join();
   bool clean = true;
   for (auto& [name, host] : hosts) clean = host->Shutdown() && clean;
   return clean;

@@ -21,6 +21,12 @@
 // in turn: training_scheduler.h), the render slots (render_concurrency) and
 // the metrics (one registry, no per-place labels).
 //
+// Start-up: Open reads each place's manifest and version metadata only, so a
+// store of many places answers at once (readiness does not wait for models);
+// a background warm-up then loads and checks each deployed model in turn,
+// keeping them while the memory budget has room. A model that cannot load
+// makes its place read-only, as the single-place server did at start.
+//
 // Thread-safety: every method is thread-safe. Hosts are handed out as
 // shared_ptr, so a request in flight keeps its place's host alive while the
 // place is deleted.
@@ -32,6 +38,7 @@
 #include <mutex>
 #include <string>
 #include <string_view>
+#include <thread>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -72,6 +79,7 @@ class Places {
   explicit Places(const ServerOptions& options);
   std::string DirOf(const std::string& name) const;
   absl::StatusOr<std::shared_ptr<ModelHost>> OpenHost(const std::string& name) const;
+  void WarmUp(const std::vector<std::string>& names);
 
   const ServerOptions options_;
   const SharedServices shared_;
@@ -80,6 +88,7 @@ class Places {
   std::map<std::string, std::shared_ptr<ModelHost>> hosts_;
   bool shut_down_ = false;
   int deletions_ = 0;
+  std::thread warmup_;  // Loads the deployed models after Open (WarmUp).
 };
 
 }  // namespace clnerf

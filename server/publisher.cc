@@ -35,7 +35,9 @@ absl::StatusOr<std::unique_ptr<Publisher>> Publisher::Open(const PublisherOption
   if (!m.ok()) return m.status();
   p->manifest_ = *m;
   std::lock_guard<std::mutex> lock(p->mu_);
+  p->opening_ = !options.verify_deployed_at_open;
   if (absl::Status s = p->RecoverLocked(); !s.ok()) p->SetErrorLocked(s);
+  p->opening_ = false;
   return p;
 }
 
@@ -55,6 +57,27 @@ absl::StatusOr<std::shared_ptr<const Servable>> Publisher::LoadServable(int64_t 
   s->state.model = std::make_shared<const NgpModel>(std::move(lv->model));
   s->state.memory = std::move(lv->memory);
   return std::shared_ptr<const Servable>(std::move(s));
+}
+
+absl::Status Publisher::UnloadableDeployed(int64_t version, const absl::Status& why) {
+  return absl::Status(why.code(), absl::StrCat("deployed version ", version, " cannot be loaded (", why.message(),
+                                               "); deploy another version (clnerf rollback VERSION) to resume updates"));
+}
+
+absl::Status Publisher::VerifyDeployed() {
+  const int64_t v = registry_.deployed_version();
+  if (v == 0 || registry_.loaded(v)) return absl::OkStatus();
+  absl::StatusOr<std::shared_ptr<const Servable>> s = LoadServable(v);
+  std::lock_guard<std::mutex> lock(mu_);
+  if (registry_.deployed_version() != v) return absl::OkStatus();  // Replaced meanwhile.
+  if (!s.ok()) {
+    registry_.ClearDeployed(v);
+    const absl::Status error = UnloadableDeployed(v, s.status());
+    SetErrorLocked(error);
+    return error;
+  }
+  registry_.Offer(*s);
+  return absl::OkStatus();
 }
 
 absl::Status Publisher::RecoverLocked() {
@@ -88,13 +111,15 @@ absl::Status Publisher::RecoverLocked() {
   // handed out twice.
   manifest_.next_version = m.next_version;
   if (m.deployed != 0 && registry_.deployed_version() != m.deployed) {
-    absl::StatusOr<std::shared_ptr<const Servable>> s = LoadServable(m.deployed);
-    if (!s.ok()) {
-      return absl::Status(s.status().code(),
-                          absl::StrCat("deployed version ", m.deployed, " cannot be loaded (", s.status().message(),
-                                       "); deploy another version (clnerf rollback VERSION) to resume updates"));
+    if (opening_) {  // Metadata only; VerifyDeployed (or the first use) loads it.
+      absl::StatusOr<VersionInfo> info = versions_->Info(m.deployed);
+      if (!info.ok()) return UnloadableDeployed(m.deployed, info.status());
+      registry_.DeployUnloaded(*info);
+    } else {
+      absl::StatusOr<std::shared_ptr<const Servable>> s = LoadServable(m.deployed);
+      if (!s.ok()) return UnloadableDeployed(m.deployed, s.status());
+      registry_.Deploy(*s, /*keep_loaded=*/false);  // Verified; stays loaded only if the budget has room.
     }
-    registry_.Deploy(*s, /*keep_loaded=*/false);  // Verified; stays loaded only if the budget has room.
   }
   if (absl::Status s = versions_->WriteManifest(m); !s.ok()) {
     return absl::Status(s.code(), absl::StrCat("cannot write the manifest: ", s.message()));

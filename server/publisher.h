@@ -43,6 +43,10 @@ struct PublisherOptions {
   // this publisher's own with no budget.
   std::shared_ptr<ServableCache> models;
   std::string place = "default";  // For the cache's keys and logs.
+  // Open loads the deployed version to check it (true), or only reads its
+  // metadata and leaves the load to VerifyDeployed or its first use (false:
+  // a server of many places starts serving without loading them all).
+  bool verify_deployed_at_open = true;
   int keep_versions = 0;    // Versions kept on disk (0 = all; the deployed one is never pruned).
   double retry_seconds = 5;  // While the sticky error is set, writers re-check the store this often.
   Metrics* metrics = nullptr;  // Counts model loads (optional; must outlive the publisher).
@@ -80,6 +84,11 @@ class Publisher {
                                       const std::map<std::string, double>& metrics);
   // NOT_FOUND for an unknown version, DATA_LOSS for a corrupt one.
   absl::StatusOr<VersionInfo> SetDeployed(int64_t version);
+  // Loads the deployed version if it is not in memory; if it cannot be
+  // loaded, sets the sticky error (as Open does with verify_deployed_at_open)
+  // and nothing is deployed until another version is. Keeps it loaded only if
+  // the memory budget has room. Returns the error, if any.
+  absl::Status VerifyDeployed();
   // Re-checks the store after a sticky error (see above). OK = healthy now.
   absl::Status Retry();
 
@@ -91,6 +100,7 @@ class Publisher {
   absl::StatusOr<std::shared_ptr<const Servable>> LoadServable(int64_t version) const;
   // Recovery steps; caller holds mu_.
   absl::Status RecoverLocked();
+  static absl::Status UnloadableDeployed(int64_t version, const absl::Status& why);
   absl::Status RetryLocked();
   void MaybeRetryLocked();  // RetryLocked() if retry_seconds passed.
   void SetErrorLocked(const absl::Status& s);
@@ -103,6 +113,7 @@ class Publisher {
   ModelRegistry registry_;
   mutable std::mutex mu_;
   Manifest manifest_;        // As last written (or read).
+  bool opening_ = false;     // In Open: the deployed version may be left unloaded.
   absl::Status bg_error_;    // Sticky; guarded by mu_.
   std::chrono::steady_clock::time_point last_check_;  // Of the store, while bg_error_ is set.
 };

@@ -132,6 +132,9 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   const std::string scan_id = job->scan_id;
   const std::string kept = "server shut down; the scan is kept and retrained after restart";
   if (job->cancel_requested) return Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled", true);
+  // A deployed version not loaded yet is checked first: if it cannot load,
+  // the store turns read-only and the job waits like any write would.
+  (void)publisher_->VerifyDeployed();
   if (!WaitForWritableStore(job_id)) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
   if (absl::StatusOr<int> a = scans_->RecordAttempt(scan_id); !a.ok()) {
     spdlog::warn("job {}: attempt not recorded: {}", job_id, a.status().ToString());
