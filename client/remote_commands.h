@@ -77,10 +77,21 @@ struct BenchServeArgs {
   std::string json;
 };
 
+struct BenchPlacesArgs {
+  RemoteOptions remote;
+  int seed = 0;               // > 0: create and train places up to this many, then stop.
+  int renders = 200;          // Warm renders, round robin over the places.
+  int server_pid = 0;         // For the server's resident memory (0 = not measured).
+  bool upload_served = false; // Also time an upload's acknowledgement -> served.
+  std::string label;
+  std::string json;
+};
+
 // Each verb's Bind adds its subcommand under `parent` with its flags bound
 // onto `args` (see client/verb_set.h); its Run runs it.
 CLI::App* BindUpload(CLI::App* parent, UploadArgs* args);
 CLI::App* BindBenchServe(CLI::App* parent, BenchServeArgs* args);
+CLI::App* BindBenchPlaces(CLI::App* parent, BenchPlacesArgs* args);
 CLI::App* BindWatch(CLI::App* parent, JobArgs* args);
 CLI::App* BindJobs(CLI::App* parent, ListArgs* args);
 CLI::App* BindCancel(CLI::App* parent, JobArgs* args);
@@ -91,6 +102,7 @@ CLI::App* BindPlaces(CLI::App* parent, PlacesArgs* args);
 
 int RunUpload(const UploadArgs& args);
 int RunBenchServe(const BenchServeArgs& args);
+int RunBenchPlaces(const BenchPlacesArgs& args);
 int RunWatch(const JobArgs& args);
 int RunJobs(const ListArgs& args);
 int RunCancel(const JobArgs& args);

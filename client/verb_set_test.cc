@@ -183,7 +183,7 @@ TEST(VerbSetTest, EveryVerbRegistersWithoutClashingFlags) {
     EXPECT_NO_THROW(app.get_subcommand(name)) << name;
   }
   CLI::App* bench = app.get_subcommand("bench");
-  for (const char* name : {"serve", "render", "continual", "scenes", "stability"}) {
+  for (const char* name : {"serve", "places", "render", "continual", "scenes", "stability"}) {
     EXPECT_NO_THROW(bench->get_subcommand(name)) << name;
   }
   // A verb that was not chosen does not run.

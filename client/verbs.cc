@@ -25,6 +25,7 @@ void RegisterVerbs(VerbSet* verbs) {
   CLI::App* bench = verbs->app()->add_subcommand("bench", "Benchmarks (print figures and JSON)");
   bench->require_subcommand(1);
   verbs->Add(BindBenchServe, RunBenchServe, bench);
+  verbs->Add(BindBenchPlaces, RunBenchPlaces, bench);
   verbs->Add(BindBenchRender, RunBenchRender, bench);
   verbs->Add(BindBenchContinual, RunBenchContinual, bench);
   verbs->Add(BindBenchScenes, RunBenchScenes, bench);
