@@ -1,6 +1,9 @@
 #include "server/places.h"
 
+#include <unistd.h>
+
 #include <filesystem>
+#include <set>
 #include <system_error>
 
 #include "absl/strings/match.h"
@@ -88,11 +91,31 @@ absl::StatusOr<std::shared_ptr<ModelHost>> Places::OpenHost(const std::string& n
 absl::StatusOr<std::shared_ptr<ModelHost>> Places::Get(std::string_view name) const {
   const std::string n = PlaceOrDefault(name);
   if (absl::Status s = ValidatePlaceName(n); !s.ok()) return s;
-  std::lock_guard<std::mutex> lock(mu_);
-  auto it = hosts_.find(n);
-  if (it != hosts_.end()) return it->second;
-  std::vector<std::string> known;
-  for (const auto& [k, v] : hosts_) known.push_back(k);
+  std::shared_ptr<ModelHost> gone;  // Deleted by another replica: shut down outside the lock.
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    auto it = hosts_.find(n);
+    // The store is the record of which places exist: another replica sharing
+    // it may have created or deleted this one since we looked.
+    const bool on_disk = n == kDefaultPlace || fs::is_directory(DirOf(n));
+    if (it != hosts_.end() && on_disk) return it->second;
+    if (it == hosts_.end() && on_disk && !shut_down_) {
+      absl::StatusOr<std::shared_ptr<ModelHost>> host = OpenHost(n);
+      if (!host.ok()) return host.status();
+      hosts_[n] = *host;
+      spdlog::info("opened place '{}' (created by another replica)", n);
+      return *host;
+    }
+    if (it != hosts_.end()) {
+      gone = it->second;
+      hosts_.erase(it);
+    }
+  }
+  if (gone) {
+    spdlog::info("place '{}' was deleted by another replica", n);
+    gone->Shutdown();
+  }
+  std::vector<std::string> known = Names();
   return UnknownPlace(n, known);
 }
 
@@ -128,6 +151,7 @@ absl::Status Places::Delete(std::string_view name) {
   if (n == kDefaultPlace) {
     return absl::FailedPreconditionError("the place 'default' cannot be deleted (requests without a place use it)");
   }
+  if (absl::StatusOr<std::shared_ptr<ModelHost>> h = Get(n); !h.ok()) return h.status();  // Also one made elsewhere.
   std::shared_ptr<ModelHost> host;
   std::string trash;
   {
@@ -140,7 +164,7 @@ absl::Status Places::Delete(std::string_view name) {
     }
     host = it->second;
     hosts_.erase(it);
-    trash = (fs::path(places_dir_) / absl::StrCat(kDeletedPrefix, n, "-", ++deletions_)).string();
+    trash = (fs::path(places_dir_) / absl::StrCat(kDeletedPrefix, n, "-", getpid(), "-", ++deletions_)).string();
   }
   // Stop its update first (a request in flight keeps the host object, but
   // no new scan is trained), then take the directory away atomically.
@@ -156,6 +180,26 @@ absl::Status Places::Delete(std::string_view name) {
 }
 
 std::vector<std::string> Places::Names() const {
+  // Places created or deleted by other replicas sharing the store.
+  std::set<std::string> on_disk = {std::string(kDefaultPlace)};
+  std::error_code ec;
+  for (const fs::directory_entry& e : fs::directory_iterator(places_dir_, ec)) {
+    const std::string name = e.path().filename().string();
+    if (e.is_directory(ec) && name != kDefaultPlace && ValidatePlaceName(name).ok()) on_disk.insert(name);
+  }
+  std::set<std::string> open;
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    for (const auto& [k, v] : hosts_) open.insert(k);
+  }
+  if (!ec && on_disk != open) {
+    for (const std::string& n : on_disk) {
+      if (!open.count(n)) (void)Get(n);
+    }
+    for (const std::string& n : open) {
+      if (!on_disk.count(n)) (void)Get(n);
+    }
+  }
   std::lock_guard<std::mutex> lock(mu_);
   std::vector<std::string> names;
   for (const auto& [k, v] : hosts_) names.push_back(k);

@@ -85,7 +85,10 @@ class Places {
   const SharedServices shared_;
   std::string places_dir_;
   mutable std::mutex mu_;        // Guards hosts_ and serialises create/delete.
-  std::map<std::string, std::shared_ptr<ModelHost>> hosts_;
+  // The places opened so far. The store's directories are the record of
+  // which exist (replicas sharing the store create and delete them): Get and
+  // Names open and drop hosts to match, hence mutable.
+  mutable std::map<std::string, std::shared_ptr<ModelHost>> hosts_;
   bool shut_down_ = false;
   int deletions_ = 0;
   std::thread warmup_;  // Loads the deployed models after Open (WarmUp).

@@ -303,5 +303,27 @@ TEST_F(PlacesTest, SixPlacesUnderABudgetForTwoAllRenderAndEvictionsAreCounted) {
   EXPECT_EQ(loaded, 2);
 }
 
+// Two servers over one store (replicas): a place created through one is
+// opened by the other on first use and listed by both; deleted through one,
+// the other drops it and answers NOT_FOUND.
+TEST(PlacesSharedStoreTest, PlacesCreatedOrDeletedByAnotherServerAreSeen) {
+  const std::string store = TempDir("srv_places_shared");
+  auto a = Places::Open(TinyServerOptions(store));
+  auto b = Places::Open(TinyServerOptions(store));
+  ASSERT_TRUE(a.ok() && b.ok());
+  ASSERT_TRUE((*a)->Create("shop").ok());
+  auto seen = (*b)->Get("shop");
+  ASSERT_TRUE(seen.ok()) << seen.status();
+  EXPECT_EQ((*b)->Names(), (std::vector<std::string>{"default", "shop"}));
+  ASSERT_TRUE((*a)->Create("flat").ok());
+  EXPECT_EQ((*b)->Names(), (std::vector<std::string>{"default", "flat", "shop"}));
+  ASSERT_TRUE((*a)->Delete("shop").ok());
+  EXPECT_EQ((*b)->Get("shop").status().code(), absl::StatusCode::kNotFound);
+  EXPECT_EQ((*b)->Names(), (std::vector<std::string>{"default", "flat"}));
+  // And the other way round.
+  ASSERT_TRUE((*b)->Delete("flat").ok());
+  EXPECT_EQ((*a)->Names(), (std::vector<std::string>{"default"}));
+}
+
 }  // namespace
 }  // namespace clnerf
