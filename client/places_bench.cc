@@ -249,7 +249,9 @@ int RunBenchPlaces(const BenchPlacesArgs& a) {
   j["places"] = names.size();
   j["loaded_before"] = loaded_before;
   j["loaded_after"] = loaded_after;
-  j["model_bytes_per_place"] = after->empty() ? 0 : (*after)[after->size() - 1].model_bytes();
+  int64_t per_place = 0;
+  for (const auto& p : *after) per_place = std::max(per_place, p.model_bytes());
+  j["model_bytes_per_place"] = per_place;
   j["model_bytes_loaded"] = model_bytes_loaded;
   j["rss_before_bytes"] = rss_before;
   j["rss_bytes"] = rss;

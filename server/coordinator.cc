@@ -2,6 +2,7 @@
 
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <condition_variable>
 #include <map>
@@ -33,8 +34,8 @@ class LocalCoordinator final : public Coordinator {
     auto it = heads_.find(place);
     return it == heads_.end() ? PlaceHead{} : it->second;
   }
-  absl::StatusOr<PlaceHead> CommitHead(const std::string& place, const PlaceHead& expected,
-                                       int64_t version) override {
+  absl::StatusOr<PlaceHead> CommitHead(const std::string& place, const PlaceHead& expected, int64_t version,
+                                       const std::string& tag) override {
     std::lock_guard<std::mutex> lock(mu_);
     PlaceHead& h = heads_[place];
     if (h.generation != expected.generation) {
@@ -42,12 +43,31 @@ class LocalCoordinator final : public Coordinator {
                                              " since it was read"));
     }
     h.version = version;
+    h.tag = tag;
     ++h.generation;
     return h;
   }
+  absl::StatusOr<std::map<std::string, PlaceHead>> ReadHeads() override {
+    std::lock_guard<std::mutex> lock(mu_);
+    return heads_;
+  }
+  absl::StatusOr<PlaceHead> InitHead(const std::string& place, int64_t version) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    PlaceHead& h = heads_[place];
+    if (h.generation == 0) h = PlaceHead{version, 1, ""};
+    return h;
+  }
+  absl::StatusOr<int64_t> NextId(const std::string& place, int64_t at_least) override {
+    std::lock_guard<std::mutex> lock(mu_);
+    int64_t& n = next_ids_[place];
+    n = std::max(n, at_least);
+    return n++;
+  }
+  bool replicated() const override { return false; }
   absl::Status Forget(const std::string& place) override {
     std::lock_guard<std::mutex> lock(mu_);
     heads_.erase(place);
+    next_ids_.erase(place);
     return absl::OkStatus();
   }
 
@@ -55,6 +75,7 @@ class LocalCoordinator final : public Coordinator {
   const std::string id_;
   mutable std::mutex mu_;
   std::map<std::string, PlaceHead> heads_;
+  std::map<std::string, int64_t> next_ids_;
 };
 
 std::string DefaultReplicaId() {
@@ -144,18 +165,33 @@ class EtcdCoordinator final : public Coordinator {
     return ParseHead(place, **kv);
   }
 
-  absl::StatusOr<PlaceHead> CommitHead(const std::string& place, const PlaceHead& expected,
-                                       int64_t version) override {
+  absl::StatusOr<std::map<std::string, PlaceHead>> ReadHeads() override {
+    const std::string prefix = absl::StrCat(options_.prefix, "/places/");
+    absl::StatusOr<std::vector<EtcdKeyValue>> kvs = client_->GetPrefix(prefix);
+    if (!kvs.ok()) return kvs.status();
+    std::map<std::string, PlaceHead> heads;
+    for (const EtcdKeyValue& kv : *kvs) {
+      const std::string rest = kv.key.substr(prefix.size());
+      const size_t slash = rest.find('/');
+      if (slash == std::string::npos || rest.substr(slash + 1) != "head") continue;
+      absl::StatusOr<PlaceHead> h = ParseHead(rest.substr(0, slash), kv);
+      if (h.ok()) heads[rest.substr(0, slash)] = *h;
+    }
+    return heads;
+  }
+
+  absl::StatusOr<PlaceHead> CommitHead(const std::string& place, const PlaceHead& expected, int64_t version,
+                                       const std::string& tag) override {
     const int64_t s = session();
     etcdserverpb::TxnRequest txn;
     *txn.add_compare() = EtcdClient::LeaseIs(OwnerKey(place), s);
     *txn.add_compare() = EtcdClient::ModRevisionIs(HeadKey(place), expected.generation);
-    *txn.add_success() = EtcdClient::PutOp(HeadKey(place), absl::StrCat(version));
+    *txn.add_success() = EtcdClient::PutOp(HeadKey(place), HeadValue(version, tag));
     txn.add_failure()->mutable_request_range()->set_key(OwnerKey(place));
     txn.add_failure()->mutable_request_range()->set_key(HeadKey(place));
     absl::StatusOr<etcdserverpb::TxnResponse> r = client_->Txn(txn);
     if (!r.ok()) return r.status();
-    if (r->succeeded()) return PlaceHead{version, r->header().revision()};
+    if (r->succeeded()) return PlaceHead{version, r->header().revision(), tag};
     // Refused: say why.
     std::string why;
     const auto& owner = r->responses(0).response_range();
@@ -168,7 +204,7 @@ class EtcdCoordinator final : public Coordinator {
     } else {
       const auto& head = r->responses(1).response_range();
       why = absl::StrCat("the head moved to ",
-                         head.kvs_size() > 0 ? absl::StrCat("version ", head.kvs(0).value()) : "nothing",
+                         head.kvs_size() > 0 ? absl::StrCat("version ", head.kvs(0).value().substr(0, head.kvs(0).value().find(' '))) : "nothing",
                          " since generation ", expected.generation, " was read");
     }
     if (options_.metrics != nullptr) options_.metrics->FencedCommit();
@@ -177,7 +213,46 @@ class EtcdCoordinator final : public Coordinator {
                                            " of place ", place, ": ", why));
   }
 
+  absl::StatusOr<PlaceHead> InitHead(const std::string& place, int64_t version) override {
+    etcdserverpb::TxnRequest txn;
+    *txn.add_compare() = EtcdClient::KeyAbsent(HeadKey(place));
+    *txn.add_success() = EtcdClient::PutOp(HeadKey(place), HeadValue(version, ""));
+    txn.add_failure()->mutable_request_range()->set_key(HeadKey(place));
+    absl::StatusOr<etcdserverpb::TxnResponse> r = client_->Txn(txn);
+    if (!r.ok()) return r.status();
+    if (r->succeeded()) return PlaceHead{version, r->header().revision(), ""};
+    const auto& range = r->responses(0).response_range();
+    if (range.kvs_size() == 0) return absl::AbortedError("etcd: the head vanished during InitHead; retry");
+    const etcdserverpb::KeyValue& kv = range.kvs(0);
+    return ParseHead(place, EtcdKeyValue{kv.key(), kv.value(), kv.create_revision(), kv.mod_revision(), kv.version(),
+                                         kv.lease()});
+  }
+
+  absl::StatusOr<int64_t> NextId(const std::string& place, int64_t at_least) override {
+    const std::string key = absl::StrCat(options_.prefix, "/places/", place, "/next_id");
+    for (int attempt = 0; attempt < 100; ++attempt) {  // Compare-and-set; retried on a race with another replica.
+      absl::StatusOr<std::optional<EtcdKeyValue>> kv = client_->Get(key);
+      if (!kv.ok()) return kv.status();
+      int64_t n = at_least;
+      if (kv->has_value() && !absl::SimpleAtoi((*kv)->value, &n)) {
+        return absl::DataLossError(absl::StrCat("etcd: ", key, " is not a number"));
+      }
+      n = std::max(n, at_least);
+      etcdserverpb::TxnRequest txn;
+      *txn.add_compare() =
+          kv->has_value() ? EtcdClient::ModRevisionIs(key, (*kv)->mod_revision) : EtcdClient::KeyAbsent(key);
+      *txn.add_success() = EtcdClient::PutOp(key, absl::StrCat(n + 1));
+      absl::StatusOr<etcdserverpb::TxnResponse> r = client_->Txn(txn);
+      if (!r.ok()) return r.status();
+      if (r->succeeded()) return n;
+    }
+    return absl::AbortedError(absl::StrCat("etcd: could not reserve an id for place ", place, " (contention)"));
+  }
+
+  bool replicated() const override { return true; }
+
   absl::Status Forget(const std::string& place) override {
+    (void)client_->Delete(absl::StrCat(options_.prefix, "/places/", place, "/next_id"));
     if (absl::Status s = client_->Delete(HeadKey(place)); !s.ok()) return s;
     if (absl::Status s = client_->Delete(OwnerKey(place)); !s.ok()) return s;
     std::lock_guard<std::mutex> lock(mu_);
@@ -212,13 +287,18 @@ class EtcdCoordinator final : public Coordinator {
     return session_;
   }
 
+  // The head's value: "VERSION" or "VERSION TAG".
+  static std::string HeadValue(int64_t version, const std::string& tag) {
+    return tag.empty() ? absl::StrCat(version) : absl::StrCat(version, " ", tag);
+  }
   static absl::StatusOr<PlaceHead> ParseHead(const std::string& place, const EtcdKeyValue& kv) {
+    const size_t space = kv.value.find(' ');
     int64_t v = 0;
-    if (!absl::SimpleAtoi(kv.value, &v) || v < 0) {
+    if (!absl::SimpleAtoi(kv.value.substr(0, space), &v) || v < 0) {
       return absl::DataLossError(absl::StrCat("etcd: the head of place ", place, " is not a version: '",
                                               kv.value.substr(0, 32), "'"));
     }
-    return PlaceHead{v, kv.mod_revision};
+    return PlaceHead{v, kv.mod_revision, space == std::string::npos ? "" : kv.value.substr(space + 1)};
   }
 
   // Renews the session every ttl/3. If etcd says it expired (this replica was

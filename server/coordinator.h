@@ -25,14 +25,16 @@
 //                        (created only if absent), and the head is a key
 //                        whose mod_revision is the generation. The same
 //                        primitives Kubernetes stands on.
-// Keys (etcd): PREFIX/places/NAME/owner (value: replica id, lease: session),
-//              PREFIX/places/NAME/head  (value: deployed version).
+// Keys (etcd): PREFIX/places/NAME/owner   (value: replica id, lease: session),
+//              PREFIX/places/NAME/head    (value: deployed version),
+//              PREFIX/places/NAME/next_id (the next scan and job number).
 //
 // Thread-safety: every method is thread-safe.
 #ifndef CLNERF_SERVER_COORDINATOR_H_
 #define CLNERF_SERVER_COORDINATOR_H_
 
 #include <cstdint>
+#include <map>
 #include <memory>
 #include <string>
 
@@ -45,6 +47,10 @@ class Metrics;
 struct PlaceHead {
   int64_t version = 0;     // Deployed version (0 = none yet).
   int64_t generation = 0;  // Grows with every commit; 0 = never committed.
+  // The staged directory the version was committed from ("" = it was on
+  // disk already, e.g. a rollback): whoever finds it unpromoted after a
+  // crash promotes exactly that one (publisher.h).
+  std::string tag;
 };
 
 class Coordinator {
@@ -65,7 +71,17 @@ class Coordinator {
   // Fenced publish of `version` as `place`'s head (see above). The new head,
   // or ABORTED naming why it was refused.
   virtual absl::StatusOr<PlaceHead> CommitHead(const std::string& place, const PlaceHead& expected,
-                                               int64_t version) = 0;
+                                               int64_t version, const std::string& tag = "") = 0;
+  // Every place's head, by place name (one round trip).
+  virtual absl::StatusOr<std::map<std::string, PlaceHead>> ReadHeads() = 0;
+  // Sets the head of a place that has none yet (a store from a single
+  // server joining replicas); returns the head now (its own if it had one).
+  virtual absl::StatusOr<PlaceHead> InitHead(const std::string& place, int64_t version) = 0;
+  // A number unique to this call among all replicas, >= `at_least`, for the
+  // ids of `place`'s scans and jobs.
+  virtual absl::StatusOr<int64_t> NextId(const std::string& place, int64_t at_least) = 0;
+  // Whether replicas share the store through this coordinator (etcd).
+  virtual bool replicated() const = 0;
   // Forgets `place` (deleted): releases its lease and removes its keys.
   virtual absl::Status Forget(const std::string& place) = 0;
 };

@@ -4,7 +4,9 @@
 // coordinator (no etcd) keeps the generation check.
 #include "server/coordinator.h"
 
+#include <algorithm>
 #include <chrono>
+#include <mutex>
 #include <thread>
 
 #include "gtest/gtest.h"
@@ -151,6 +153,38 @@ TEST_F(EtcdTest, APausedOwnerLosesThePlaceAndItsLateCommitIsRefused) {
     a_alive = r.ok() && *r;
   }
   EXPECT_TRUE(a_alive);
+}
+
+TEST_F(EtcdTest, IdsAreUniqueAcrossReplicasAndTheFirstHeadSticks) {
+  auto a = MakeEtcdCoordinator(Options("A", 5));
+  auto b = MakeEtcdCoordinator(Options("B", 5));
+  ASSERT_TRUE(a.ok() && b.ok());
+  std::vector<int64_t> ids;
+  std::mutex mu;
+  std::vector<std::thread> threads;
+  for (Coordinator* c : {a->get(), b->get()}) {
+    threads.emplace_back([&, c] {
+      for (int i = 0; i < 20; ++i) {
+        absl::StatusOr<int64_t> id = c->NextId("shop", 7);
+        ASSERT_TRUE(id.ok()) << id.status();
+        std::lock_guard<std::mutex> lock(mu);
+        ids.push_back(*id);
+      }
+    });
+  }
+  for (auto& t : threads) t.join();
+  std::sort(ids.begin(), ids.end());
+  ASSERT_EQ(ids.size(), 40u);
+  for (size_t i = 0; i < ids.size(); ++i) EXPECT_EQ(ids[i], 7 + int64_t(i));  // Unique and dense from 7.
+  EXPECT_EQ(*(*a)->NextId("shop", 100), 100);  // A floor above the counter moves it.
+  EXPECT_EQ(*(*b)->NextId("other", 1), 1);
+  auto h = (*a)->InitHead("shop", 3);
+  ASSERT_TRUE(h.ok());
+  EXPECT_EQ(h->version, 3);
+  auto again = (*b)->InitHead("shop", 9);
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->version, 3);
+  EXPECT_EQ(again->generation, h->generation);
 }
 
 TEST(CoordinatorTest, UnreachableEtcdIsUnavailableQuickly) {

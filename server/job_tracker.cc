@@ -199,6 +199,19 @@ std::optional<std::string> JobTracker::TryNext() {
   return running_;
 }
 
+void JobTracker::Requeue(const std::string& id, const std::string& note) {
+  std::lock_guard<std::mutex> lock(mu_);
+  auto it = jobs_.find(id);
+  if (it == jobs_.end() || IsFinal(it->second.phase)) return;
+  it->second.phase = JobPhase::kQueued;
+  it->second.error = note;
+  it->second.iteration = 0;
+  ++it->second.revision;
+  if (running_ == id) running_.clear();
+  if (std::find(queue_.begin(), queue_.end(), id) == queue_.end()) queue_.push_front(id);
+  cv_.notify_all();
+}
+
 void JobTracker::Update(const std::string& id, const std::function<void(JobStatus*)>& mutate) {
   std::lock_guard<std::mutex> lock(mu_);
   auto it = jobs_.find(id);

@@ -78,6 +78,9 @@ class JobTracker {
   bool WaitQueued();
   // Pops the next queued job like WaitNext, or nullopt at once if none.
   std::optional<std::string> TryNext();
+  // Puts the running job back at the head of the queue (QUEUED): another
+  // replica took its place's lease, so it trains it instead (coordinator.h).
+  void Requeue(const std::string& id, const std::string& note);
   // Applies `mutate` to the job and notifies watchers.
   void Update(const std::string& id, const std::function<void(JobStatus*)>& mutate);
   absl::StatusOr<JobStatus> Get(const std::string& id) const;

@@ -44,6 +44,15 @@ int main(int argc, char** argv) {
                  "(e.g. 512MB, 2GB; 0 = half the machine's memory)")
       ->transform(CLI::AsSizeValue(false))
       ->capture_default_str();
+  app.add_option("--etcd", o.etcd,
+                 "etcd's HOST:PORT: run as one of several replicas sharing --store (default: a single server)");
+  app.add_option("--etcd-prefix", o.etcd_prefix, "Key prefix of this deployment in etcd")->capture_default_str();
+  app.add_option("--lease-ttl", o.lease_ttl_seconds,
+                 "Seconds after which a silent replica's places may be trained by another")
+      ->capture_default_str();
+  app.add_option("--replica-poll", o.replica_poll_seconds,
+                 "Seconds between a replica's checks for scans and versions from the others")
+      ->capture_default_str();
   app.add_option("--train-nice", o.train_nice, "Nice value of training (0-19): renders get the cores first")
       ->capture_default_str();
   app.add_option("--log-level", log_level, "trace|debug|info|warn|error")->capture_default_str();

@@ -1,8 +1,11 @@
 #include "server/publisher.h"
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <chrono>
 #include <filesystem>
+#include <random>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -16,17 +19,23 @@ namespace clnerf {
 
 Publisher::Publisher(const PublisherOptions& options)
     : options_(options),
-      registry_([this](int64_t v) { return LoadServable(v); }, options.models, options.place) {}
+      registry_([this](int64_t v) { return LoadServable(v); }, options.models, options.place),
+      replicated_(options.coordinator != nullptr && options.coordinator->replicated()),
+      replica_tag_(absl::StrFormat("%d-%08x", getpid(), uint32_t(std::random_device{}()))) {}
 
 absl::StatusOr<std::unique_ptr<Publisher>> Publisher::Open(const PublisherOptions& options) {
   std::error_code ec;
   std::filesystem::create_directories(options.store_dir, ec);
   if (ec) return absl::InternalError(absl::StrCat("cannot create store '", options.store_dir, "': ", ec.message()));
-  if (const int n = RemoveAtomicWriteTemps((std::filesystem::path(options.store_dir) / "manifest.json").string())) {
-    spdlog::info("removed {} manifest temporary file(s) left by an interrupted write", n);
-  }
   std::unique_ptr<Publisher> p(new Publisher(options));
-  absl::StatusOr<std::unique_ptr<VersionStore>> versions = VersionStore::Open(options.store_dir);
+  // Replicas may be writing into a shared store right now: leave temporaries
+  // alone there (a crash leaves at most a few small ones).
+  if (!p->replicated_) {
+    if (const int n = RemoveAtomicWriteTemps((std::filesystem::path(options.store_dir) / "manifest.json").string())) {
+      spdlog::info("removed {} manifest temporary file(s) left by an interrupted write", n);
+    }
+  }
+  absl::StatusOr<std::unique_ptr<VersionStore>> versions = VersionStore::Open(options.store_dir, !p->replicated_);
   if (!versions.ok()) return versions.status();
   p->versions_ = *std::move(versions);
   // A manifest that cannot be parsed is not a write error: refusing to start
@@ -107,6 +116,17 @@ absl::Status Publisher::RecoverLocked() {
     m.deployed = all->back().version;
     m.next_version = std::max(m.next_version, all->back().version + 1);
   }
+  if (replicated_) {
+    // The head in the coordinator is the deployed pointer; the first replica
+    // to open a place starts it from the store's own record.
+    absl::StatusOr<PlaceHead> head = options_.coordinator->ReadHead(options_.place);
+    if (head.ok() && head->generation == 0) head = options_.coordinator->InitHead(options_.place, m.deployed);
+    if (!head.ok()) return head.status();
+    if (absl::Status s = FinishCommittedLocked(*head); !s.ok()) return s;
+    m.deployed = head->version;
+    m.next_version = std::max(m.next_version, head->version + 1);
+    head_generation_ = std::max(head_generation_, head->generation);
+  }
   // Record what is known before anything can fail, so no version number is
   // handed out twice.
   manifest_.next_version = m.next_version;
@@ -186,6 +206,12 @@ absl::StatusOr<ReservedIds> Publisher::ReserveIds() {
   std::lock_guard<std::mutex> lock(mu_);
   MaybeRetryLocked();
   if (absl::Status s = RefusalLocked(); !s.ok()) return s;
+  if (replicated_) {  // Unique across the replicas; the manifest's counters are only a floor.
+    absl::StatusOr<int64_t> n =
+        options_.coordinator->NextId(options_.place, std::max(manifest_.next_scan, manifest_.next_job));
+    if (!n.ok()) return absl::UnavailableError(absl::StrCat("cannot reserve an id: ", n.status().message()));
+    return ReservedIds{absl::StrFormat("scan-%06d", *n), absl::StrFormat("job-%06d", *n)};
+  }
   Manifest next = manifest_;
   ReservedIds ids{absl::StrFormat("scan-%06d", next.next_scan++), absl::StrFormat("job-%06d", next.next_job++)};
   // Counters first, so an id is never reused even if saving the scan fails.
@@ -198,11 +224,18 @@ absl::StatusOr<ReservedIds> Publisher::ReserveIds() {
 }
 
 absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int64_t parent, const Origin& origin,
-                                               const std::map<std::string, double>& metrics) {
+                                               const std::map<std::string, double>& metrics, const PlaceHead* fence) {
   std::lock_guard<std::mutex> lock(mu_);
   if (absl::Status s = RefusalLocked(); !s.ok()) return s;
   VersionInfo info;
   info.version = manifest_.next_version;
+  if (replicated_) {
+    if (fence == nullptr) return absl::InternalError("a replicated publish needs the head its update started from");
+    info.version = std::max(info.version, fence->version + 1);
+    if (absl::StatusOr<std::vector<VersionInfo>> all = versions_->List(); all.ok() && !all->empty()) {
+      info.version = std::max(info.version, all->back().version + 1);  // Another replica's, or a rolled-back one.
+    }
+  }
   info.parent = parent;
   info.time_steps = state.model->num_time_steps();
   info.created_unix_ms = NowUnixMs();
@@ -210,6 +243,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
   info.scan_name = origin.scan_name;
   info.job_id = origin.job_id;
   info.metrics = metrics;
+  if (replicated_) return PublishReplicatedLocked(state, info, *fence);
   absl::StatusOr<VersionInfo> written = versions_->Write(*state.model, state.memory, info);
   if (!written.ok()) {
     // Nothing was left behind; the caller may publish the same state again
@@ -240,10 +274,133 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
   return *written;
 }
 
+absl::StatusOr<VersionInfo> Publisher::PublishReplicatedLocked(const ContinualState& state, const VersionInfo& info,
+                                                               const PlaceHead& fence) {
+  versions_->RemoveStaged(info.version, replica_tag_);  // A leftover of this process's earlier attempt.
+  absl::StatusOr<VersionInfo> written = versions_->WriteStaged(*state.model, state.memory, info, replica_tag_);
+  if (!written.ok()) {
+    SetErrorLocked(written.status());
+    return written.status();
+  }
+  CrashPoint("publish:staged");
+  // The fenced commit: only while this replica holds the place's lease and
+  // the head is where this update started. Refused: nothing stays behind.
+  absl::StatusOr<PlaceHead> head = options_.coordinator->CommitHead(options_.place, fence, info.version, replica_tag_);
+  if (!head.ok()) {
+    versions_->RemoveStaged(info.version, replica_tag_);
+    return head.status();
+  }
+  CrashPoint("publish:committed");
+  head_generation_ = std::max(head_generation_, head->generation);
+  manifest_.next_version = info.version + 1;
+  if (absl::Status s = FinishCommittedLocked(*head); !s.ok()) {
+    SetErrorLocked(absl::Status(s.code(), absl::StrCat("version ", info.version, " is committed but could not be moved "
+                                                       "into place: ", s.message())));
+    return s;
+  }
+  auto servable = std::make_shared<Servable>();
+  servable->info = *written;
+  servable->state.model = state.model;
+  servable->state.memory = state.memory;
+  registry_.Deploy(std::move(servable));
+  Manifest m = manifest_;
+  m.deployed = info.version;
+  // The head is the record; the manifest is a local copy (best effort).
+  if (absl::Status s = versions_->WriteManifest(m); s.ok()) {
+    manifest_ = m;
+  } else {
+    spdlog::warn("version {} is published; the manifest copy was not updated: {}", info.version, s.ToString());
+  }
+  PruneLocked();
+  return *written;
+}
+
+absl::Status Publisher::FinishCommittedLocked(const PlaceHead& head) {
+  if (head.version == 0) return absl::OkStatus();
+  absl::StatusOr<VersionInfo> there = versions_->Info(head.version);
+  if (there.ok() || !absl::IsNotFound(there.status())) return absl::OkStatus();  // On disk (a bad one is isolated).
+  absl::Status s = head.tag.empty() ? absl::NotFoundError("no staged copy is named")
+                                    : versions_->PromoteStaged(head.version, head.tag);
+  if (s.ok()) {
+    spdlog::warn("version {} was committed but not moved into place (a crash); promoted it", head.version);
+    return absl::OkStatus();
+  }
+  if (absl::IsAlreadyExists(s) || versions_->Info(head.version).ok()) return absl::OkStatus();  // Another replica did.
+  return absl::DataLossError(absl::StrCat("the deployed version ", head.version, " of place ", options_.place,
+                                          " is not in the store: ", s.message()));
+}
+
+absl::StatusOr<PlaceHead> Publisher::SyncToHead() {
+  if (!replicated_) return PlaceHead{registry_.deployed_version(), 0, ""};
+  absl::StatusOr<PlaceHead> head = options_.coordinator->ReadHead(options_.place);
+  if (!head.ok()) return head.status();
+  if (absl::Status s = FollowHead(*head); !s.ok()) return s;
+  return head;
+}
+
+absl::Status Publisher::FollowHead(const PlaceHead& head) {
+  if (!replicated_) return absl::OkStatus();
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (head.generation < head_generation_) return absl::OkStatus();  // Older than what we know.
+    head_generation_ = head.generation;
+    if (head.version == 0 || head.version == registry_.deployed_version()) return absl::OkStatus();
+    if (absl::Status s = FinishCommittedLocked(head); !s.ok()) return s;
+  }
+  absl::StatusOr<VersionInfo> info = versions_->Info(head.version);
+  if (!info.ok()) return info.status();
+  // Loaded here: load the new one beside it, then swap (no gap for renders).
+  // Not loaded: record it; it loads on first use.
+  std::shared_ptr<const Servable> loaded;
+  if (registry_.loaded(0)) {
+    absl::StatusOr<std::shared_ptr<const Servable>> s = LoadServable(head.version);
+    if (!s.ok()) return s.status();
+    loaded = *s;
+  }
+  std::lock_guard<std::mutex> lock(mu_);
+  if (head.generation < head_generation_) return absl::OkStatus();
+  if (loaded) {
+    registry_.Deploy(loaded);
+  } else {
+    registry_.DeployUnloaded(*info);
+  }
+  manifest_.next_version = std::max(manifest_.next_version, head.version + 1);
+  spdlog::info("place {}: now serving version {} (deployed by another replica)", options_.place, head.version);
+  return absl::OkStatus();
+}
+
+std::optional<VersionInfo> Publisher::VersionOfScan(const std::string& scan_id) {
+  absl::StatusOr<std::vector<VersionInfo>> all = versions_->List();
+  if (!all.ok()) return std::nullopt;
+  for (const VersionInfo& v : *all) {
+    if (v.scan_id == scan_id && v.unavailable.empty()) return v;
+  }
+  return std::nullopt;
+}
+
 absl::StatusOr<VersionInfo> Publisher::SetDeployed(int64_t v) {
   if (v <= 0) return absl::InvalidArgumentError(absl::StrCat("version ", v, " is not a version number"));
   absl::StatusOr<std::shared_ptr<const Servable>> s = registry_.Get(v);
   if (!s.ok()) return s.status();
+  if (replicated_) {
+    // A rollback is a commit like a publish: under the place's lease.
+    Coordinator& c = *options_.coordinator;
+    const bool held = c.Holds(options_.place);
+    if (!held) {
+      absl::StatusOr<bool> took = c.TryAcquire(options_.place);
+      if (!took.ok()) return took.status();
+      if (!*took) {
+        return absl::FailedPreconditionError(absl::StrCat("place ", options_.place, " is being updated by another "
+                                                          "replica; deploy again when its update has finished"));
+      }
+    }
+    absl::StatusOr<PlaceHead> head = c.ReadHead(options_.place);
+    absl::StatusOr<PlaceHead> committed = head.ok() ? c.CommitHead(options_.place, *head, v, "") : head.status();
+    if (!held) c.Release(options_.place);
+    if (!committed.ok()) return committed.status();
+    std::lock_guard<std::mutex> lock(mu_);
+    head_generation_ = std::max(head_generation_, committed->generation);
+  }
   std::lock_guard<std::mutex> lock(mu_);
   Manifest next = manifest_;
   next.deployed = v;

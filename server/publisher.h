@@ -25,17 +25,20 @@
 #include <chrono>
 #include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "absl/status/statusor.h"
 #include "core/continual/continual_update.h"
+#include "server/coordinator.h"
 #include "server/model_registry.h"
 #include "server/version_store.h"
 
 namespace clnerf {
 
 class Metrics;
+class Coordinator;
 
 struct PublisherOptions {
   std::string store_dir;
@@ -43,6 +46,10 @@ struct PublisherOptions {
   // this publisher's own with no budget.
   std::shared_ptr<ServableCache> models;
   std::string place = "default";  // For the cache's keys and logs.
+  // Replicas sharing the store (coordinator.h; null or local = a single
+  // server): the deployed pointer is the coordinator's head of `place`,
+  // version numbers and ids come from it, and a publish is a fenced commit.
+  std::shared_ptr<Coordinator> coordinator;
   // Open loads the deployed version to check it (true), or only reads its
   // metadata and leaves the load to VerifyDeployed or its first use (false:
   // a server of many places starts serving without loading them all).
@@ -80,8 +87,24 @@ class Publisher {
     std::string scan_id, scan_name, job_id;
   };
   // Publishes θ_t and M_t trained from `parent` (0 = none) on `origin`'s scan.
+  // Replicated: `fence` is the head read when the update started (SyncToHead);
+  // the version is written staged, committed only if this replica still
+  // holds the place's lease and the head has not moved (ABORTED otherwise,
+  // and nothing is left behind), then promoted to versions/N.
   absl::StatusOr<VersionInfo> Publish(const ContinualState& state, int64_t parent, const Origin& origin,
-                                      const std::map<std::string, double>& metrics);
+                                      const std::map<std::string, double>& metrics, const PlaceHead* fence = nullptr);
+
+  // Replicas: whether this store is shared through a coordinator.
+  bool replicated() const { return replicated_; }
+  // Replicas: reads the place's head and follows it (below); returns it.
+  absl::StatusOr<PlaceHead> SyncToHead();
+  // Replicas: makes `head` the deployed version if it is not already: it is
+  // loaded beside the old one and swapped in if the old one was in memory,
+  // else only recorded (it loads on first use). A committed version whose
+  // promotion a crash interrupted is promoted first.
+  absl::Status FollowHead(const PlaceHead& head);
+  // Replicas: the version that holds scan `scan_id`, if any.
+  std::optional<VersionInfo> VersionOfScan(const std::string& scan_id);
   // NOT_FOUND for an unknown version, DATA_LOSS for a corrupt one.
   absl::StatusOr<VersionInfo> SetDeployed(int64_t version);
   // Loads the deployed version if it is not in memory; if it cannot be
@@ -101,6 +124,11 @@ class Publisher {
   // Recovery steps; caller holds mu_.
   absl::Status RecoverLocked();
   static absl::Status UnloadableDeployed(int64_t version, const absl::Status& why);
+  // Promotes the staged directory `head` was committed from, if version
+  // head.version is not on disk yet. Caller holds mu_.
+  absl::Status FinishCommittedLocked(const PlaceHead& head);
+  absl::StatusOr<VersionInfo> PublishReplicatedLocked(const ContinualState& state, const VersionInfo& info,
+                                                      const PlaceHead& fence);
   absl::Status RetryLocked();
   void MaybeRetryLocked();  // RetryLocked() if retry_seconds passed.
   void SetErrorLocked(const absl::Status& s);
@@ -114,6 +142,9 @@ class Publisher {
   mutable std::mutex mu_;
   Manifest manifest_;        // As last written (or read).
   bool opening_ = false;     // In Open: the deployed version may be left unloaded.
+  const bool replicated_;
+  std::string replica_tag_;  // Part of staged directory names: unique per process.
+  int64_t head_generation_ = 0;  // Newest head seen (replicated); guarded by mu_.
   absl::Status bg_error_;    // Sticky; guarded by mu_.
   std::chrono::steady_clock::time_point last_check_;  // Of the store, while bg_error_ is set.
 };

@@ -64,6 +64,13 @@ absl::Status ServerOptions::Validate() const {
   }
   if (max_scan_attempts < 1) return absl::InvalidArgumentError("max_scan_attempts must be >= 1");
   if (!(store_retry_seconds > 0)) return absl::InvalidArgumentError("store_retry_seconds must be > 0");
+  if (lease_ttl_seconds < 1 || lease_ttl_seconds > 3600) {
+    return absl::InvalidArgumentError("lease_ttl_seconds must be in [1, 3600]");
+  }
+  if (!(replica_poll_seconds > 0) || replica_poll_seconds > 3600) {
+    return absl::InvalidArgumentError("replica_poll_seconds must be in (0, 3600]");
+  }
+  if (!etcd_prefix.empty() && etcd_prefix[0] != '/') return absl::InvalidArgumentError("etcd_prefix must start with '/'");
   if (model_memory_budget < 0) return absl::InvalidArgumentError("model_memory_budget must be >= 0 (0 = auto)");
   if (keep_versions < 0) return absl::InvalidArgumentError("keep_versions must be >= 0");
   if (!(shutdown_grace_seconds >= 0)) return absl::InvalidArgumentError("shutdown_grace_seconds must be >= 0");
@@ -139,6 +146,10 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "render_pixel_budget") s = Get(*it, "render_pixel_budget", &o->render_pixel_budget);
     else if (k == "max_scan_attempts") s = Get(*it, "max_scan_attempts", &o->max_scan_attempts);
     else if (k == "store_retry_seconds") s = Get(*it, "store_retry_seconds", &o->store_retry_seconds);
+    else if (k == "etcd") s = Get(*it, "etcd", &o->etcd);
+    else if (k == "etcd_prefix") s = Get(*it, "etcd_prefix", &o->etcd_prefix);
+    else if (k == "lease_ttl_seconds") s = Get(*it, "lease_ttl_seconds", &o->lease_ttl_seconds);
+    else if (k == "replica_poll_seconds") s = Get(*it, "replica_poll_seconds", &o->replica_poll_seconds);
     else if (k == "model_memory_budget") s = Get(*it, "model_memory_budget", &o->model_memory_budget);
     else if (k == "keep_versions") s = Get(*it, "keep_versions", &o->keep_versions);
     else if (k == "shutdown_grace_seconds") s = Get(*it, "shutdown_grace_seconds", &o->shutdown_grace_seconds);

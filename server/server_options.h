@@ -79,6 +79,19 @@ struct ServerOptions {
   int keep_versions = 0;                // Versions kept on disk (oldest pruned, never the deployed one); 0 = all.
   double shutdown_grace_seconds = 20;   // In-flight RPCs get this long on shutdown.
 
+  // Replicas (coordinator.h): several servers over one shared store, each
+  // started with the same etcd. "" (default) = a single server with local
+  // locks and no etcd.
+  std::string etcd;                    // etcd's client address, HOST:PORT.
+  std::string etcd_prefix = "/clnerf"; // Keys of this deployment in etcd.
+  // A replica that stops renewing (dead, paused, cut off) loses its places'
+  // training leases after this long; another then trains their scans.
+  int64_t lease_ttl_seconds = 10;
+  // How often a replica looks for scans uploaded through others, and for
+  // versions they deployed (which it then loads and serves): the bound on
+  // how stale a replica's view is, plus one model load.
+  double replica_poll_seconds = 1;
+
   UpdateOptions update = DefaultUpdateOptions();
   GateOptions gate;  // The deployment gate (core/continual/deployment_gate.h).
 

@@ -52,12 +52,12 @@ absl::StatusOr<VersionInfo> InfoFromJson(const std::string& text, const std::str
 
 }  // namespace
 
-absl::StatusOr<std::unique_ptr<VersionStore>> VersionStore::Open(const std::string& root) {
+absl::StatusOr<std::unique_ptr<VersionStore>> VersionStore::Open(const std::string& root, bool clean_temps) {
   const std::string dir = (fs::path(root) / "versions").string();
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec) return absl::InternalError(absl::StrCat("cannot create '", dir, "': ", ec.message()));
-  RemoveTempEntries(dir);
+  if (clean_temps) RemoveTempEntries(dir);
   return std::unique_ptr<VersionStore>(new VersionStore(root, dir));
 }
 
@@ -67,6 +67,49 @@ std::string VersionStore::VersionDir(int64_t v) const {
 
 absl::StatusOr<VersionInfo> VersionStore::Write(const NgpModel& model, const ReplayMemory& memory,
                                                 VersionInfo info) {
+  return WriteInto(VersionDir(info.version), model, memory, std::move(info));
+}
+
+namespace {
+std::string StagedName(int64_t version, const std::string& tag) {
+  return absl::StrFormat(".staged-%06d-%s", version, tag);
+}
+}  // namespace
+
+absl::StatusOr<VersionInfo> VersionStore::WriteStaged(const NgpModel& model, const ReplayMemory& memory,
+                                                      VersionInfo info, const std::string& tag) {
+  const std::string dir = (fs::path(dir_) / StagedName(info.version, tag)).string();
+  return WriteInto(dir, model, memory, std::move(info));
+}
+
+absl::Status VersionStore::PromoteStaged(int64_t version, const std::string& tag) {
+  const fs::path staged = fs::path(dir_) / StagedName(version, tag);
+  std::error_code ec;
+  if (!fs::exists(staged, ec)) return absl::NotFoundError(absl::StrCat("no staged version ", version, " '", tag, "'"));
+  if (fs::exists(VersionDir(version), ec)) return absl::AlreadyExistsError(absl::StrCat("version ", version, " exists"));
+  fs::rename(staged, VersionDir(version), ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot promote staged version ", version, ": ", ec.message()));
+  return SyncDirectory(dir_);
+}
+
+void VersionStore::RemoveStaged(int64_t version, const std::string& tag) {
+  std::error_code ec;
+  fs::remove_all(fs::path(dir_) / StagedName(version, tag), ec);
+}
+
+std::vector<std::string> VersionStore::StagedTags(int64_t version) const {
+  const std::string prefix = StagedName(version, "");
+  std::vector<std::string> tags;
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(dir_, ec)) {
+    const std::string name = e.path().filename().string();
+    if (name.rfind(prefix, 0) == 0) tags.push_back(name.substr(prefix.size()));
+  }
+  return tags;
+}
+
+absl::StatusOr<VersionInfo> VersionStore::WriteInto(const std::string& dir, const NgpModel& model,
+                                                    const ReplayMemory& memory, VersionInfo info) {
   CheckpointExtras extras;
   extras.metadata["version"] = absl::StrCat(info.version);
   extras.metadata["parent"] = absl::StrCat(info.parent);
@@ -76,7 +119,7 @@ absl::StatusOr<VersionInfo> VersionStore::Write(const NgpModel& model, const Rep
   info.size_bytes = int64_t(bytes->size());
   info.model_bytes = int64_t(model.num_bytes());
   const std::string json = InfoToJson(info).dump(1);
-  absl::Status s = WriteDirectoryAtomically(VersionDir(info.version), {{"model.ckpt", *bytes}, {"version.json", json}});
+  absl::Status s = WriteDirectoryAtomically(dir, {{"model.ckpt", *bytes}, {"version.json", json}});
   if (!s.ok()) return absl::Status(s.code(), absl::StrCat("cannot publish version ", info.version, ": ", s.message()));
   return info;
 }

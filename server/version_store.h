@@ -61,11 +61,16 @@ struct LoadedVersion {
 
 class VersionStore {
  public:
-  static absl::StatusOr<std::unique_ptr<VersionStore>> Open(const std::string& root);
+  // `clean_temps`: remove what interrupted writes left (false when other
+  // replicas may be writing into the same store right now).
+  static absl::StatusOr<std::unique_ptr<VersionStore>> Open(const std::string& root, bool clean_temps = true);
 
   // Writes version `info.version` durably; fills info.size_bytes and
   // info.model_bytes.
   absl::StatusOr<VersionInfo> Write(const NgpModel& model, const ReplayMemory& memory, VersionInfo info);
+  // Write()'s bytes into `dir`.
+  absl::StatusOr<VersionInfo> WriteInto(const std::string& dir, const NgpModel& model, const ReplayMemory& memory,
+                                        VersionInfo info);
   // NOT_FOUND for a version that does not exist.
   absl::StatusOr<LoadedVersion> Load(int64_t version) const;
   absl::StatusOr<VersionInfo> Info(int64_t version) const;
@@ -76,6 +81,17 @@ class VersionStore {
   // Deletes a version's folder (renamed aside first, so a crash leaves it
   // whole or gone). NOT_FOUND if it does not exist.
   absl::Status Remove(int64_t version);
+
+  // Replicas (publisher.h): version `info.version` written durably as the
+  // hidden directory versions/.staged-N-TAG, which List and Load ignore until
+  // PromoteStaged renames it to versions/N once the publish is committed.
+  absl::StatusOr<VersionInfo> WriteStaged(const NgpModel& model, const ReplayMemory& memory, VersionInfo info,
+                                          const std::string& tag);
+  // ALREADY_EXISTS if versions/N exists; NOT_FOUND if the staged one does not.
+  absl::Status PromoteStaged(int64_t version, const std::string& tag);
+  void RemoveStaged(int64_t version, const std::string& tag);
+  // The tags of staged directories of `version` (normally none).
+  std::vector<std::string> StagedTags(int64_t version) const;
 
   absl::StatusOr<Manifest> ReadManifest() const;  // Defaults if absent.
   absl::Status WriteManifest(const Manifest& manifest);
