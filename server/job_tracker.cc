@@ -222,6 +222,8 @@ void JobTracker::Update(const std::string& id, const std::function<void(JobStatu
   if (IsFinal(it->second.phase)) {
     if (it->second.finished_unix_ms == 0) it->second.finished_unix_ms = NowUnixMs();
     if (running_ == id) running_.clear();
+    // Resolved while queued (by another replica's publish, say): not run.
+    queue_.erase(std::remove(queue_.begin(), queue_.end(), id), queue_.end());
     if (!was_final) FinishedLocked();
   }
   cv_.notify_all();

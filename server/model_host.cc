@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <map>
+#include <set>
 
 #include "absl/strings/str_cat.h"
 #include "core/render/renderer.h"
@@ -22,9 +24,14 @@ ModelHost::ModelHost(const ServerOptions& options, SharedServices shared)
     : options_(options),
       started_(std::chrono::steady_clock::now()),
       metrics_(std::move(shared.metrics)),
-      jobs_(options.max_queue, (std::filesystem::path(options.store_dir) / "jobs.json").string()),
+      // Replicas share the store: each rebuilds job records from it (scans,
+      // versions) instead of racing on one history file.
+      jobs_(options.max_queue, shared.coordinator != nullptr && shared.coordinator->replicated()
+                                   ? std::string()
+                                   : (std::filesystem::path(options.store_dir) / "jobs.json").string()),
       trainings_(std::move(shared.trainings)),
       render_slots_(std::move(shared.render_slots)),
+      coordinator_(shared.coordinator),
       cores_(std::max(1, int(std::thread::hardware_concurrency()))) {}
 
 absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& options, SharedServices shared,
@@ -39,19 +46,22 @@ absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& 
                             : MakeServableCache(ResolvedModelMemoryBudget(options), host->metrics_);
   po.place = place;
   po.verify_deployed_at_open = !shared.defer_model_load;
+  po.coordinator = shared.coordinator;
   po.keep_versions = options.keep_versions;
   po.retry_seconds = options.store_retry_seconds;
   po.metrics = host->metrics_.get();
   absl::StatusOr<std::unique_ptr<Publisher>> publisher = Publisher::Open(po);
   if (!publisher.ok()) return publisher.status();
   host->publisher_ = *std::move(publisher);
-  absl::StatusOr<std::unique_ptr<ScanStore>> scans = ScanStore::Open(options.store_dir);
+  const bool replicated = shared.coordinator != nullptr && shared.coordinator->replicated();
+  absl::StatusOr<std::unique_ptr<ScanStore>> scans = ScanStore::Open(options.store_dir, !replicated);
   if (!scans.ok()) return scans.status();
   host->scans_ = *std::move(scans);
   host->jobs_.LoadHistory();
   if (absl::Status s = host->RecoverScans(); !s.ok()) return s;
   host->worker_ = std::make_unique<UpdateWorker>(options, host->scans_.get(), host->publisher_.get(), &host->jobs_,
-                                                 host->metrics_.get(), host->trainings_.get(), place);
+                                                 host->metrics_.get(), host->trainings_.get(), place,
+                                                 host->coordinator_.get());
   host->worker_->Start();
   return host;
 }
@@ -121,6 +131,58 @@ absl::Status ModelHost::RecoverScans() {
   }
   if (requeued > 0) spdlog::info("recovery: re-queued {} acknowledged scan(s) that were not trained yet", requeued);
   return absl::OkStatus();
+}
+
+void ModelHost::FollowReplicas(const std::optional<PlaceHead>& head) {
+  if (coordinator_ == nullptr || !coordinator_->replicated() || stopping_) return;
+  if (head) {
+    if (absl::Status s = publisher_->FollowHead(*head); !s.ok()) {
+      spdlog::warn("following version {}: {}", head->version, s.ToString());
+    }
+  }
+  absl::StatusOr<std::vector<ScanRecord>> pending = scans_->List();
+  absl::StatusOr<std::vector<VersionInfo>> versions = publisher_->versions().List();
+  if (!pending.ok() || !versions.ok()) return;
+  std::map<std::string, const VersionInfo*> by_scan;
+  for (const VersionInfo& v : *versions) {
+    if (v.unavailable.empty()) by_scan[v.scan_id] = &v;
+  }
+  std::set<std::string> stored;
+  std::lock_guard<std::mutex> lock(upload_mu_);
+  // Scans uploaded through other replicas: known here as queued jobs (this
+  // replica trains them if it gets the place's lease first).
+  for (const ScanRecord& r : *pending) {
+    stored.insert(r.scan_id);
+    if (jobs_.Get(r.job_id).ok() || by_scan.count(r.scan_id)) continue;
+    JobStatus j;
+    j.job_id = r.job_id;
+    j.scan_id = r.scan_id;
+    j.scan_name = r.name;
+    j.created_unix_ms = r.created_unix_ms;
+    j.time_step = PredictedTimeStep();
+    if (jobs_.Enqueue(std::move(j), /*force=*/true).ok()) {
+      spdlog::info("job {}: scan {} uploaded through another replica", r.job_id, r.scan_id);
+    }
+  }
+  // Jobs whose scan left the store elsewhere: trained into a version there,
+  // or cancelled or parked there.
+  const std::string running = jobs_.running();
+  for (const JobStatus& j : jobs_.List()) {
+    if (IsFinal(j.phase) || j.job_id == running || stored.count(j.scan_id)) continue;
+    auto v = by_scan.find(j.scan_id);
+    jobs_.Update(j.job_id, [&](JobStatus* s) {
+      if (v != by_scan.end()) {
+        s->phase = JobPhase::kDone;
+        s->version = v->second->version;
+        s->time_step = v->second->time_steps - 1;
+        s->metrics = v->second->metrics;
+        s->error.clear();
+      } else {
+        s->phase = JobPhase::kCancelled;
+        s->error = "its scan was removed through another replica (cancelled or parked there)";
+      }
+    });
+  }
 }
 
 absl::Status ModelHost::WritableStatus() const {

@@ -51,6 +51,7 @@
 #include "absl/status/statusor.h"
 #include "core/data/camera.h"
 #include "core/data/image.h"
+#include "server/coordinator.h"
 #include "server/job_tracker.h"
 #include "server/metrics.h"
 #include "server/training_scheduler.h"
@@ -98,6 +99,8 @@ struct SharedServices {
   // and checks it later (Places does, in the background, so a server of
   // many places answers at once). false: Open loads it.
   bool defer_model_load = false;
+  // Replicas sharing the store (coordinator.h); null: a single server.
+  std::shared_ptr<Coordinator> coordinator;
 };
 
 struct HostInfo {
@@ -157,6 +160,12 @@ class ModelHost {
   int64_t deployed_version() const { return publisher_->registry().deployed_version(); }
 
   HostInfo Info() const;
+  // Replicas: follows `head` (the place's deployed version in the
+  // coordinator, if it has one) and the store: scans uploaded through other
+  // replicas become queued jobs here, and jobs whose scans another replica
+  // trained (or removed) end as it did. Called every replica_poll_seconds by
+  // Places. No-op for a single server.
+  void FollowReplicas(const std::optional<PlaceHead>& head);
   // Loads the deployed version if it is not in memory; one that cannot load
   // makes the store read-only, as at start-up (publisher.h).
   absl::Status VerifyDeployed() { return publisher_->VerifyDeployed(); }
@@ -190,6 +199,7 @@ class ModelHost {
   std::mutex upload_mu_;  // Serialises uploads (id reservation, save, enqueue).
   const std::shared_ptr<TrainingScheduler> trainings_;
   const std::shared_ptr<RenderSlots> render_slots_;
+  const std::shared_ptr<Coordinator> coordinator_;  // Null: a single server.
   const int cores_;                     // For adaptive render threads.
   std::atomic<bool> stopping_{false};
   std::once_flag shutdown_once_;

@@ -22,9 +22,23 @@ constexpr char kDeletedPrefix[] = ".deleted-";
 
 namespace {
 
-SharedServices MakeSharedServices(const ServerOptions& options) {
+absl::StatusOr<SharedServices> MakeSharedServices(const ServerOptions& options) {
   SharedServices s;
   s.metrics = std::make_shared<Metrics>();
+  if (options.etcd.empty()) {
+    s.coordinator = MakeLocalCoordinator();
+  } else {
+    EtcdCoordinatorOptions eo;
+    eo.endpoint = options.etcd;
+    eo.prefix = options.etcd_prefix;
+    eo.lease_ttl_seconds = options.lease_ttl_seconds;
+    eo.metrics = s.metrics.get();
+    absl::StatusOr<std::unique_ptr<Coordinator>> c = MakeEtcdCoordinator(eo);
+    if (!c.ok()) return c.status();
+    s.coordinator = std::shared_ptr<Coordinator>(*std::move(c));
+    spdlog::info("replica {}: coordinating through etcd at {} (prefix {}, lease {} s)", s.coordinator->replica_id(),
+                 options.etcd, options.etcd_prefix, options.lease_ttl_seconds);
+  }
   s.trainings = std::make_shared<TrainingScheduler>(options.max_concurrent_trainings);
   s.render_slots = std::make_shared<RenderSlots>(options.render_concurrency);
   s.models = MakeServableCache(ResolvedModelMemoryBudget(options), s.metrics);
@@ -34,16 +48,18 @@ SharedServices MakeSharedServices(const ServerOptions& options) {
 
 }  // namespace
 
-Places::Places(const ServerOptions& options)
+Places::Places(const ServerOptions& options, SharedServices shared)
     : options_(options),
-      shared_(MakeSharedServices(options)),
+      shared_(std::move(shared)),
       places_dir_((fs::path(options.store_dir) / "places").string()) {}
 
 Places::~Places() { Shutdown(); }
 
 absl::StatusOr<std::unique_ptr<Places>> Places::Open(const ServerOptions& options) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;
-  std::unique_ptr<Places> p(new Places(options));
+  absl::StatusOr<SharedServices> shared = MakeSharedServices(options);
+  if (!shared.ok()) return shared.status();
+  std::unique_ptr<Places> p(new Places(options, *std::move(shared)));
   std::error_code ec;
   fs::create_directories(p->places_dir_, ec);
   if (ec) return absl::InternalError(absl::StrCat("cannot create '", p->places_dir_, "': ", ec.message()));
@@ -72,6 +88,7 @@ absl::StatusOr<std::unique_ptr<Places>> Places::Open(const ServerOptions& option
   }
   spdlog::info("store {}: {} place(s)", options.store_dir, p->hosts_.size());
   p->warmup_ = std::thread([raw = p.get(), names] { raw->WarmUp(names); });
+  if (p->shared_.coordinator->replicated()) p->follower_ = std::thread([raw = p.get()] { raw->FollowReplicas(); });
   return p;
 }
 
@@ -175,6 +192,7 @@ absl::Status Places::Delete(std::string_view name) {
   if (absl::Status s = SyncDirectory(places_dir_); !s.ok()) return s;
   fs::remove_all(trash, ec);
   if (ec) spdlog::warn("place '{}' deleted; removing its files: {}", n, ec.message());
+  if (absl::Status s = shared_.coordinator->Forget(n); !s.ok()) spdlog::warn("place '{}': {}", n, s.ToString());
   spdlog::info("deleted place '{}'", n);
   return absl::OkStatus();
 }
@@ -236,6 +254,30 @@ void Places::WarmUp(const std::vector<std::string>& names) {
                shared_.models->stats().entries, shared_.models->stats().bytes);
 }
 
+// Replicas: every replica_poll_seconds, one read of every place's head from
+// the coordinator, then each place follows it and the store (new places,
+// scans uploaded elsewhere, versions deployed elsewhere).
+void Places::FollowReplicas() {
+  while (true) {
+    {
+      std::unique_lock<std::mutex> lock(mu_);
+      stop_cv_.wait_for(lock, std::chrono::duration<double>(options_.replica_poll_seconds), [&] { return shut_down_; });
+      if (shut_down_) return;
+    }
+    absl::StatusOr<std::map<std::string, PlaceHead>> heads = shared_.coordinator->ReadHeads();
+    if (!heads.ok()) {
+      spdlog::warn("replica: cannot read the places' heads: {}", heads.status().ToString());
+      continue;
+    }
+    for (const std::string& name : Names()) {
+      absl::StatusOr<std::shared_ptr<ModelHost>> host = Get(name);
+      if (!host.ok()) continue;
+      auto it = heads->find(name);
+      (*host)->FollowReplicas(it == heads->end() ? std::nullopt : std::optional<PlaceHead>(it->second));
+    }
+  }
+}
+
 bool Places::Shutdown() {
   std::map<std::string, std::shared_ptr<ModelHost>> hosts;
   {
@@ -243,6 +285,8 @@ bool Places::Shutdown() {
     shut_down_ = true;
     hosts = hosts_;
   }
+  stop_cv_.notify_all();
+  if (follower_.joinable() && follower_.get_id() != std::this_thread::get_id()) follower_.join();
   if (warmup_.joinable() && warmup_.get_id() != std::this_thread::get_id()) warmup_.join();
   bool clean = true;
   for (auto& [name, host] : hosts) clean = host->Shutdown() && clean;

@@ -33,6 +33,7 @@
 #ifndef CLNERF_SERVER_PLACES_H_
 #define CLNERF_SERVER_PLACES_H_
 
+#include <condition_variable>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -76,7 +77,8 @@ class Places {
   bool Shutdown();
 
  private:
-  explicit Places(const ServerOptions& options);
+  Places(const ServerOptions& options, SharedServices shared);
+  void FollowReplicas();
   std::string DirOf(const std::string& name) const;
   absl::StatusOr<std::shared_ptr<ModelHost>> OpenHost(const std::string& name) const;
   void WarmUp(const std::vector<std::string>& names);
@@ -91,7 +93,9 @@ class Places {
   mutable std::map<std::string, std::shared_ptr<ModelHost>> hosts_;
   bool shut_down_ = false;
   int deletions_ = 0;
-  std::thread warmup_;  // Loads the deployed models after Open (WarmUp).
+  std::thread warmup_;    // Loads the deployed models after Open (WarmUp).
+  std::thread follower_;  // Replicas only: FollowReplicas.
+  std::condition_variable stop_cv_;  // Wakes the follower at Shutdown.
 };
 
 }  // namespace clnerf

@@ -110,12 +110,12 @@ absl::Status ValidateScanUpload(const ScanUpload& scan) {
   return absl::OkStatus();
 }
 
-absl::StatusOr<std::unique_ptr<ScanStore>> ScanStore::Open(const std::string& root) {
+absl::StatusOr<std::unique_ptr<ScanStore>> ScanStore::Open(const std::string& root, bool clean_temps) {
   const std::string dir = (fs::path(root) / "scans").string();
   std::error_code ec;
   fs::create_directories(dir, ec);
   if (ec) return absl::InternalError(absl::StrCat("cannot create '", dir, "': ", ec.message()));
-  RemoveTempEntries(dir);
+  if (clean_temps) RemoveTempEntries(dir);
   return std::unique_ptr<ScanStore>(new ScanStore(dir));
 }
 

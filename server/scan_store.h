@@ -69,7 +69,9 @@ class ScanStore {
  public:
   // Opens (creating if needed) <root>/scans and removes temporaries left by
   // a crash during Save().
-  static absl::StatusOr<std::unique_ptr<ScanStore>> Open(const std::string& root);
+  // `clean_temps`: remove what interrupted saves left (false when other
+  // replicas may be saving into the same store right now).
+  static absl::StatusOr<std::unique_ptr<ScanStore>> Open(const std::string& root, bool clean_temps = true);
 
   // Writes the scan durably. `record.scan_id` must be new.
   absl::Status Save(const ScanRecord& record, const ScanUpload& scan);

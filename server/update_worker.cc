@@ -80,11 +80,32 @@ void UpdateWorker::Loop() {
     // A training slot shared with the other places first; the job stays
     // queued (and cancellable as such) until it has one.
     if (!jobs_->WaitQueued()) return;
+    if (coordinator_ != nullptr && !HoldLease()) {  // Another replica trains this place now.
+      if (!Pause()) return;
+      continue;
+    }
     if (!trainings_->Acquire(place_, &stopping_)) return;
     std::optional<std::string> id = jobs_->TryNext();  // Cancelled meanwhile: none.
     if (id) RunJob(*id);
     trainings_->Finish(place_);
+    // Nothing more to train here: let any replica take the next upload.
+    if (coordinator_ != nullptr && jobs_->queued() == 0) coordinator_->Release(place_);
   }
+}
+
+bool UpdateWorker::HoldLease() {
+  absl::StatusOr<bool> held = coordinator_->TryAcquire(place_);
+  if (!held.ok()) {
+    spdlog::warn("place {}: cannot reach the coordinator: {}", place_, held.status().ToString());
+    return false;
+  }
+  return *held;
+}
+
+bool UpdateWorker::Pause() {
+  std::unique_lock<std::mutex> lock(mu_);
+  cv_.wait_for(lock, std::chrono::duration<double>(options_.replica_poll_seconds), [&] { return stopping_.load(); });
+  return !stopping_;
 }
 
 bool UpdateWorker::WaitForWritableStore(const std::string& job_id) {
@@ -128,8 +149,21 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   cancel_ = false;
   job_started_ = std::chrono::steady_clock::now();
   absl::StatusOr<JobStatus> job = jobs_->Get(job_id);
-  if (!job.ok()) return;
+  if (!job.ok() || IsFinal(job->phase)) return;
   const std::string scan_id = job->scan_id;
+  if (coordinator_ != nullptr) {
+    // Another replica may have trained it while this one waited for the lease.
+    if (std::optional<VersionInfo> v = publisher_->VersionOfScan(scan_id)) {
+      (void)scans_->Remove(scan_id);
+      jobs_->Update(job_id, [&](JobStatus* j) {
+        j->phase = JobPhase::kDone;
+        j->version = v->version;
+        j->time_step = v->time_steps - 1;
+        j->metrics = v->metrics;
+      });
+      return;
+    }
+  }
   const std::string kept = "server shut down; the scan is kept and retrained after restart";
   if (job->cancel_requested) return Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled", true);
   // A deployed version not loaded yet is checked first: if it cannot load,
@@ -144,7 +178,19 @@ void UpdateWorker::RunJob(const std::string& job_id) {
 
   // 1. Load the scan as the next time step of the deployed model.
   std::shared_ptr<const Servable> prev;  // Held for the whole update: the cache never evicts it meanwhile.
-  if (absl::StatusOr<std::shared_ptr<const Servable>> d = publisher_->registry().Get(0); d.ok()) {
+  PlaceHead head;                        // Replicas: where this update starts; its publish is fenced by it.
+  if (coordinator_ != nullptr) {
+    absl::StatusOr<PlaceHead> h = publisher_->SyncToHead();
+    if (!h.ok()) {
+      spdlog::warn("job {}: cannot read the place's head: {}; retrying", job_id, h.status().ToString());
+      scans_->ClearAttempts(scan_id);
+      jobs_->Requeue(job_id, absl::StrCat("waiting for the coordinator: ", h.status().message()));
+      (void)Pause();
+      return;
+    }
+    head = *h;
+  }
+  if (absl::StatusOr<std::shared_ptr<const Servable>> d = publisher_->registry().Get(head.version); d.ok()) {
     prev = *std::move(d);
   } else if (!absl::IsFailedPrecondition(d.status())) {  // FAILED_PRECONDITION: nothing deployed yet.
     return Finish(job_id, scan_id, JobPhase::kFailed,
@@ -230,8 +276,23 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   absl::StatusOr<VersionInfo> published;
   while (true) {
     published = publisher_->Publish(*next, prev ? prev->info.version : 0, {scan_id, job->scan_name, job_id},
-                                    gate.metrics);
+                                    gate.metrics, coordinator_ != nullptr ? &head : nullptr);
     if (published.ok()) break;
+    if (coordinator_ != nullptr && absl::IsAborted(published.status())) {
+      // Fenced: this replica lost the place's lease (paused, cut off) or the
+      // head moved. Nothing was published; the scan stays for the lease's
+      // holder, and this job waits for the outcome like any other replica.
+      spdlog::warn("job {}: {}", job_id, std::string(published.status().message()));
+      scans_->ClearAttempts(scan_id);
+      jobs_->Requeue(job_id, std::string(published.status().message()));
+      return;
+    }
+    if (coordinator_ != nullptr && publisher_->error().empty()) {
+      // The coordinator could not be reached: the store is fine, try again.
+      spdlog::warn("job {}: publishing: {}; retrying", job_id, std::string(published.status().message()));
+      if (!Pause()) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
+      continue;
+    }
     spdlog::error("job {}: publishing failed: {}; retrying when the store recovers", job_id,
                   std::string(published.status().message()));
     if (!WaitForWritableStore(job_id)) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);

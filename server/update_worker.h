@@ -27,6 +27,7 @@
 #include <string>
 #include <thread>
 
+#include "server/coordinator.h"
 #include "server/job_tracker.h"
 #include "server/publisher.h"
 #include "server/scan_store.h"
@@ -43,15 +44,21 @@ class UpdateWorker {
   // `trainings` (optional) is the slot scheduler shared by every place's
   // worker: a queued job waits for a slot there (as `place`) before it
   // starts, and its phase stays QUEUED meanwhile.
+  // `coordinator` (optional): with replicas (coordinator.h), a job starts
+  // only while this replica holds the place's training lease, trains from
+  // the head it read then, and publishes fenced by it; a fenced job goes
+  // back to the queue (the lease's new holder trains its scan).
   UpdateWorker(const ServerOptions& options, ScanStore* scans, Publisher* publisher, JobTracker* jobs,
-               Metrics* metrics = nullptr, TrainingScheduler* trainings = nullptr, std::string place = "default")
+               Metrics* metrics = nullptr, TrainingScheduler* trainings = nullptr, std::string place = "default",
+               Coordinator* coordinator = nullptr)
       : options_(options),
         scans_(scans),
         publisher_(publisher),
         jobs_(jobs),
         metrics_(metrics),
         trainings_(trainings),
-        place_(std::move(place)) {}
+        place_(std::move(place)),
+        coordinator_(coordinator != nullptr && coordinator->replicated() ? coordinator : nullptr) {}
   ~UpdateWorker();
   UpdateWorker(const UpdateWorker&) = delete;
   UpdateWorker& operator=(const UpdateWorker&) = delete;
@@ -69,6 +76,10 @@ class UpdateWorker {
  private:
   void Loop();
   void RunJob(const std::string& job_id);
+  // Replicas: takes (or keeps) the place's lease; false if another holds it.
+  bool HoldLease();
+  // Sleeps replica_poll_seconds or until Stop(); false on Stop.
+  bool Pause();
   // Blocks until the publisher accepts writes (retrying it every
   // store_retry_seconds) or Stop(); false on Stop.
   bool WaitForWritableStore(const std::string& job_id);
@@ -84,6 +95,7 @@ class UpdateWorker {
   Metrics* const metrics_;
   TrainingScheduler* const trainings_;
   const std::string place_;
+  Coordinator* const coordinator_;  // Non-null only with replicas.
   std::chrono::steady_clock::time_point job_started_;  // Of the job RunJob runs (worker thread only).
   std::atomic<bool> cancel_{false};
   std::atomic<bool> stopping_{false};
