@@ -20,6 +20,7 @@
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "server/server_fixture.h"
+#include "server/server_process_test_util.h"
 #include "server/server_test_util.h"
 
 namespace clnerf {
@@ -33,6 +34,8 @@ using testing_util::TinyServerOptions;
 using testing_util::UploadMessages;
 using testing_util::UploadOf;
 using testing_util::UploadVia;
+using testing_util::ServerBinary;
+using testing_util::ServerProcess;
 
 v1::Job GetJob(v1::ClnerfService::Stub* stub, const std::string& id) {
   grpc::ClientContext ctx;
@@ -252,50 +255,6 @@ TEST_F(ServerFixture, CorruptVersionMetadataIsIsolatedToItsVersion) {
   ASSERT_EQ(UploadAndWait(scene, 1).version(), 3);
   EXPECT_EQ(Versions().size(), 3u);
 }
-
-// The real clnerf-server binary beside this test binary (build/server/).
-std::string ServerBinary() {
-  std::error_code ec;
-  const fs::path self = fs::read_symlink("/proc/self/exe", ec);
-  return (self.parent_path().parent_path() / "server" / "clnerf-server").string();
-}
-
-// The real server binary started through the shell: `env` prefixes the
-// command (e.g. "CLNERF_CRASH_AT=x"), stderr goes to `log`. Reads the gRPC
-// port from stdout; pid() is the server's (the shell execs it).
-class ServerProcess {
- public:
-  ServerProcess(const std::string& env, const std::string& args, const std::string& log) {
-    const std::string cmd =
-        absl::StrFormat("echo $$; %s exec timeout 120 %s %s 2>%s", env, ServerBinary(), args, log);
-    proc_ = popen(cmd.c_str(), "r");
-    char line[256];
-    while (proc_ != nullptr && port_ == 0 && std::fgets(line, sizeof(line), proc_) != nullptr) {
-      if (pid_ == 0) std::sscanf(line, "%d", &pid_);
-      std::sscanf(line, "clnerf-server listening on port %d", &port_);
-    }
-  }
-  ~ServerProcess() {
-    if (proc_ != nullptr) pclose(proc_);
-  }
-  int port() const { return port_; }
-  int pid() const { return pid_; }
-  // Waits for the process to end; its wait status.
-  int Wait() {
-    const int status = pclose(proc_);
-    proc_ = nullptr;
-    return status;
-  }
-  std::unique_ptr<v1::ClnerfService::Stub> Stub() const {
-    return v1::ClnerfService::NewStub(
-        grpc::CreateChannel("127.0.0.1:" + std::to_string(port_), grpc::InsecureChannelCredentials()));
-  }
-
- private:
-  FILE* proc_ = nullptr;
-  int pid_ = 0, port_ = 0;
-};
-
 
 // Issue 21: kill -9 during a publish used to lose the acknowledged job's
 // record (GetJob NOT_FOUND) although its version was finished and deployed on

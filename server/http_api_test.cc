@@ -15,6 +15,7 @@
 #include "core/data/image.h"
 #include "httplib.h"
 #include "nlohmann/json.hpp"
+#include "server/prometheus_text_test_util.h"
 #include "server/server_fixture.h"
 
 namespace clnerf {
@@ -142,46 +143,6 @@ TEST_F(HttpApiTest, ServesTheSameModelsVersionsAndJobsAsGrpc) {
   EXPECT_EQ(js->status, 200);
 }
 
-// A strict reader of the Prometheus text exposition format (0.0.4): every
-// line is a comment (# HELP / # TYPE), blank, or a sample
-// `name{label="value",...} value`, and every sample belongs to a declared
-// family (histograms: _bucket, _sum, _count). Fills `samples` keyed by the
-// sample line's name and labels; returns "" or what is wrong.
-std::string ParsePrometheusText(const std::string& text, std::map<std::string, double>* samples) {
-  static const std::regex kHelp(R"(# HELP [a-zA-Z_:][a-zA-Z0-9_:]* .*)");
-  static const std::regex kType(R"(# TYPE ([a-zA-Z_:][a-zA-Z0-9_:]*) (counter|gauge|histogram|summary|untyped))");
-  static const std::regex kSample(
-      R"(([a-zA-Z_:][a-zA-Z0-9_:]*)(\{([a-zA-Z_][a-zA-Z0-9_]*="([^"\\\n]|\\[\\"n])*",?)*\})? )"
-      R"(([-+]?([0-9]*\.?[0-9]+([eE][-+]?[0-9]+)?|Inf)|NaN)( -?[0-9]+)?)");
-  std::map<std::string, std::string> types;
-  std::istringstream in(text);
-  std::string line;
-  int n = 0;
-  while (std::getline(in, line)) {
-    ++n;
-    std::smatch m;
-    if (line.empty() || std::regex_match(line, kHelp)) continue;
-    if (std::regex_match(line, m, kType)) {
-      types[m[1]] = m[2];
-      continue;
-    }
-    if (!std::regex_match(line, m, kSample)) return absl::StrCat("line ", n, " is not valid: '", line, "'");
-    std::string family = m[1];
-    for (const char* suffix : {"_bucket", "_sum", "_count"}) {
-      const std::string sfx = suffix;
-      if (types.count(family) == 0 && family.size() > sfx.size() &&
-          family.compare(family.size() - sfx.size(), sfx.size(), sfx) == 0) {
-        family = family.substr(0, family.size() - sfx.size());
-      }
-    }
-    if (types.count(family) == 0) return absl::StrCat("line ", n, ": no # TYPE for '", family, "'");
-    const size_t space = line.rfind(' ');
-    (*samples)[line.substr(0, line.find(' ', line.find('}') == std::string::npos ? 0 : line.find('}')))] =
-        std::strtod(line.c_str() + space + 1, nullptr);
-  }
-  return types.empty() ? "no metric families" : "";
-}
-
 TEST_F(HttpApiTest, MetricsAreValidPrometheusTextAndHealthEndpointsAnswer) {
   StartHttp(TinyServerOptions(TempDir("srv_metrics")));
   auto live = http_->Get("/healthz");
@@ -210,7 +171,7 @@ TEST_F(HttpApiTest, MetricsAreValidPrometheusTextAndHealthEndpointsAnswer) {
   ASSERT_EQ(m->status, 200);
   EXPECT_NE(m->get_header_value("Content-Type").find("text/plain"), std::string::npos);
   std::map<std::string, double> samples;
-  const std::string err = ParsePrometheusText(m->body, &samples);
+  const std::string err = testing_util::ParsePrometheusText(m->body, &samples);
   ASSERT_EQ(err, "") << m->body;
   EXPECT_EQ(samples["clnerf_renders_total{code=\"OK\"}"], 3) << m->body;
   EXPECT_EQ(samples["clnerf_renders_total{code=\"INVALID_ARGUMENT\"}"], 1) << m->body;
@@ -222,7 +183,7 @@ TEST_F(HttpApiTest, MetricsAreValidPrometheusTextAndHealthEndpointsAnswer) {
   // No per-place (or other unbounded) labels.
   EXPECT_EQ(m->body.find("place="), std::string::npos);
   // The reader is strict: a malformed line is caught.
-  EXPECT_NE(ParsePrometheusText(m->body + "clnerf_x{a=b} 1\n", &samples), "");
+  EXPECT_NE(testing_util::ParsePrometheusText(m->body + "clnerf_x{a=b} 1\n", &samples), "");
 }
 
 TEST_F(HttpApiTest, BadRequestsGetTheirStatusAndAMessage) {

@@ -293,7 +293,9 @@ absl::StatusOr<VersionInfo> Publisher::PublishReplicatedLocked(const ContinualSt
   CrashPoint("publish:committed");
   head_generation_ = std::max(head_generation_, head->generation);
   manifest_.next_version = info.version + 1;
-  if (absl::Status s = FinishCommittedLocked(*head); !s.ok()) {
+  absl::Status promoted = versions_->PromoteStaged(info.version, replica_tag_);
+  if (!promoted.ok() && !absl::IsAlreadyExists(promoted)) promoted = FinishCommittedLocked(*head);
+  if (absl::Status s = promoted; !s.ok()) {
     SetErrorLocked(absl::Status(s.code(), absl::StrCat("version ", info.version, " is committed but could not be moved "
                                                        "into place: ", s.message())));
     return s;
