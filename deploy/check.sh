@@ -12,8 +12,20 @@
 #
 # Checks:
 #   yaml     every *.yaml parses (PyYAML), else a minimal structural check
-#   k8s      selectors/labels, ports (container == probes == Service targetPort),
-#            volume and ConfigMap references, --config file provided by a ConfigMap
+#   k8s      one Deployment of clnerf-server (component server, replicas >= 2,
+#            grace >= 60 s, non-root); selectors match labels; HTTP probes
+#            (/healthz liveness+startup, /readyz readiness) on the http port,
+#            which equals server.json "http"; every Service targetPort resolves
+#            to a container port of the pods it selects, the server Service's
+#            grpc/http to the container's; a PodDisruptionBudget for the server
+#            pods; the store is one ReadWriteMany PVC defined in deploy/k8s;
+#            --config is a ConfigMap key with valid JSON whose keys the server
+#            knows and whose model_memory_budget is set below the memory limit;
+#            server.json "etcd" is HOST:PORT of a Service here that fronts an
+#            etcd StatefulSet (command etcd, odd replicas == --initial-cluster
+#            members, data on a volumeClaimTemplate, probes on its ports), or an
+#            external endpoint named in a comment of the ConfigMap's file;
+#            optional Secret env
 #   docker   build stage runs scripts/install-deps.sh with the portable flags,
 #            Dockerfile.dockerignore keeps the sources, runtime packages are
 #            known to dpkg/apt-cache and cover the NEEDED libraries of the
@@ -21,7 +33,8 @@
 #   compose  one service, named store volume, CLNERF_TOKEN, stop_grace_period >= 60s
 #   consistency  listen port, store path and health check agree across
 #            Dockerfile, compose, systemd and k8s
-#   flags    every --flag passed to clnerf-server appears in its --help
+#   flags    every --flag passed to clnerf-server appears in its --help (not
+#            the etcd container's command)
 #   systemd  key settings + `systemd-analyze verify`
 set -uo pipefail
 
@@ -418,104 +431,108 @@ if os.path.exists(paths["compose"]):
                 server_args["compose command"] = facts.get("image", {}).get("entrypoint", []) + flow_list(l)
 
 # ----------------------------------------------------------------- k8s
+# Layout (deploy/k8s): a Deployment of N clnerf-server replicas (component
+# server) over one ReadWriteMany PVC, a Service and a PodDisruptionBudget for
+# them, the ConfigMap with server.json, and etcd (a StatefulSet running the
+# same image with command: [etcd, ...] behind a headless Service) unless
+# server.json's "etcd" names an external endpoint documented in a comment of
+# the ConfigMap's file.
+def labels_match(sel, labels):
+    return bool(sel) and all(labels.get(k) == v for k, v in sel.items())
+
+def resolve_port(port, cports):
+    """A named or numbered container port -> its number (None if absent)."""
+    if isinstance(port, str) and not port.isdigit():
+        return cports.get(port)
+    try:
+        n = int(port)
+    except (TypeError, ValueError):
+        return None
+    return n if n in cports.values() else None
+
+def quantity(q):
+    """Kubernetes memory quantity ('4Gi', '512M', '1e9', 1024) -> bytes (None if unset/unparseable)."""
+    m = re.fullmatch(r"(\d+(?:\.\d+)?(?:e\d+)?)(Ki|Mi|Gi|Ti|k|M|G|T)?", str(q).strip()) if q is not None else None
+    if not m:
+        return None
+    mult = {None: 1, "k": 10**3, "M": 10**6, "G": 10**9, "T": 10**12,
+            "Ki": 2**10, "Mi": 2**20, "Gi": 2**30, "Ti": 2**40}[m.group(2)]
+    return int(float(m.group(1)) * mult)
+
+def is_server_container(c):
+    if "clnerf-server" not in str(c.get("image", "")):
+        return False
+    cmd = c.get("command") or []
+    return not cmd or os.path.basename(str(cmd[0])) == "clnerf-server"
+
+def cmd_value(cmd, flag):
+    return arg_value([str(a) for a in cmd], flag)
+
 def k8s_checks(all_docs):
     by_kind = {}
     for p, ds in all_docs.items():
         for d in ds:
             if isinstance(d, dict):
                 by_kind.setdefault(d.get("kind"), []).append((p, d))
-    sts = by_kind.get("StatefulSet", [])
-    if not check(len(sts) == 1, "k8s: exactly one StatefulSet", str(len(sts))):
+    name_of = lambda d: (d.get("metadata") or {}).get("name")
+    def pod_parts(d):
+        spec = d.get("spec") or {}
+        tmpl = spec.get("template") or {}
+        return spec, (tmpl.get("metadata") or {}).get("labels") or {}, tmpl.get("spec") or {}
+
+    # workloads: every pod template, for the Service selectors
+    workloads = []   # (kind, name, labels, containers)
+    for kind in ("Deployment", "StatefulSet", "DaemonSet"):
+        for _, d in by_kind.get(kind, []):
+            _, lb, ps = pod_parts(d)
+            workloads.append((kind, name_of(d), lb, ps.get("containers") or []))
+
+    # the server: exactly one Deployment running clnerf-server, component server
+    deps = []
+    for _, d in by_kind.get("Deployment", []):
+        _, lb, ps = pod_parts(d)
+        if lb.get("app.kubernetes.io/component") == "server" and any(
+                is_server_container(c) for c in ps.get("containers") or []):
+            deps.append(d)
+    stray = [f"{k} {n}" for k, n, lb, cs in workloads
+             if any(is_server_container(c) for c in cs) and not any(n == name_of(d) and k == "Deployment" for d in deps)]
+    check(not stray, "k8s: clnerf-server runs only in the server Deployment", ", ".join(stray))
+    if not check(len(deps) == 1, "k8s: exactly one Deployment runs clnerf-server (component: server)",
+                 str(len(deps))):
         return
-    _, st = sts[0]
-    spec = st.get("spec") or {}
-    tmpl = spec.get("template") or {}
-    tlabels = (tmpl.get("metadata") or {}).get("labels") or {}
+    dep = deps[0]
+    dname = name_of(dep)
+    spec, tlabels, pspec = pod_parts(dep)
     sel = (spec.get("selector") or {}).get("matchLabels") or {}
-    check(bool(sel) and all(tlabels.get(k) == v for k, v in sel.items()),
-          "k8s: StatefulSet selector matches template labels", f"{sel} vs {tlabels}")
-    check(spec.get("replicas", 1) == 1, "k8s: StatefulSet replicas == 1 (single writer of the store)",
-          str(spec.get("replicas")))
-    svcs = [d for _, d in by_kind.get("Service", [])]
-    svc_names = [(s.get("metadata") or {}).get("name") for s in svcs]
-    check(spec.get("serviceName") in svc_names, "k8s: StatefulSet serviceName is a Service in deploy/k8s",
-          f"{spec.get('serviceName')} not in {svc_names}")
-    pspec = tmpl.get("spec") or {}
+    check(labels_match(sel, tlabels), f"k8s: Deployment {dname} selector matches template labels",
+          f"{sel} vs {tlabels}")
+    replicas = spec.get("replicas", 1)
+    check(isinstance(replicas, int) and replicas >= 2,
+          f"k8s: Deployment {dname} replicas >= 2 (replicas share the store through etcd)", str(replicas))
+    strat = spec.get("strategy") or {}
+    mu = (strat.get("rollingUpdate") or {}).get("maxUnavailable", "25%")
+    check(strat.get("type", "RollingUpdate") == "RollingUpdate"
+          and (not isinstance(mu, int) or not isinstance(replicas, int) or mu < replicas),
+          f"k8s: Deployment {dname} rolls out with replicas serving (RollingUpdate, maxUnavailable {mu})",
+          f"type={strat.get('type')} maxUnavailable={mu} replicas={replicas}")
     g = pspec.get("terminationGracePeriodSeconds", 30)
     check(isinstance(g, int) and g >= 60, "k8s: terminationGracePeriodSeconds >= 60", str(g))
     psc = pspec.get("securityContext") or {}
     check(psc.get("runAsNonRoot") is True, "k8s: pod securityContext runAsNonRoot")
-    ctrs = pspec.get("containers") or []
-    c = next((c for c in ctrs if "clnerf-server" in str(c.get("image", ""))), None)
-    if not check(c is not None, "k8s: a container runs the clnerf-server image"):
-        return
+    c = next(c for c in pspec.get("containers") or [] if is_server_container(c))
     if c.get("command"):
         args = [str(a) for a in c["command"][1:]] + [str(a) for a in c.get("args", [])]
     else:
         args = facts.get("image", {}).get("entrypoint", []) + [str(a) for a in c.get("args", [])]
     server_args["k8s container command/args"] = args
-    # ports
-    cports = {p.get("name"): p.get("containerPort") for p in c.get("ports", [])}
-    for n, p in cports.items():
-        fact("listen port", f"k8s containerPort {n}", p)
-    probe_ports = {}
-    for pk in ("startupProbe", "livenessProbe", "readinessProbe"):
-        pr = c.get(pk)
-        if pr is None:
-            continue
-        if not check("grpc" in pr, f"k8s: {pk} is a native gRPC probe"):
-            continue
-        pp = pr["grpc"].get("port")
-        probe_ports[pk] = pp
-        fact("listen port", f"k8s {pk} grpc.port", pp)
-    check("livenessProbe" in probe_ports and "readinessProbe" in probe_ports,
-          "k8s: liveness and readiness probes present")
-    check(bool(probe_ports) and all(p in cports.values() for p in probe_ports.values()),
-          f"k8s: probe ports {sorted(set(probe_ports.values()))} == containerPort",
-          f"probes {probe_ports} vs container ports {cports}")
-    rsvc = (c.get("readinessProbe") or {}).get("grpc", {}).get("service")
-    check(rsvc in (None, "", "clnerf.v1.ClnerfService"),
-          "k8s: readiness probe service is '' or clnerf.v1.ClnerfService", str(rsvc))
-    for s in svcs:
-        sname = (s.get("metadata") or {}).get("name")
-        ssel = (s.get("spec") or {}).get("selector") or {}
-        check(bool(ssel) and all(tlabels.get(k) == v for k, v in ssel.items()),
-              f"k8s: Service {sname} selector matches pod labels", f"{ssel} vs {tlabels}")
-        for sp in (s.get("spec") or {}).get("ports", []):
-            tp = sp.get("targetPort", sp.get("port"))
-            resolved = cports.get(tp) if isinstance(tp, str) else tp
-            check(resolved is not None and resolved in cports.values(),
-                  f"k8s: Service {sname} port {sp.get('name')} targetPort {tp} -> containerPort {resolved}",
-                  f"no container port {tp!r} (have {cports})")
-            fact("listen port", f"k8s Service {sname} targetPort", resolved)
-            check(sp.get("name") == "grpc" and sp.get("appProtocol") == "grpc",
-                  f"k8s: Service {sname} port named grpc with appProtocol grpc",
-                  f"name={sp.get('name')} appProtocol={sp.get('appProtocol')}")
-    # volumes
-    vct = [(v.get("metadata") or {}).get("name") for v in spec.get("volumeClaimTemplates", [])]
-    vols = {v.get("name"): v for v in pspec.get("volumes", [])}
-    for m in c.get("volumeMounts", []):
-        n = m.get("name")
-        check(n in vols or n in vct, f"k8s: volumeMount {n} -> {'volumeClaimTemplate' if n in vct else 'volume'}",
-              f"no volume or volumeClaimTemplate named {n!r} (templates {vct}, volumes {list(vols)})")
-        if n in vct:
-            fact("store path", f"k8s volumeClaimTemplate {n} mountPath", m.get("mountPath"))
-    check(any(m.get("name") in vct for m in c.get("volumeMounts", [])),
-          "k8s: the store is mounted from a volumeClaimTemplate", f"templates {vct}")
-    cms = {(d.get("metadata") or {}).get("name"): d for _, d in by_kind.get("ConfigMap", [])}
-    for n, v in vols.items():
-        if "configMap" in v:
-            cm = v["configMap"].get("name")
-            check(cm in cms, f"k8s: volume {n} references ConfigMap {cm} defined in deploy/k8s",
-                  f"defined: {list(cms)}")
-    for e in c.get("env", []):
-        ref = (e.get("valueFrom") or {}).get("secretKeyRef")
-        if ref:
-            check(ref.get("optional") is True,
-                  f"k8s: env {e.get('name')} from Secret {ref.get('name')} is optional (Secret not shipped)")
+
     # --config file is provided by a ConfigMap key and is valid JSON
+    vols = {v.get("name"): v for v in pspec.get("volumes", [])}
+    cms = {name_of(d): (p, d) for p, d in by_kind.get("ConfigMap", [])}
+    cfg_json = {}
+    cfg_file = None   # the ConfigMap's manifest, for the documented external etcd
     cfg = arg_value(args, "--config")
-    if cfg:
+    if check(cfg is not None, "k8s: the server is started with --config (http, etcd come from it)"):
         found = None
         for m in c.get("volumeMounts", []):
             v = vols.get(m.get("name")) or {}
@@ -529,15 +546,212 @@ def k8s_checks(all_docs):
             items = v["configMap"].get("items")
             if items:
                 key = next((i.get("key") for i in items if i.get("path") == key), None)
-            data = ((cms.get(v["configMap"].get("name")) or {}).get("data") or {})
+            cp, cd = cms.get(v["configMap"].get("name")) or (None, {})
+            data = cd.get("data") or {}
             if key in data:
-                found = (v["configMap"].get("name"), key, data[key])
+                found = (v["configMap"].get("name"), key, data[key], cp)
         if check(found is not None, f"k8s: --config {cfg} is a key of a mounted ConfigMap"):
             try:
-                json.loads(found[2])
-                report("PASS", f"k8s: ConfigMap {found[0]} key {found[1]} is valid JSON")
+                cfg_json = json.loads(found[2])
+                ok = isinstance(cfg_json, dict)
+                check(ok, f"k8s: ConfigMap {found[0]} key {found[1]} is valid JSON", "not a JSON object")
+                cfg_json = cfg_json if ok else {}
+                cfg_file = found[3]
             except ValueError as e:
                 report("FAIL", f"k8s: ConfigMap {found[0]} key {found[1]} is not valid JSON: {e}")
+    opts_src = os.path.join(ROOT, "server", "server_options.cc")
+    if cfg_json and os.path.exists(opts_src):
+        known = set(re.findall(r'\bk == "(\w+)"', open(opts_src, encoding="utf-8").read()))
+        bad = sorted(k for k in cfg_json if k not in known)
+        check(not bad, "k8s: server.json keys are config keys of server/server_options.cc",
+              "unknown: " + " ".join(bad))
+    elif cfg_json:
+        report("SKIP", "k8s: server.json keys not checked (no server/server_options.cc)")
+    if cfg_json:
+        # 0 = half the node's memory, which the container's limit does not cap
+        budget = cfg_json.get("model_memory_budget", 0)
+        limit = quantity((c.get("resources") or {}).get("limits", {}).get("memory"))
+        check(isinstance(budget, int) and budget > 0 and (limit is None or budget < limit),
+              f"k8s: server.json model_memory_budget {budget} is set and below the memory limit {limit}",
+              "0 = half the node's memory" if budget == 0 else "")
+    if "listen" in cfg_json:
+        fact("listen port", "k8s server.json listen", port_of(str(cfg_json["listen"])))
+    if "store" in cfg_json:
+        fact("store path", "k8s server.json store", cfg_json["store"])
+
+    # ports: grpc (the listen port) and http (server.json "http")
+    cports = {p.get("name"): p.get("containerPort") for p in c.get("ports", [])}
+    if check("grpc" in cports, "k8s: container port named grpc", f"have {cports}"):
+        fact("listen port", "k8s containerPort grpc", cports["grpc"])
+    http_port = cports.get("http")
+    if check(http_port is not None, "k8s: container port named http", f"have {cports}"):
+        hp = port_of(str(cfg_json.get("http", "")))
+        check(hp is not None and hp == http_port,
+              f"k8s: containerPort http {http_port} == port of server.json \"http\"",
+              f"server.json http={cfg_json.get('http')!r}")
+    want_path = {"startupProbe": ("/healthz", "/readyz"), "livenessProbe": ("/healthz",),
+                 "readinessProbe": ("/readyz",)}
+    for pk, paths_ok in want_path.items():
+        pr = c.get(pk)
+        if pr is None:
+            if pk != "startupProbe":
+                report("FAIL", f"k8s: {pk} missing")
+            continue
+        hg = pr.get("httpGet")
+        if not check(hg is not None, f"k8s: {pk} is an httpGet probe", f"has {sorted(pr)}"):
+            continue
+        rp = resolve_port(hg.get("port"), cports)
+        check(rp is not None and rp == http_port,
+              f"k8s: {pk} port {hg.get('port')} -> http containerPort {http_port}",
+              f"resolves to {rp} (container ports {cports})")
+        check(hg.get("path") in paths_ok, f"k8s: {pk} path {hg.get('path')} is {' or '.join(paths_ok)}")
+
+    # Services: each selects pods defined here, every targetPort resolves
+    svcs = [(p, d) for p, d in by_kind.get("Service", [])]
+    server_svcs = []
+    for _, s in svcs:
+        sname, sspec = name_of(s), s.get("spec") or {}
+        ssel = sspec.get("selector") or {}
+        sel_w = [w for w in workloads if labels_match(ssel, w[2])]
+        if not check(bool(sel_w), f"k8s: Service {sname} selects pods defined in deploy/k8s",
+                     f"selector {ssel} matches no pod template"):
+            continue
+        is_server = labels_match(ssel, tlabels)
+        if is_server:
+            server_svcs.append(sname)
+            check(all(w[0] == "Deployment" and w[1] == dname for w in sel_w),
+                  f"k8s: Service {sname} selects only the server pods", str([f"{w[0]} {w[1]}" for w in sel_w]))
+        for sp in sspec.get("ports", []):
+            tp = sp.get("targetPort", sp.get("port"))
+            for kind, wname, _, wcs in sel_w:
+                wports = {p.get("name"): p.get("containerPort") for wc in wcs for p in wc.get("ports", [])}
+                resolved = resolve_port(tp, wports)
+                check(resolved is not None,
+                      f"k8s: Service {sname} port {sp.get('name')} targetPort {tp} -> {kind} {wname} containerPort {resolved}",
+                      f"no container port {tp!r} (have {wports})")
+            if not is_server:
+                continue
+            resolved = resolve_port(tp, cports)
+            pn, ap = sp.get("name"), sp.get("appProtocol")
+            check(pn in ("grpc", "http") and ap == pn,
+                  f"k8s: Service {sname} port {pn} has appProtocol {pn} (grpc or http)", f"appProtocol={ap}")
+            if pn in cports:
+                check(resolved == cports[pn], f"k8s: Service {sname} port {pn} targets containerPort {pn}",
+                      f"targetPort {tp} -> {resolved}, containerPort {pn} = {cports[pn]}")
+            if pn == "grpc":
+                fact("listen port", f"k8s Service {sname} targetPort grpc", resolved)
+    check(bool(server_svcs), "k8s: a Service selects the server pods", "none")
+
+    # PodDisruptionBudget for the server pods
+    pdbs = [d for _, d in by_kind.get("PodDisruptionBudget", [])
+            if labels_match(((d.get("spec") or {}).get("selector") or {}).get("matchLabels") or {}, tlabels)]
+    if check(bool(pdbs), "k8s: a PodDisruptionBudget selects the server pods"):
+        for d in pdbs:
+            ps_ = d.get("spec") or {}
+            mu_, ma_ = ps_.get("maxUnavailable"), ps_.get("minAvailable")
+            ok = (mu_ is None) != (ma_ is None)
+            if ok and isinstance(mu_, int):
+                ok = mu_ >= 1
+            if ok and isinstance(ma_, int) and isinstance(replicas, int):
+                ok = ma_ < replicas
+            check(ok, f"k8s: PodDisruptionBudget {name_of(d)} allows one disruption "
+                      f"({'maxUnavailable' if mu_ is not None else 'minAvailable'} "
+                      f"{mu_ if mu_ is not None else ma_})",
+                  f"maxUnavailable={mu_} minAvailable={ma_} replicas={replicas}")
+
+    # volumes: the store is a ReadWriteMany PVC defined here
+    pvcs = {name_of(d): d for _, d in by_kind.get("PersistentVolumeClaim", [])}
+    store_mounts = []
+    for m in c.get("volumeMounts", []):
+        n = m.get("name")
+        if not check(n in vols, f"k8s: volumeMount {n} -> volume", f"no volume named {n!r} (volumes {list(vols)})"):
+            continue
+        pv = vols[n].get("persistentVolumeClaim")
+        if pv is not None:
+            store_mounts.append((m, pv.get("claimName")))
+    if check(len(store_mounts) == 1, "k8s: the store is mounted from one persistentVolumeClaim",
+             f"{len(store_mounts)} PVC mounts"):
+        m, claim = store_mounts[0]
+        fact("store path", f"k8s PVC {claim} mountPath", m.get("mountPath"))
+        if check(claim in pvcs, f"k8s: PVC {claim} is defined in deploy/k8s", f"defined: {list(pvcs)}"):
+            modes = (pvcs[claim].get("spec") or {}).get("accessModes") or []
+            check("ReadWriteMany" in modes, f"k8s: PVC {claim} accessModes include ReadWriteMany (shared by the replicas)",
+                  str(modes))
+    for n, v in vols.items():
+        if "configMap" in v:
+            cm = v["configMap"].get("name")
+            check(cm in cms, f"k8s: volume {n} references ConfigMap {cm} defined in deploy/k8s",
+                  f"defined: {list(cms)}")
+    for e in c.get("env", []):
+        ref = (e.get("valueFrom") or {}).get("secretKeyRef")
+        if ref:
+            check(ref.get("optional") is True,
+                  f"k8s: env {e.get('name')} from Secret {ref.get('name')} is optional (Secret not shipped)")
+
+    # etcd: server.json "etcd" is HOST:PORT of a Service here (or documented external)
+    ev = str(cfg_json.get("etcd") or "")
+    m = re.fullmatch(r"([A-Za-z0-9.-]+):(\d+)", ev)
+    if not check(m is not None, f"k8s: server.json \"etcd\" is HOST:PORT ({ev or 'unset'})",
+                 "replicas need etcd"):
+        return
+    host, eport = m.group(1), int(m.group(2))
+    svc_by_name = {name_of(s): s for _, s in svcs}
+    short = host.split(".")[0]
+    in_cluster = short in svc_by_name and (host == short or re.fullmatch(
+        re.escape(short) + r"\.[a-z0-9-]+(\.svc(\.cluster\.local)?)?", host) is not None)
+    if not in_cluster:
+        text = open(cfg_file, encoding="utf-8").read() if cfg_file else ""
+        doc = any(ev in l for l in text.splitlines() if l.lstrip().startswith("#"))
+        check(doc, f"k8s: etcd {ev} is external and documented in a comment of {rel(cfg_file) if cfg_file else 'the ConfigMap'}",
+              f"{host!r} is not a Service in deploy/k8s {sorted(svc_by_name)}")
+        return
+    es = svc_by_name[short]
+    sports = [sp.get("port") for sp in (es.get("spec") or {}).get("ports", [])]
+    check(eport in sports, f"k8s: etcd port {eport} is a port of Service {short}", f"ports {sports}")
+    ests = [d for _, d in by_kind.get("StatefulSet", []) if (d.get("spec") or {}).get("serviceName") == short]
+    if not check(len(ests) == 1, f"k8s: one etcd StatefulSet with serviceName {short}", str(len(ests))):
+        return
+    est = ests[0]
+    espec, elabels, epspec = pod_parts(est)
+    esel = (espec.get("selector") or {}).get("matchLabels") or {}
+    check(labels_match(esel, elabels), f"k8s: StatefulSet {name_of(est)} selector matches template labels",
+          f"{esel} vs {elabels}")
+    essel = (es.get("spec") or {}).get("selector") or {}
+    check(labels_match(essel, elabels) and not labels_match(essel, tlabels),
+          f"k8s: Service {short} selects the etcd pods, not the server pods")
+    check((es.get("spec") or {}).get("clusterIP") == "None", f"k8s: Service {short} is headless (peer DNS names)")
+    check(((epspec.get("securityContext") or {}).get("runAsNonRoot")) is True,
+          f"k8s: StatefulSet {name_of(est)} pod securityContext runAsNonRoot")
+    ec = next((x for x in epspec.get("containers") or []
+               if os.path.basename(str((x.get("command") or [""])[0])) == "etcd"), None)
+    if not check(ec is not None, f"k8s: StatefulSet {name_of(est)} runs command etcd"):
+        return
+    ecmd = [str(a) for a in ec["command"]] + [str(a) for a in ec.get("args", [])]
+    ereps = espec.get("replicas", 1)
+    members = [x for x in (cmd_value(ecmd, "--initial-cluster") or "").split(",") if x]
+    check(isinstance(ereps, int) and ereps % 2 == 1 and len(members) == ereps,
+          f"k8s: etcd replicas {ereps} is odd and --initial-cluster lists {len(members)} member(s)",
+          str(members))
+    ecports = {p.get("name"): p.get("containerPort") for p in ec.get("ports", [])}
+    lc = port_of(cmd_value(ecmd, "--listen-client-urls") or "")
+    svc_tp = next((sp.get("targetPort", sp.get("port")) for sp in (es.get("spec") or {}).get("ports", [])
+                   if sp.get("port") == eport), None)
+    check(lc is not None and resolve_port(svc_tp, ecports) == lc,
+          f"k8s: Service {short}:{eport} reaches etcd's --listen-client-urls port {lc}",
+          f"targetPort {svc_tp} -> {resolve_port(svc_tp, ecports)}")
+    dd = cmd_value(ecmd, "--data-dir") or ""
+    evct = [(v.get("metadata") or {}).get("name") for v in espec.get("volumeClaimTemplates", [])]
+    on_pvc = [mm for mm in ec.get("volumeMounts", []) if mm.get("name") in evct
+              and (dd == mm.get("mountPath") or dd.startswith(mm.get("mountPath", "").rstrip("/") + "/"))]
+    check(bool(on_pvc), f"k8s: etcd --data-dir {dd or '(unset)'} is on a volumeClaimTemplate",
+          f"templates {evct}, mounts {[mm.get('mountPath') for mm in ec.get('volumeMounts', [])]}")
+    for pk in ("livenessProbe", "readinessProbe"):
+        pr = ec.get(pk) or {}
+        how = [k for k in ("httpGet", "tcpSocket", "grpc") if k in pr]
+        port = (pr.get(how[0]) or {}).get("port") if how else None
+        check(bool(how) and resolve_port(port, ecports) is not None,
+              f"k8s: etcd {pk} {how[0] if how else '(none)'} on a container port ({port})",
+              "missing or not on a container port (etcdctl is not in the image: use httpGet /health or tcpSocket)")
 
 k8s_files = [p for p in yaml_files if os.path.dirname(p) == paths["k8s"]]
 if yaml is not None:
@@ -547,10 +761,15 @@ if yaml is not None:
         report("FAIL", "k8s: consistency not checked (a manifest does not parse)")
 else:
     report("SKIP", "k8s: consistency checks need PyYAML")
+    # Only the server's args (the Deployment): the etcd StatefulSet's command is not clnerf-server.
     for p in k8s_files:
-        for l in open(p, encoding="utf-8"):
-            if re.match(r"\s*args:", l):
-                server_args["k8s container command/args"] = facts.get("image", {}).get("entrypoint", []) + flow_list(l)
+        text = open(p, encoding="utf-8").read()
+        for doc in re.split(r"(?m)^---\s*$", text):
+            if not re.search(r"(?m)^kind:\s*Deployment\s*$", doc) or "clnerf-server" not in doc:
+                continue
+            for l in doc.splitlines():
+                if re.match(r"\s*args:", l):
+                    server_args["k8s container command/args"] = facts.get("image", {}).get("entrypoint", []) + flow_list(l)
 
 # ----------------------------------------------------------------- systemd
 if os.path.exists(paths["unit"]):

@@ -10,6 +10,7 @@
 
 #include <netinet/in.h>
 #include <signal.h>
+#include <sys/prctl.h>
 #include <sys/socket.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -76,6 +77,7 @@ class LocalEtcd {
     const std::string log = dir + "/etcd.log";
     pid_ = fork();
     if (pid_ == 0) {
+      prctl(PR_SET_PDEATHSIG, SIGKILL);  // Never outlives the test, even one that aborts.
       FILE* f = std::freopen(log.c_str(), "w", stdout);
       (void)f;
       dup2(STDOUT_FILENO, STDERR_FILENO);

@@ -3,7 +3,9 @@
 // several replicas on loopback. Started through the shell so `env` can
 // prefix it (e.g. "CLNERF_CRASH_AT=x"); stderr goes to a log file; the gRPC
 // (and, with --http, HTTP) port is read from stdout; pid() is the server's
-// own (the shell execs `timeout`, whose child it is). Not thread-safe.
+// own (the shell execs `timeout`, whose child it is). Both die with the test
+// (setpriv --pdeathsig), so a test that aborts leaks no server. Not
+// thread-safe.
 #ifndef CLNERF_SERVER_SERVER_PROCESS_TEST_UTIL_H_
 #define CLNERF_SERVER_SERVER_PROCESS_TEST_UTIL_H_
 
@@ -35,7 +37,8 @@ class ServerProcess {
   // `timeout_s` bounds the process's life (a hung test cannot leak it).
   ServerProcess(const std::string& env, const std::string& args, const std::string& log, int timeout_s = 120) {
     const std::string cmd =
-        absl::StrFormat("echo $$; %s exec timeout %d %s %s 2>%s", env, timeout_s, ServerBinary(), args, log);
+        absl::StrFormat("echo $$; %s exec setpriv --pdeathsig KILL timeout %d setpriv --pdeathsig KILL %s %s 2>%s",
+                        env, timeout_s, ServerBinary(), args, log);
     proc_ = popen(cmd.c_str(), "r");
     const bool want_http = args.find("--http") != std::string::npos;
     char line[256];
