@@ -88,6 +88,7 @@ for n in counts:
 summary = {
     "rows": rows,
     "model_bytes_per_place": runs[counts[-1]]["model_bytes_per_place"],
+    "model_param_bytes_per_place": runs[counts[-1]].get("model_param_bytes_per_place"),
     "budget_run": {"places": b["places"], "budget_bytes": budget, "cold_renders": b["cold_renders"],
                    "cold_p50_ms": b["cold_p50_ms"], "cold_max_ms": b["cold_max_ms"],
                    "round_robin_p50_ms": b["warm_p50_ms"], "models_loaded": b["loaded_after"],
@@ -104,10 +105,11 @@ json.dump(summary, open(f"{out}/places.json", "w"), indent=2)
 print(json.dumps(summary, indent=2))
 for r in rows:
     print(f"{r['places']:3d} places: RSS {r['rss_mb']:.0f} MB, {r['models_loaded']} models loaded "
-          f"({r['model_mb_loaded']:.1f} MB), warm 100x100 p50 {r['warm_p50_ms']:.1f} ms "
+          f"({r['model_mb_loaded']:.1f} MB counted), warm 100x100 p50 {r['warm_p50_ms']:.1f} ms "
           f"({r['warm_ratio_to_1_place']:.2f}x of 1 place), upload ack -> served {r['upload_to_served_s']:.1f} s")
 br = summary["budget_run"]
-print(f"{br['places']} places, budget {budget/1e6:.1f} MB ({summary['model_bytes_per_place']/1e6:.2f} MB a model): "
+print(f"{br['places']} places, budget {budget/1e6:.1f} MB ({summary['model_bytes_per_place']/1e6:.2f} MB a loaded model, "
+      f"{summary['model_param_bytes_per_place']/1e6:.2f} MB of it parameters): "
       f"cold render p50 {br['cold_p50_ms']:.0f} ms max {br['cold_max_ms']:.0f} ms over {br['cold_renders']}, "
       f"round robin p50 {br['round_robin_p50_ms']:.0f} ms, {br['models_loaded']} loaded "
       f"({br['model_bytes_loaded']/1e6:.1f} MB), RSS {br['rss_mb']:.0f} MB | targets: "

@@ -38,6 +38,7 @@ nlohmann::json PlaceJson(const clnerf::v1::Place& p) {
   j["queued_jobs"] = p.queued_jobs();
   j["loaded"] = p.loaded();
   j["model_bytes"] = p.model_bytes();
+  j["memory_bytes"] = p.memory_bytes();
   return j;
 }
 
@@ -52,12 +53,13 @@ int ListPlaces(RemoteClient& client, const PlacesArgs& a) {
     std::printf("%s\n", list.dump(2).c_str());
     return 0;
   }
-  TextTable table({"PLACE", "DEPLOYED", "TIME STEPS", "QUEUED", "TRAINING", "LOADED", "MODEL", "STORE"});
+  TextTable table({"PLACE", "DEPLOYED", "TIME STEPS", "QUEUED", "TRAINING", "LOADED", "MODEL", "MEMORY", "STORE"});
   for (const clnerf::v1::Place& p : response.places()) {
     table.AddRow({p.name(), p.deployed_version() > 0 ? absl::StrCat("v", p.deployed_version()) : "-",
                   absl::StrCat(p.time_steps()), absl::StrCat(p.queued_jobs()),
                   p.running_job().empty() ? "-" : p.running_job(), p.loaded() ? "yes" : "no",
                   p.model_bytes() > 0 ? FormatBytes(p.model_bytes()) : "-",
+                  p.memory_bytes() > 0 ? FormatBytes(p.memory_bytes()) : "-",
                   p.store_error().empty() ? "ok" : "READ-ONLY: " + p.store_error()});
   }
   table.Print();

@@ -238,20 +238,24 @@ int RunBenchPlaces(const BenchPlacesArgs& a) {
   absl::StatusOr<std::vector<clnerf::v1::Place>> after = ListPlaces(c);
   if (!after.ok()) return FailRemote(kVerb, after.status());
   int loaded_after = 0;
-  int64_t model_bytes_loaded = 0;
+  int64_t model_bytes_loaded = 0;  // As counted against the memory budget.
   for (const auto& p : *after) {
     if (!p.loaded()) continue;
     ++loaded_after;
-    model_bytes_loaded += p.model_bytes();
+    model_bytes_loaded += p.memory_bytes();
   }
   const int64_t rss = ResidentBytes(a.server_pid);
 
   j["places"] = names.size();
   j["loaded_before"] = loaded_before;
   j["loaded_after"] = loaded_after;
-  int64_t per_place = 0;
-  for (const auto& p : *after) per_place = std::max(per_place, p.model_bytes());
-  j["model_bytes_per_place"] = per_place;
+  int64_t per_place = 0, params_per_place = 0;
+  for (const auto& p : *after) {
+    per_place = std::max(per_place, p.memory_bytes());
+    params_per_place = std::max(params_per_place, p.model_bytes());
+  }
+  j["model_bytes_per_place"] = per_place;  // In memory (parameters + occupancy grid).
+  j["model_param_bytes_per_place"] = params_per_place;
   j["model_bytes_loaded"] = model_bytes_loaded;
   j["rss_before_bytes"] = rss_before;
   j["rss_bytes"] = rss;

@@ -345,6 +345,7 @@ v1::Place PlaceProto(const std::string& name, const ModelHost& host) {
   p.set_running_job(h.running_job);
   p.set_loaded(h.loaded);
   p.set_model_bytes(h.model_bytes);
+  p.set_memory_bytes(h.memory_bytes);
   p.set_store_error(h.store_error);
   return p;
 }

@@ -174,6 +174,7 @@ void HttpApi::Register(httplib::Server* server) {
                           {"running_job", i.running_job},
                           {"loaded", i.loaded},
                           {"model_bytes", i.model_bytes},
+                          {"memory_bytes", i.memory_bytes},
                           {"store_error", i.store_error}});
     }
     SendJson(res, json{{"places", list}});

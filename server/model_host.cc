@@ -345,9 +345,11 @@ HostInfo ModelHost::Info() const {
     info.deployed_version = d->info.version;
     info.time_steps = d->info.time_steps;
     info.model_bytes = d->model_bytes;
+    info.memory_bytes = d->memory_bytes;
     info.replay_cameras = d->replay_cameras;
     if (const std::shared_ptr<const Servable> s = publisher_->registry().Peek(); s != nullptr) {
       info.loaded = true;
+      info.memory_bytes = ServableBytes(*s);
       info.replay_cameras = int64_t(s->memory().num_cameras());
     }
   }

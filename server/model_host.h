@@ -110,6 +110,7 @@ struct HostInfo {
   std::string running_job;
   std::string store_error;  // The publisher's sticky error ("" = healthy).
   int64_t model_bytes = 0;     // The deployed model's parameter bytes.
+  int64_t memory_bytes = 0;    // What it holds in memory when loaded (0 = not known until it loads).
   int64_t replay_cameras = 0;
   bool loaded = false;         // The deployed model is in memory now.
   double uptime_seconds = 0;

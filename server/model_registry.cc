@@ -9,7 +9,7 @@ namespace clnerf {
 
 int64_t ServableBytes(const Servable& s) {
   int64_t bytes = int64_t(sizeof(Servable));
-  if (s.state.model) bytes += int64_t(s.model().num_bytes());
+  if (s.state.model) bytes += int64_t(s.model().resident_bytes());
   bytes += int64_t(s.memory().num_cameras()) * int64_t(sizeof(Camera));
   return bytes;
 }
@@ -60,7 +60,7 @@ absl::StatusOr<std::shared_ptr<const Servable>> ModelRegistry::Get(int64_t versi
 
 void ModelRegistry::DeployUnloaded(const VersionInfo& info) {
   std::lock_guard<std::mutex> lock(mu_);
-  deployed_ = DeployedSummary{info, info.model_bytes, 0};
+  deployed_ = DeployedSummary{info, info.model_bytes, info.memory_bytes, 0};
 }
 
 void ModelRegistry::ClearDeployed(int64_t version) {
@@ -76,7 +76,7 @@ void ModelRegistry::Offer(std::shared_ptr<const Servable> servable) {
 void ModelRegistry::Evict(int64_t version) { cache_->Erase(Key(version)); }
 
 void ModelRegistry::Deploy(std::shared_ptr<const Servable> servable, bool keep_loaded) {
-  DeployedSummary summary{servable->info, int64_t(servable->model().num_bytes()),
+  DeployedSummary summary{servable->info, int64_t(servable->model().num_bytes()), ServableBytes(*servable),
                           int64_t(servable->memory().num_cameras())};
   // Into the cache first: a reader that sees the new number finds it loaded.
   if (keep_loaded) {

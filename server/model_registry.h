@@ -46,7 +46,8 @@ struct Servable {
   const ReplayMemory& memory() const { return state.memory; }
 };
 
-// The memory a loaded servable holds: its parameters and its replay cameras.
+// The memory a loaded servable holds: its model (parameters and occupancy
+// grid, NgpModel::resident_bytes) and its replay cameras.
 int64_t ServableBytes(const Servable& s);
 
 using ServableCache = ModelCache<Servable>;
@@ -58,6 +59,7 @@ std::shared_ptr<ServableCache> MakeServableCache(int64_t budget_bytes, std::shar
 struct DeployedSummary {
   VersionInfo info;
   int64_t model_bytes = 0;     // Parameter bytes.
+  int64_t memory_bytes = 0;    // Held in memory when loaded (ServableBytes; 0 = unknown).
   int64_t replay_cameras = 0;  // Cameras in its replay memory.
 };
 

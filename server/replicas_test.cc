@@ -269,13 +269,13 @@ TEST_F(ReplicasTest, SixPlacesUnderABudgetForTwoEveryRenderSucceeds) {
     v1::ListPlacesResponse list;
     ASSERT_TRUE(replicas_[2]->Stub()->ListPlaces(&ctx, v1::ListPlacesRequest(), &list).ok());
     EXPECT_EQ(list.places_size(), 7);  // default + six, created through different replicas.
-    for (const v1::Place& p : list.places()) model_bytes = std::max(model_bytes, p.model_bytes());
+    for (const v1::Place& p : list.places()) model_bytes = std::max(model_bytes, p.memory_bytes());
   }
   ASSERT_GT(model_bytes, 0);
   for (auto& r : replicas_) r->Signal(SIGTERM);
   for (auto& r : replicas_) r->Wait();
   replicas_.clear();
-  // Room for two models (a model's bytes plus its replay cameras).
+  // Room for two models (what a loaded one holds: parameters, occupancy grid, cameras).
   StartThree(30, absl::StrCat("--model-memory-budget ", model_bytes * 5 / 2));
   for (int round = 0; round < 2; ++round) {
     for (const std::string& place : places) {

@@ -24,7 +24,7 @@ constexpr char kMemorySection[] = "replay_memory";
 nlohmann::json InfoToJson(const VersionInfo& v) {
   return {{"version", v.version},       {"parent", v.parent},
           {"time_steps", v.time_steps}, {"size_bytes", v.size_bytes},
-          {"file_bytes", v.size_bytes}, {"model_bytes", v.model_bytes},
+          {"file_bytes", v.size_bytes}, {"model_bytes", v.model_bytes}, {"memory_bytes", v.memory_bytes},
           {"created_unix_ms", v.created_unix_ms}, {"scan_id", v.scan_id},
           {"job_id", v.job_id},         {"scan_name", v.scan_name},
           {"metrics", v.metrics}};
@@ -39,6 +39,7 @@ absl::StatusOr<VersionInfo> InfoFromJson(const std::string& text, const std::str
     v.time_steps = j.at("time_steps");
     v.size_bytes = j.at("size_bytes");
     v.model_bytes = j.value("model_bytes", int64_t(0));  // Absent in older stores.
+    v.memory_bytes = j.value("memory_bytes", int64_t(0));
     v.created_unix_ms = j.at("created_unix_ms");
     v.scan_id = j.at("scan_id");
     v.job_id = j.value("job_id", std::string());  // Absent in older stores.
@@ -118,6 +119,7 @@ absl::StatusOr<VersionInfo> VersionStore::WriteInto(const std::string& dir, cons
   if (!bytes.ok()) return bytes.status();
   info.size_bytes = int64_t(bytes->size());
   info.model_bytes = int64_t(model.num_bytes());
+  info.memory_bytes = int64_t(model.resident_bytes());
   const std::string json = InfoToJson(info).dump(1);
   absl::Status s = WriteDirectoryAtomically(dir, {{"model.ckpt", *bytes}, {"version.json", json}});
   if (!s.ok()) return absl::Status(s.code(), absl::StrCat("cannot publish version ", info.version, ": ", s.message()));

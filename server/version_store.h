@@ -33,6 +33,7 @@ struct VersionInfo {
   int time_steps = 0;
   int64_t size_bytes = 0;   // Checkpoint size on disk (file bytes).
   int64_t model_bytes = 0;  // The model's parameter bytes (NgpModel::num_bytes()).
+  int64_t memory_bytes = 0; // What it holds in memory once loaded (NgpModel::resident_bytes(); 0 = not recorded).
   int64_t created_unix_ms = 0;
   std::string scan_id;  // The scan this version was trained on.
   // The job that trained it and the scan's name ("" in stores written before

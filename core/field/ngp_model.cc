@@ -152,6 +152,12 @@ size_t NgpModel::num_bytes() const {
   return num_params() * sizeof(float) + occupancy_.bits().size() * sizeof(uint64_t);
 }
 
+size_t NgpModel::resident_bytes() const {
+  size_t params = 0;
+  for (const auto* v : {&params_.grid, &params_.mlp, &params_.emb, &params_.proposal}) params += v->capacity();
+  return params * sizeof(float) + occupancy_.resident_bytes();
+}
+
 bool NgpModel::AllFinite() const {
   for (const auto* v : {&params_.grid, &params_.mlp, &params_.emb, &params_.proposal}) {
     for (float x : *v) {

@@ -93,7 +93,11 @@ class NgpModel {
   void Reinitialize(uint64_t seed);
 
   // Bytes of the deployed model: parameters + occupancy bits + embeddings.
+  // Parameter bytes plus the occupancy bitfield: the model's size.
   size_t num_bytes() const;
+  // What it holds in memory: the parameters and the whole occupancy grid,
+  // whose float densities (kept for the next update) usually outweigh them.
+  size_t resident_bytes() const;
   size_t num_params() const;
   size_t num_proposal_params() const;
   // False if any parameter is NaN/Inf.

@@ -93,6 +93,11 @@ class OccupancyGrid {
   size_t num_occupied() const;
   size_t num_visible() const;
   // Raw state for checkpoints.
+  // Bytes the grid holds (training state included: densities, visibility).
+  size_t resident_bytes() const {
+    return density_.capacity() * sizeof(float) + visible_.capacity() + bits_.capacity() * sizeof(uint64_t) +
+           fresh_.capacity() * sizeof(float);
+  }
   const std::vector<float>& density() const { return density_; }
   const std::vector<uint8_t>& visible() const { return visible_; }
   const std::vector<uint64_t>& bits() const { return bits_; }
