@@ -168,8 +168,10 @@ void ModelHost::FollowReplicas(const std::optional<PlaceHead>& head) {
   // or cancelled or parked there.
   const std::string running = jobs_.running();
   for (const JobStatus& j : jobs_.List()) {
-    if (IsFinal(j.phase) || j.job_id == running || stored.count(j.scan_id)) continue;
+    if (IsFinal(j.phase) || j.job_id == running) continue;
     auto v = by_scan.find(j.scan_id);
+    // In a version: done, even while the trainer has not removed the scan yet.
+    if (v == by_scan.end() && stored.count(j.scan_id)) continue;
     jobs_.Update(j.job_id, [&](JobStatus* s) {
       if (v != by_scan.end()) {
         s->phase = JobPhase::kDone;
