@@ -20,6 +20,7 @@
 #include "client/commands.h"
 #include "client/remote_client.h"
 #include "client/remote_commands.h"
+#include "client/percentile.h"
 #include "client/remote_format.h"
 #include "client/scan_upload.h"
 #include "client/verb_set.h"
@@ -36,14 +37,6 @@ constexpr const char* kVerb = "bench places";
 using Clock = std::chrono::steady_clock;
 
 double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
-
-double Percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const double pos = q * (v.size() - 1);
-  const size_t lo = size_t(pos), hi = std::min(lo + 1, v.size() - 1);
-  return v[lo] + (pos - lo) * (v[hi] - v[lo]);
-}
 
 absl::Status RpcError(const std::string& what, const grpc::Status& s) {
   return absl::UnavailableError(absl::StrCat(what, ": ", StatusCodeName(s.error_code()), ": ", s.error_message()));

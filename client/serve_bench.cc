@@ -19,6 +19,7 @@
 #include "client/verb_set.h"
 #include "client/remote_client.h"
 #include "client/remote_commands.h"
+#include "client/percentile.h"
 #include "client/remote_format.h"
 #include "client/scan_upload.h"
 #include "core/io/checkpoint.h"
@@ -43,15 +44,6 @@ struct Latency {
   bool update_running_throughout = false;
   std::string first_error;
 };
-
-double Percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  const double pos = q * (v.size() - 1);
-  const size_t lo = size_t(pos);
-  const size_t hi = std::min(lo + 1, v.size() - 1);
-  return v[lo] + (pos - lo) * (v[hi] - v[lo]);
-}
 
 Camera Resized(Camera c, int size) {
   c.intrinsics = c.intrinsics.Scaled(size, size);

@@ -122,11 +122,8 @@ class EtcdCoordinator final : public Coordinator {
     }
     if (!r.ok()) return r.status();
     bool held = r->succeeded();
-    std::string holder = id_;
     if (!held && r->responses_size() > 0 && r->responses(0).response_range().kvs_size() > 0) {
-      const etcdserverpb::KeyValue& kv = r->responses(0).response_range().kvs(0);
-      held = kv.lease() == s;
-      holder = kv.value();
+      held = r->responses(0).response_range().kvs(0).lease() == s;
     }
     std::lock_guard<std::mutex> lock(mu_);
     if (held && s == session_) {
@@ -137,7 +134,6 @@ class EtcdCoordinator final : public Coordinator {
       return true;
     }
     held_.erase(place);
-    (void)holder;
     return false;
   }
 

@@ -73,6 +73,16 @@ int ModelHost::PredictedTimeStep() const {
   return (deployed ? deployed->info.time_steps : 0) + jobs_.running_or_queued();
 }
 
+JobStatus ModelHost::QueuedJobFor(const ScanRecord& r) const {
+  JobStatus j;
+  j.job_id = r.job_id;
+  j.scan_id = r.scan_id;
+  j.scan_name = r.name;
+  j.created_unix_ms = r.created_unix_ms;
+  j.time_step = PredictedTimeStep();
+  return j;
+}
+
 absl::Status ModelHost::RecoverScans() {
   absl::StatusOr<std::vector<ScanRecord>> pending = scans_->List();
   if (!pending.ok()) return pending.status();
@@ -89,12 +99,9 @@ absl::Status ModelHost::RecoverScans() {
     j.job_id = v.job_id;
     j.scan_id = v.scan_id;
     j.scan_name = v.scan_name;
-    j.phase = JobPhase::kDone;
-    j.time_step = v.time_steps - 1;
-    j.version = v.version;
+    MarkDoneBy(v, &j);
     j.created_unix_ms = known.ok() ? known->created_unix_ms : v.created_unix_ms;
     j.finished_unix_ms = v.created_unix_ms;
-    j.metrics = v.metrics;
     jobs_.AddFinished(std::move(j));
     spdlog::warn("recovery: job {} published version {} before a crash; recorded as done", v.job_id, v.version);
   }
@@ -106,12 +113,7 @@ absl::Status ModelHost::RecoverScans() {
       if (absl::Status s = scans_->Remove(r.scan_id); !s.ok()) spdlog::warn("recovery: {}", s.ToString());
       continue;
     }
-    JobStatus j;
-    j.job_id = r.job_id;
-    j.scan_id = r.scan_id;
-    j.scan_name = r.name;
-    j.created_unix_ms = r.created_unix_ms;
-    j.time_step = PredictedTimeStep();
+    JobStatus j = QueuedJobFor(r);
     const int attempts = scans_->Attempts(r.scan_id);
     if (attempts >= options_.max_scan_attempts) {
       // Its training ended in a crash, a kill or a hang this many times:
@@ -154,13 +156,7 @@ void ModelHost::FollowReplicas(const std::optional<PlaceHead>& head) {
   for (const ScanRecord& r : *pending) {
     stored.insert(r.scan_id);
     if (jobs_.Get(r.job_id).ok() || by_scan.count(r.scan_id)) continue;
-    JobStatus j;
-    j.job_id = r.job_id;
-    j.scan_id = r.scan_id;
-    j.scan_name = r.name;
-    j.created_unix_ms = r.created_unix_ms;
-    j.time_step = PredictedTimeStep();
-    if (jobs_.Enqueue(std::move(j), /*force=*/true).ok()) {
+    if (jobs_.Enqueue(QueuedJobFor(r), /*force=*/true).ok()) {
       spdlog::info("job {}: scan {} uploaded through another replica", r.job_id, r.scan_id);
     }
   }
@@ -174,11 +170,7 @@ void ModelHost::FollowReplicas(const std::optional<PlaceHead>& head) {
     if (v == by_scan.end() && stored.count(j.scan_id)) continue;
     jobs_.Update(j.job_id, [&](JobStatus* s) {
       if (v != by_scan.end()) {
-        s->phase = JobPhase::kDone;
-        s->version = v->second->version;
-        s->time_step = v->second->time_steps - 1;
-        s->metrics = v->second->metrics;
-        s->error.clear();
+        MarkDoneBy(*v->second, s);
       } else {
         s->phase = JobPhase::kCancelled;
         s->error = "its scan was removed through another replica (cancelled or parked there)";

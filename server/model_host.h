@@ -189,6 +189,8 @@ class ModelHost {
   absl::StatusOr<std::shared_ptr<const Servable>> Snapshot(int64_t version) const;
   // The time step a scan queued now becomes if every job ahead succeeds.
   int PredictedTimeStep() const;
+  // The queued job of a stored scan (its original ids, predicted time step).
+  JobStatus QueuedJobFor(const ScanRecord& r) const;
 
   const ServerOptions options_;
   const std::chrono::steady_clock::time_point started_;

@@ -50,6 +50,19 @@ absl::StatusOr<std::unique_ptr<Publisher>> Publisher::Open(const PublisherOption
   return p;
 }
 
+namespace {
+
+// A version just published from `state` (shares its model and memory).
+std::shared_ptr<const Servable> MakeServable(const VersionInfo& info, const ContinualState& state) {
+  auto servable = std::make_shared<Servable>();
+  servable->info = info;
+  servable->state.model = state.model;
+  servable->state.memory = state.memory;
+  return servable;
+}
+
+}  // namespace
+
 absl::StatusOr<std::shared_ptr<const Servable>> Publisher::LoadServable(int64_t version) const {
   const auto t0 = std::chrono::steady_clock::now();
   absl::StatusOr<LoadedVersion> lv = versions_->Load(version);
@@ -255,11 +268,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
   // The version is durable from here on: it is deployed now, and recovery
   // deploys it on the next start even if the manifest cannot be updated.
   manifest_.next_version = info.version + 1;
-  auto servable = std::make_shared<Servable>();
-  servable->info = *written;
-  servable->state.model = state.model;
-  servable->state.memory = state.memory;
-  registry_.Deploy(std::move(servable));
+  registry_.Deploy(MakeServable(*written, state));
   Manifest m = manifest_;
   m.deployed = info.version;
   if (absl::Status s = versions_->WriteManifest(m); !s.ok()) {
@@ -300,11 +309,7 @@ absl::StatusOr<VersionInfo> Publisher::PublishReplicatedLocked(const ContinualSt
                                                        "into place: ", s.message())));
     return s;
   }
-  auto servable = std::make_shared<Servable>();
-  servable->info = *written;
-  servable->state.model = state.model;
-  servable->state.memory = state.memory;
-  registry_.Deploy(std::move(servable));
+  registry_.Deploy(MakeServable(*written, state));
   Manifest m = manifest_;
   m.deployed = info.version;
   // The head is the record; the manifest is a local copy (best effort).

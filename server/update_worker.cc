@@ -31,6 +31,14 @@ JobPhase ToJobPhase(UpdatePhase p) {
 
 }  // namespace
 
+void MarkDoneBy(const VersionInfo& v, JobStatus* job) {
+  job->phase = JobPhase::kDone;
+  job->version = v.version;
+  job->time_step = v.time_steps - 1;
+  job->metrics = v.metrics;
+  job->error.clear();
+}
+
 UpdateWorker::~UpdateWorker() {
   stopping_ = true;
   cancel_ = true;
@@ -155,12 +163,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
     // Another replica may have trained it while this one waited for the lease.
     if (std::optional<VersionInfo> v = publisher_->VersionOfScan(scan_id)) {
       (void)scans_->Remove(scan_id);
-      jobs_->Update(job_id, [&](JobStatus* j) {
-        j->phase = JobPhase::kDone;
-        j->version = v->version;
-        j->time_step = v->time_steps - 1;
-        j->metrics = v->metrics;
-      });
+      jobs_->Update(job_id, [&](JobStatus* j) { MarkDoneBy(*v, j); });
       return;
     }
   }

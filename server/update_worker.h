@@ -38,6 +38,10 @@ namespace clnerf {
 class Metrics;
 class TrainingScheduler;
 
+// Ends `job` as DONE by version `v` (the one that holds its scan): its
+// phase, version, time step and the version's metrics.
+void MarkDoneBy(const VersionInfo& v, JobStatus* job);
+
 class UpdateWorker {
  public:
   // `metrics` (optional) counts updates by outcome; it must outlive the worker.
