@@ -26,6 +26,21 @@ template <int L>
 using Vec = typename VecOf<L>::type;
 static_assert(sizeof(Vec<16>) == 64 && sizeof(Vec<8>) == 32, "vector extension types");
 
+// The register file the build targets (-march): vector bytes and count.
+// Tiles are sized so that their accumulators, the weight column and the
+// broadcast sample fit it; a build without AVX-512 (e.g. an AVX2-only
+// EPYC) must not pin a 64-byte vector in one register.
+#if defined(__AVX512F__)
+constexpr int kRegBytes = 64;
+constexpr int kRegs = 32;
+#elif defined(__AVX__)
+constexpr int kRegBytes = 32;
+constexpr int kRegs = 16;
+#else
+constexpr int kRegBytes = 16;
+constexpr int kRegs = 16;
+#endif
+
 template <int L>
 inline Vec<L> Load(const float* p) {
   Vec<L> v;
@@ -57,8 +72,9 @@ inline void Tile(const float* W, int r0, int cols, int ldw, const float* x, int 
 #if defined(__x86_64__) || defined(__i386__)
       // Keeps the column in registers: folded into each FMA as a memory
       // operand, it costs RB * NS loads per column instead of RB (measured
-      // 65 vs 112 GFLOP/s on a 64 x 32 layer, one Zen 5 core).
-      asm("" : "+v"(w[r]));
+      // 65 vs 112 GFLOP/s on a 64 x 32 layer, one Zen 5 core). Only for a
+      // vector that fits one register of the target.
+      if constexpr (sizeof(Vec<L>) <= kRegBytes) asm("" : "+v"(w[r]));
 #endif
     }
     for (int s = 0; s < NS; ++s) {
@@ -85,23 +101,25 @@ void RowChunk(const float* W, int r0, int cols, int ldw, const float* x, int ldx
   for (; j < n; ++j) Tile<L, RB, 1>(W, r0, cols, ldw, x, ldx, j, bias, relu, y, ldy);
 }
 
-// Rows a multiple of L: chunks of up to 4 row blocks (at most 16
-// accumulators, so they and the weight vectors fit the 32 AVX-512 registers).
+// Rows a multiple of L: chunks of up to 4 row blocks. With 32 registers
+// (AVX-512) a 4 x 4 tile's 16 accumulators and 4 weight vectors fit; with 16
+// (AVX2, SSE) the tiles keep at most 12 accumulators plus the weights.
 template <int L>
 void ColumnPath(const float* W, int rows, int cols, int ldw, const float* x, int ldx, int n,
                 const float* const* bias, bool relu, float* y, int ldy) {
+  constexpr bool kWide = kRegs >= 32;
   for (int r0 = 0; r0 < rows;) {
-    switch (std::min((rows - r0) / L, 4)) {
-      case 4:
-        RowChunk<L, 4, 4>(W, r0, cols, ldw, x, ldx, n, bias, relu, y, ldy);
+    switch (std::min((rows - r0) / L, kWide ? 4 : 3)) {
+      case 4:  // Only reached with kWide.
+        if constexpr (kWide) RowChunk<L, 4, 4>(W, r0, cols, ldw, x, ldx, n, bias, relu, y, ldy);
         r0 += 4 * L;
         break;
       case 3:
-        RowChunk<L, 3, 4>(W, r0, cols, ldw, x, ldx, n, bias, relu, y, ldy);
+        RowChunk<L, 3, kWide ? 4 : 3>(W, r0, cols, ldw, x, ldx, n, bias, relu, y, ldy);
         r0 += 3 * L;
         break;
       case 2:
-        RowChunk<L, 2, 6>(W, r0, cols, ldw, x, ldx, n, bias, relu, y, ldy);
+        RowChunk<L, 2, kWide ? 6 : 5>(W, r0, cols, ldw, x, ldx, n, bias, relu, y, ldy);
         r0 += 2 * L;
         break;
       default:
@@ -137,7 +155,8 @@ void DenseForward(const float* W, int rows, int cols, int ldw, const float* x, i
                   const float* const* bias, Activation act, float* y, int ldy) {
   if (n <= 0 || rows <= 0) return;
   const bool relu = act == Activation::kRelu;
-  if (rows % 16 == 0) {
+  // 16-float vectors only where a register holds them (AVX-512).
+  if (kRegBytes >= 64 && rows % 16 == 0) {
     ColumnPath<16>(W, rows, cols, ldw, x, ldx, n, bias, relu, y, ldy);
   } else if (rows % 8 == 0) {
     ColumnPath<8>(W, rows, cols, ldw, x, ldx, n, bias, relu, y, ldy);
