@@ -115,6 +115,14 @@ CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* a) {
       ->capture_default_str();
   c->add_flag("--copy-embedding", u.copy_embedding,
               "Warm start: the new time step's embeddings start as a copy of the last step's");
+  c->add_flag("--carry-optimizer", u.carry_optimizer,
+              "Warm start: continue the previous update's Adam moments and step count");
+  BindEnumFlag(c, "--lr-schedule", &u.train.lr_schedule,
+               {LrSchedule::kCosine, LrSchedule::kInverseSqrt, LrSchedule::kInverseSqrtCosine}, LrScheduleName,
+               "Learning rate: a cosine per update, or one inverse-sqrt schedule over the sequence (with the "
+               "optimiser's step count), optionally with each update's cosine under it");
+  c->add_option("--lr-timescale", u.train.lr_timescale, "tau of the inverse-sqrt schedules in steps (0 = --iters)")
+      ->capture_default_str();
   c->add_option("--procedural-size", a->procedural_size, "Image size of the procedural scans")->capture_default_str();
   c->add_option("--seed", u.train.seed, "Random seed")->capture_default_str();
   BindThreadsFlag(c, &u.train.threads);
@@ -174,6 +182,9 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   if (uo.warm_lr_scale != 1.0f) j["warm_lr_scale"] = uo.warm_lr_scale;
   if (uo.new_scan_share > 0) j["new_scan_share"] = uo.new_scan_share;
   if (uo.copy_embedding) j["copy_embedding"] = true;
+  j["carry_optimizer"] = uo.carry_optimizer;
+  j["lr_schedule"] = LrScheduleName(uo.train.lr_schedule);
+  j["buffer"] = uo.buffer_size;
   nlohmann::json matrix = nlohmann::json::array(), step_seconds = nlohmann::json::array();
   nlohmann::json steps = nlohmann::json::array();
   double total = 0, eval_seconds = 0;

@@ -222,6 +222,13 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
   to.seed = seed;
   if (prev != nullptr && options.init == InitMode::kWarm) to.learning_rate *= options.warm_lr_scale;
   if (method == ContinualMethod::kEWC && prev != nullptr && prev->ewc != nullptr) to.ewc = prev->ewc.get();
+  if (options.carry_optimizer && options.init == InitMode::kWarm && prev != nullptr && prev->optimizer != nullptr) {
+    if (absl::Status s = prev->optimizer->CompatibleWith(model->params()); s.ok()) {
+      to.resume = prev->optimizer.get();
+    } else {
+      spdlog::warn("update step {}: starting a fresh optimiser: {}", t, std::string(s.message()));
+    }
+  }
   Trainer trainer(model.get(), &sampler, to);
   absl::Status st = trainer.Run(
       [&](const StepStats& s) {
@@ -253,6 +260,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
 
   // M_t: every new camera, then the buffer policy.
   ContinualState next;
+  if (options.carry_optimizer) next.optimizer = std::make_shared<const OptimizerState>(trainer.ExportOptimizerState());
   // Only methods that replay real images keep any (clnerf-noer, nt, ewc and
   // meil store cameras only).
   const int k_buffer = use_buffer ? options.buffer_size : 0;

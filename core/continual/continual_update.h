@@ -81,6 +81,11 @@ struct UpdateOptions {
   // Warm start fine-tunes θ_{t-1}: its learning rate is train.learning_rate
   // times this factor (the first step and re-init use the full rate).
   float warm_lr_scale = 1.0f;
+  // Warm start: continue θ_{t-1}'s optimiser (Adam moments and step count,
+  // ContinualState::optimizer) instead of a fresh one, so the sequence is one
+  // optimisation; with train.lr_schedule kInverseSqrt* the learning rate
+  // follows one schedule across updates too. M_t then carries θ_t's state.
+  bool carry_optimizer = false;
   TrainOptions train;                   // Per-step training budget etc.
   ModelOptions model;                   // Base options (first step / re-init).
   bool derive_capacity = true;
@@ -94,6 +99,8 @@ struct ContinualState {
   std::shared_ptr<const NgpModel> model;
   ReplayMemory memory;
   std::shared_ptr<const EwcPenalty> ewc;
+  // θ_t's optimiser state (UpdateOptions::carry_optimizer; else null).
+  std::shared_ptr<const OptimizerState> optimizer;
 };
 
 enum class UpdatePhase { kPreparingReplay, kTraining, kFinalizing };

@@ -1,5 +1,6 @@
 #include "core/train/adam.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace clnerf {
@@ -19,6 +20,11 @@ void Adam::ResizeBlock(int block, size_t size) {
   }
   m_[block].resize(size, 0.0f);
   v_[block].resize(size, 0.0f);
+}
+
+void Adam::SetMoments(int block, const std::vector<float>& m, const std::vector<float>& v) {
+  std::copy(m.begin(), m.begin() + std::min(m.size(), m_[block].size()), m_[block].begin());
+  std::copy(v.begin(), v.begin() + std::min(v.size(), v_[block].size()), v_[block].begin());
 }
 
 namespace {

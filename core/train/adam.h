@@ -33,6 +33,10 @@ class Adam {
   void UpdateSparse(int block, float lr, int step, float* params, const float* grad,
                     const std::vector<uint32_t>& entries, int stride);
 
+  // Replaces a block's moments (resuming a carried optimiser state). Sizes
+  // must match the block's; call ResizeBlock first.
+  void SetMoments(int block, const std::vector<float>& m, const std::vector<float>& v);
+
   const std::vector<float>& m(int block) const { return m_[block]; }
   const std::vector<float>& v(int block) const { return v_[block]; }
 

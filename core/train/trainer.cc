@@ -16,6 +16,25 @@
 
 namespace clnerf {
 
+absl::StatusOr<LrSchedule> ParseLrSchedule(const std::string& name) {
+  if (name == "cosine") return LrSchedule::kCosine;
+  if (name == "inverse-sqrt") return LrSchedule::kInverseSqrt;
+  if (name == "inverse-sqrt-cosine") return LrSchedule::kInverseSqrtCosine;
+  return absl::InvalidArgumentError(
+      absl::StrCat("unknown learning-rate schedule '", name, "' (cosine|inverse-sqrt|inverse-sqrt-cosine)"));
+}
+
+const char* LrScheduleName(LrSchedule s) {
+  switch (s) {
+    case LrSchedule::kInverseSqrt:
+      return "inverse-sqrt";
+    case LrSchedule::kInverseSqrtCosine:
+      return "inverse-sqrt-cosine";
+    default:
+      return "cosine";
+  }
+}
+
 absl::Status TrainOptions::Validate() const {
   if (iterations < 0) return absl::InvalidArgumentError("train: iterations must be >= 0");
   if (batch_rays < 1 || max_batch_rays < batch_rays) {
@@ -43,6 +62,7 @@ absl::Status TrainOptions::Validate() const {
     return absl::InvalidArgumentError("train: view_colour_prior must be finite and >= 0, view_colour_lr_scale finite and > 0");
   }
   if (threads < 0) return absl::InvalidArgumentError("train: threads must be >= 0");
+  if (lr_timescale < 0) return absl::InvalidArgumentError("train: lr_timescale must be >= 0");
   if (!(interlevel_weight >= 0) || !std::isfinite(interlevel_weight)) {
     return absl::InvalidArgumentError("train: interlevel_weight must be finite and >= 0");
   }
@@ -121,6 +141,14 @@ Trainer::Trainer(NgpModel* model, RaySampler* sampler, const TrainOptions& optio
     grad_view_colour_.assign(view_colour_.size(), 0.0f);
     adam_.ResizeBlock(4, view_colour_.size());
   }
+  if (options.resume != nullptr) {
+    if (absl::Status s = options.resume->CompatibleWith(model->params()); s.ok()) {
+      for (int b = 0; b < OptimizerState::kBlocks; ++b) adam_.SetMoments(b, options.resume->m[b], options.resume->v[b]);
+      adam_base_ = options.resume->step;
+    } else {
+      spdlog::warn("trainer: not resuming the optimiser: {}", std::string(s.message()));
+    }
+  }
   for (int i = 0; i < threads_; ++i) scratch_.push_back(std::make_unique<ThreadScratch>());
   model->mutable_occupancy().MarkInvisible(sampler->Cameras(), model->options().march.near);
 }
@@ -128,9 +156,24 @@ Trainer::Trainer(NgpModel* model, RaySampler* sampler, const TrainOptions& optio
 Trainer::~Trainer() = default;
 
 float Trainer::CurrentLearningRate() const {
-  const float lr = options_.learning_rate, lo = lr * options_.lr_final_ratio;
+  const double tau = options_.lr_timescale > 0 ? options_.lr_timescale : std::max(1, options_.iterations);
+  const auto inv_sqrt = [&](double s) { return float(double(options_.learning_rate) * std::sqrt(tau / (tau + s))); };
+  if (options_.lr_schedule == LrSchedule::kInverseSqrt) return inv_sqrt(double(adam_base_) + step_);
+  const float lr = options_.lr_schedule == LrSchedule::kInverseSqrtCosine ? inv_sqrt(double(adam_base_))
+                                                                           : options_.learning_rate;
+  const float lo = lr * options_.lr_final_ratio;
   const float p = options_.iterations > 0 ? std::min(1.0f, float(step_) / options_.iterations) : 1.0f;
   return lo + 0.5f * (lr - lo) * (1.0f + std::cos(float(M_PI) * p));
+}
+
+OptimizerState Trainer::ExportOptimizerState() const {
+  OptimizerState s;
+  s.step = adam_base_ + uint64_t(step_);
+  for (int b = 0; b < OptimizerState::kBlocks; ++b) {
+    s.m[b] = adam_.m(b);
+    s.v[b] = adam_.v(b);
+  }
+  return s;
 }
 
 float Trainer::ProposalAnneal() const {
@@ -646,17 +689,20 @@ absl::Status Trainer::Step() {
   consecutive_bad_ = 0;
 
   const float lr = CurrentLearningRate();
+  // Adam's step count runs on across resumed runs (bias correction).
+  const int adam_step = int(std::min<uint64_t>(adam_base_ + uint64_t(next), uint64_t(INT32_MAX)));
   ModelParams& p = model.mutable_params();
   // Keep a copy of the small blocks so a non-finite update can be undone.
   const std::vector<float> mlp_before = p.mlp, emb_before = p.emb, view_colour_before = view_colour_;
-  adam_.UpdateDense(1, lr, next, p.mlp.data(), grad_mlp_.data(), p.mlp.size());
-  adam_.UpdateDense(2, lr, next, p.emb.data(), grad_emb_.data(), p.emb.size());
+  adam_.UpdateDense(1, lr, adam_step, p.mlp.data(), grad_mlp_.data(), p.mlp.size());
+  adam_.UpdateDense(2, lr, adam_step, p.emb.data(), grad_emb_.data(), p.emb.size());
   if (!p.proposal.empty()) {
-    adam_.UpdateDense(3, lr, next, p.proposal.data(), grad_prop_.data(), p.proposal.size());
+    adam_.UpdateDense(3, lr, adam_step, p.proposal.data(), grad_prop_.data(), p.proposal.size());
     std::fill(grad_prop_.begin(), grad_prop_.end(), 0.0f);
   }
   if (!view_colour_.empty()) {
-    adam_.UpdateDense(4, lr * options_.view_colour_lr_scale, next, view_colour_.data(), grad_view_colour_.data(),
+    adam_.UpdateDense(4, lr * options_.view_colour_lr_scale, next,  // Fresh per run.
+                      view_colour_.data(), grad_view_colour_.data(),
                       view_colour_.size());
   }
   bool finite = AllFinite(p.mlp) && AllFinite(p.emb) && AllFinite(p.proposal) && AllFinite(view_colour_);
@@ -666,7 +712,7 @@ absl::Status Trainer::Step() {
     int grid_bad = 0;
 #pragma omp parallel for schedule(dynamic) reduction(+ : grid_bad) num_threads(threads_)
     for (int l = 0; l < L; ++l) {
-      adam_.UpdateSparse(0, lr, next, p.grid.data(), grad_grid_.data(), touched_lists_[l], HashGrid::kFeatures);
+      adam_.UpdateSparse(0, lr, adam_step, p.grid.data(), grad_grid_.data(), touched_lists_[l], HashGrid::kFeatures);
       for (uint32_t e : touched_lists_[l]) {
         if (!std::isfinite(p.grid[2 * size_t(e)]) || !std::isfinite(p.grid[2 * size_t(e) + 1])) ++grid_bad;
       }

@@ -29,10 +29,13 @@
 #include <functional>
 #include <memory>
 #include <random>
+#include <string>
 #include <vector>
 
 #include "absl/status/status.h"
+#include "absl/status/statusor.h"
 #include "core/train/adam.h"
+#include "core/train/optimizer_state.h"
 #include "core/field/ngp_model.h"
 #include "core/train/ray_sampler.h"
 
@@ -46,6 +49,21 @@ struct EwcPenalty {
   ModelParams fisher;
   ModelParams anchor;
 };
+
+// How the learning rate moves. s = this run's step, S = the Adam steps
+// before this run (TrainOptions::resume's, else 0), n = iterations,
+// tau = lr_timescale (0: n):
+//   kCosine             a cosine from lr to lr * lr_final_ratio over this run:
+//                       a fresh schedule per run.
+//   kInverseSqrt        lr * sqrt(tau / (tau + S + s)): one schedule over
+//                       every run of a sequence that needs no horizon (the
+//                       service never knows how many scans will come).
+//   kInverseSqrtCosine  this run's cosine, peaking at kInverseSqrt's value at
+//                       the run's start (each update still anneals before it
+//                       is deployed; later updates start lower).
+enum class LrSchedule { kCosine, kInverseSqrt, kInverseSqrtCosine };
+absl::StatusOr<LrSchedule> ParseLrSchedule(const std::string& name);
+const char* LrScheduleName(LrSchedule s);
 
 struct TrainOptions {
   int iterations = 2000;          // Training steps.
@@ -105,7 +123,14 @@ struct TrainOptions {
   bool view_colour = false;
   float view_colour_prior = 1e-2f;
   float view_colour_lr_scale = 0.1f;
+  LrSchedule lr_schedule = LrSchedule::kCosine;
+  int lr_timescale = 0;           // tau of the inverse-sqrt schedules (0 = iterations).
   AdamOptions adam;
+  // Continue this optimiser (not owned): its moments and step count (the
+  // bias correction and the schedule's S). It must be CompatibleWith the
+  // model's parameters (an incompatible one is ignored with a warning);
+  // embedding rows added since start with zero moments.
+  const OptimizerState* resume = nullptr;
   uint64_t seed = 0;
   int threads = 0;                // OpenMP threads; 0 = all cores.
   const EwcPenalty* ewc = nullptr;  // Optional EWC regulariser (not owned).
@@ -148,6 +173,10 @@ class Trainer {
   absl::Status Run(const std::function<void(const StepStats&)>& on_step,
                    const std::atomic<bool>* cancel = nullptr);
 
+  // The optimiser's state now (moments of the model's blocks and the Adam
+  // steps taken including the resumed ones), to resume a later run.
+  OptimizerState ExportOptimizerState() const;
+
   const StepStats& last() const { return last_; }
   int step() const { return step_; }
   float CurrentLearningRate() const;
@@ -188,6 +217,7 @@ class Trainer {
   Adam adam_;
   std::mt19937_64 rng_;
   int step_ = 0;
+  uint64_t adam_base_ = 0;        // Adam steps before this run (resumed).
   int consecutive_bad_ = 0, skipped_batches_ = 0;
   int batch_rays_;
   double mean_samples_per_ray_ = 0;

@@ -739,5 +739,108 @@ TEST(TrainerStepTest, FewerThreadsThanRequestedEqualsOneThread) {
   EXPECT_TRUE(SameBits(one.params().emb, two.params().emb));
 }
 
+// Adam resumed from another instance's moments takes the same step as the
+// instance that kept going (same code path: bit for bit).
+TEST(TrainerResumeTest, AdamWithSetMomentsContinuesExactly) {
+  std::mt19937 rng(5);
+  std::normal_distribution<float> n(0.0f, 1.0f);
+  std::vector<float> p(257), g(257);
+  for (float& x : p) x = n(rng);
+  Adam a;
+  a.ResizeBlock(1, p.size());
+  for (int step = 1; step <= 3; ++step) {
+    for (float& x : g) x = n(rng);
+    a.UpdateDense(1, 1e-2f, step, p.data(), g.data(), p.size());
+  }
+  Adam b;
+  b.ResizeBlock(1, p.size());
+  b.SetMoments(1, a.m(1), a.v(1));
+  for (float& x : g) x = n(rng);
+  std::vector<float> pa = p, pb = p;
+  a.UpdateDense(1, 1e-2f, 4, pa.data(), g.data(), p.size());
+  b.UpdateDense(1, 1e-2f, 4, pb.data(), g.data(), p.size());
+  EXPECT_TRUE(SameBits(pa, pb));
+  EXPECT_TRUE(SameBits(a.m(1), b.m(1)));
+  EXPECT_TRUE(SameBits(a.v(1), b.v(1)));
+}
+
+// A trainer resumed from an exported state counts on from its steps, keeps
+// its moments (a new time step's embedding row starts at zero) and trains
+// differently from a fresh optimiser on the same model.
+TEST(TrainerResumeTest, ResumedTrainerCarriesStepsAndMoments) {
+  const View view = MakeView(/*gradient_image=*/true);
+  NgpModel model = TinyModel(9, /*time_steps=*/1);
+  auto sampler = ImageRaySampler::Create({&view}, model);
+  ASSERT_TRUE(sampler.ok()) << sampler.status();
+  OptimizerState first;
+  {
+    Trainer t(&model, sampler->get(), StepOptions(2));
+    ASSERT_TRUE(t.Run(nullptr).ok());
+    first = t.ExportOptimizerState();
+  }
+  EXPECT_EQ(first.step, 5u);
+  ASSERT_TRUE(first.CompatibleWith(model.params()).ok());
+  EXPECT_EQ(first.m[0].size(), model.params().grid.size());
+  bool any = false;
+  for (float x : first.v[1]) any = any || x > 0;
+  EXPECT_TRUE(any);
+  model.AddTimeStep(3);  // The next scan's row.
+  const NgpModel start = model;
+  TrainOptions to = StepOptions(2);
+  to.resume = &first;
+  NgpModel resumed = start, fresh = start;
+  auto s2 = ImageRaySampler::Create({&view}, resumed);
+  ASSERT_TRUE(s2.ok());
+  Trainer t(&resumed, s2->get(), to);
+  ASSERT_TRUE(t.Run(nullptr).ok());
+  const OptimizerState second = t.ExportOptimizerState();
+  EXPECT_EQ(second.step, 10u);
+  ASSERT_EQ(second.m[2].size(), resumed.params().emb.size());
+  Trainer f(&fresh, s2->get(), StepOptions(2));
+  ASSERT_TRUE(f.Run(nullptr).ok());
+  EXPECT_EQ(f.ExportOptimizerState().step, 5u);
+  EXPECT_FALSE(SameBits(resumed.params().mlp, fresh.params().mlp));
+  // An incompatible state (another model's) is ignored: a fresh optimiser.
+  OptimizerState wrong = first;
+  wrong.m[1].pop_back();
+  wrong.v[1].pop_back();
+  to.resume = &wrong;
+  NgpModel w = start;
+  Trainer tw(&w, s2->get(), to);
+  EXPECT_EQ(tw.ExportOptimizerState().step, 0u);
+}
+
+// The schedules: a cosine per run; inverse-sqrt over the optimiser's steps
+// (resumed ones included), which needs no horizon; and a cosine under it.
+TEST(TrainerResumeTest, LearningRateSchedules) {
+  NgpModel model = TinyModel(9, 1);
+  NoSampler none;
+  OptimizerState prior;
+  prior.step = 300;
+  for (int b = 0; b < OptimizerState::kBlocks; ++b) {
+    const std::vector<float>* blocks[] = {&model.params().grid, &model.params().mlp, &model.params().emb,
+                                          &model.params().proposal};
+    prior.m[b].assign(blocks[b]->size(), 0.0f);
+    prior.v[b].assign(blocks[b]->size(), 0.0f);
+  }
+  TrainOptions to;
+  to.iterations = 100;
+  to.learning_rate = 1e-2f;
+  to.resume = &prior;
+  to.lr_schedule = LrSchedule::kCosine;
+  EXPECT_FLOAT_EQ(Trainer(&model, &none, to).CurrentLearningRate(), 1e-2f);
+  to.lr_schedule = LrSchedule::kInverseSqrt;  // tau = 100: sqrt(100 / 400).
+  EXPECT_FLOAT_EQ(Trainer(&model, &none, to).CurrentLearningRate(), 5e-3f);
+  to.lr_timescale = 300;  // sqrt(300 / 600).
+  EXPECT_FLOAT_EQ(Trainer(&model, &none, to).CurrentLearningRate(), 1e-2f * std::sqrt(0.5f));
+  to.lr_timescale = 0;
+  to.lr_schedule = LrSchedule::kInverseSqrtCosine;
+  EXPECT_FLOAT_EQ(Trainer(&model, &none, to).CurrentLearningRate(), 5e-3f);
+  to.resume = nullptr;
+  EXPECT_FLOAT_EQ(Trainer(&model, &none, to).CurrentLearningRate(), 1e-2f);
+  EXPECT_TRUE(ParseLrSchedule("inverse-sqrt").ok());
+  EXPECT_EQ(ParseLrSchedule("linear").status().code(), absl::StatusCode::kInvalidArgument);
+}
+
 }  // namespace
 }  // namespace clnerf
