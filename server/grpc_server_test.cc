@@ -185,6 +185,39 @@ TEST_F(ServerFixture, RollbackRedeploysAnOlderVersion) {
   EXPECT_EQ(Versions().back().parent(), 1);
 }
 
+// One optimiser across the sequence in the service: with carry_optimizer
+// each version stores θ's Adam state (optimizer.bin) and the next update
+// resumes it, across a restart; a corrupt state only costs the resume (the
+// update starts a fresh optimiser and still publishes).
+TEST_F(ServerFixture, CarriedOptimizerTravelsWithItsVersionAcrossARestart) {
+  const std::string store = TempDir("srv_optimizer");
+  ServerOptions o = TinyServerOptions(store);
+  o.update.carry_optimizer = true;
+  const uint64_t iters = uint64_t(o.update.train.iterations);
+  StartServer(o);
+  const Scene scene = TinyScans(3);
+  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
+  auto versions = VersionStore::Open(store, /*clean_temps=*/false);
+  ASSERT_TRUE(versions.ok()) << versions.status();
+  auto opt = (*versions)->LoadOptimizer(1);
+  ASSERT_TRUE(opt.ok()) << opt.status();
+  ASSERT_NE(*opt, nullptr);
+  EXPECT_EQ((*opt)->step, iters);
+  StopServer();
+  StartServer(o);
+  ASSERT_EQ(UploadAndWait(scene, 1).phase(), v1::JOB_PHASE_DONE);
+  opt = (*versions)->LoadOptimizer(2);
+  ASSERT_TRUE(opt.ok() && *opt != nullptr) << opt.status();
+  EXPECT_EQ((*opt)->step, 2 * iters);  // Resumed from version 1's.
+  // Corrupt version 2's state: the next update starts fresh and publishes.
+  ASSERT_TRUE(AtomicWriteFile(store + "/versions/000002/optimizer.bin", "garbage").ok());
+  EXPECT_EQ((*versions)->LoadOptimizer(2).status().code(), absl::StatusCode::kDataLoss);
+  ASSERT_EQ(UploadAndWait(scene, 2).phase(), v1::JOB_PHASE_DONE);
+  opt = (*versions)->LoadOptimizer(3);
+  ASSERT_TRUE(opt.ok() && *opt != nullptr) << opt.status();
+  EXPECT_EQ((*opt)->step, iters);
+}
+
 TEST_F(ServerFixture, KeepVersionsPrunesTheOldest) {
   const std::string store = TempDir("srv_prune");
   ServerOptions o = TinyServerOptions(store);

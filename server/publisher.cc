@@ -63,6 +63,10 @@ std::shared_ptr<const Servable> MakeServable(const VersionInfo& info, const Cont
 
 }  // namespace
 
+absl::StatusOr<std::shared_ptr<const OptimizerState>> Publisher::LoadOptimizer(int64_t version) const {
+  return versions_->LoadOptimizer(version);
+}
+
 absl::StatusOr<std::shared_ptr<const Servable>> Publisher::LoadServable(int64_t version) const {
   const auto t0 = std::chrono::steady_clock::now();
   absl::StatusOr<LoadedVersion> lv = versions_->Load(version);
@@ -257,7 +261,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
   info.job_id = origin.job_id;
   info.metrics = metrics;
   if (replicated_) return PublishReplicatedLocked(state, info, *fence);
-  absl::StatusOr<VersionInfo> written = versions_->Write(*state.model, state.memory, info);
+  absl::StatusOr<VersionInfo> written = versions_->Write(*state.model, state.memory, info, state.optimizer.get());
   if (!written.ok()) {
     // Nothing was left behind; the caller may publish the same state again
     // once Retry() succeeds.
@@ -286,7 +290,8 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
 absl::StatusOr<VersionInfo> Publisher::PublishReplicatedLocked(const ContinualState& state, const VersionInfo& info,
                                                                const PlaceHead& fence) {
   versions_->RemoveStaged(info.version, replica_tag_);  // A leftover of this process's earlier attempt.
-  absl::StatusOr<VersionInfo> written = versions_->WriteStaged(*state.model, state.memory, info, replica_tag_);
+  absl::StatusOr<VersionInfo> written = versions_->WriteStaged(*state.model, state.memory, info, replica_tag_,
+                                                                  state.optimizer.get());
   if (!written.ok()) {
     SetErrorLocked(written.status());
     return written.status();

@@ -105,6 +105,8 @@ class Publisher {
   absl::Status FollowHead(const PlaceHead& head);
   // Replicas: the version that holds scan `scan_id`, if any.
   std::optional<VersionInfo> VersionOfScan(const std::string& scan_id);
+  // The optimiser state stored with `version` (null: none; VersionStore).
+  absl::StatusOr<std::shared_ptr<const OptimizerState>> LoadOptimizer(int64_t version) const;
   // NOT_FOUND for an unknown version, DATA_LOSS for a corrupt one.
   absl::StatusOr<VersionInfo> SetDeployed(int64_t version);
   // Loads the deployed version if it is not in memory; if it cannot be

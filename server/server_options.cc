@@ -160,6 +160,15 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "depth_fraction") s = Get(*it, k.c_str(), &o->update.depth_fraction);  // Sparse depth; 0 = off.
     else if (k == "view_colour") s = Get(*it, k.c_str(), &o->update.train.view_colour);  // Per-photo colour transforms.
     else if (k == "replay_labels_per_draw") s = Get(*it, k.c_str(), &o->update.replay_labels.labels_per_draw);
+    else if (k == "carry_optimizer") s = Get(*it, k.c_str(), &o->update.carry_optimizer);
+    else if (k == "lr_schedule") {
+      s = Get(*it, k.c_str(), &str);
+      if (s.ok()) {
+        auto m = ParseLrSchedule(str);
+        if (!m.ok()) return m.status();
+        o->update.train.lr_schedule = *m;
+      }
+    }
     else if (k == "method") {
       s = Get(*it, k.c_str(), &str);
       if (s.ok()) {

@@ -230,8 +230,21 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   JobPhase last_phase = JobPhase::kPreparingReplay;
   UpdateReport report;
   const auto t0 = std::chrono::steady_clock::now();
+  // θ_{t-1}'s optimiser state, when updates carry it (read from its version;
+  // without one, e.g. a version from before, the update starts a fresh one).
+  // (A copy of the state only then: it shares the model, copies M_t.)
+  std::optional<ContinualState> prev_state;
+  if (prev && uo.carry_optimizer) {
+    prev_state = prev->state;
+    absl::StatusOr<std::shared_ptr<const OptimizerState>> opt = publisher_->LoadOptimizer(prev->info.version);
+    if (opt.ok()) {
+      prev_state->optimizer = *std::move(opt);
+    } else {
+      spdlog::warn("job {}: starting a fresh optimiser: {}", job_id, opt.status().ToString());
+    }
+  }
   absl::StatusOr<ContinualState> next = ContinualUpdate(
-      *scene, prev ? &prev->state : nullptr, uo,
+      *scene, prev_state ? &*prev_state : prev ? &prev->state : nullptr, uo,
       [&](const UpdateProgress& p) {
         const JobPhase phase = ToJobPhase(p.phase);
         const auto now = std::chrono::steady_clock::now();

@@ -17,6 +17,7 @@ namespace fs = std::filesystem;
 namespace {
 
 constexpr char kMemorySection[] = "replay_memory";
+constexpr char kOptimizerFile[] = "optimizer.bin";
 
 // version.json: "file_bytes" (the checkpoint on disk) and "model_bytes" (the
 // parameters) are reported as by `clnerf train --json`; "size_bytes" repeats
@@ -67,8 +68,8 @@ std::string VersionStore::VersionDir(int64_t v) const {
 }
 
 absl::StatusOr<VersionInfo> VersionStore::Write(const NgpModel& model, const ReplayMemory& memory,
-                                                VersionInfo info) {
-  return WriteInto(VersionDir(info.version), model, memory, std::move(info));
+                                                VersionInfo info, const OptimizerState* optimizer) {
+  return WriteInto(VersionDir(info.version), model, memory, optimizer, std::move(info));
 }
 
 namespace {
@@ -78,9 +79,10 @@ std::string StagedName(int64_t version, const std::string& tag) {
 }  // namespace
 
 absl::StatusOr<VersionInfo> VersionStore::WriteStaged(const NgpModel& model, const ReplayMemory& memory,
-                                                      VersionInfo info, const std::string& tag) {
+                                                      VersionInfo info, const std::string& tag,
+                                                      const OptimizerState* optimizer) {
   const std::string dir = (fs::path(dir_) / StagedName(info.version, tag)).string();
-  return WriteInto(dir, model, memory, std::move(info));
+  return WriteInto(dir, model, memory, optimizer, std::move(info));
 }
 
 absl::Status VersionStore::PromoteStaged(int64_t version, const std::string& tag) {
@@ -110,7 +112,8 @@ std::vector<std::string> VersionStore::StagedTags(int64_t version) const {
 }
 
 absl::StatusOr<VersionInfo> VersionStore::WriteInto(const std::string& dir, const NgpModel& model,
-                                                    const ReplayMemory& memory, VersionInfo info) {
+                                                    const ReplayMemory& memory, const OptimizerState* optimizer,
+                                                    VersionInfo info) {
   CheckpointExtras extras;
   extras.metadata["version"] = absl::StrCat(info.version);
   extras.metadata["parent"] = absl::StrCat(info.parent);
@@ -121,7 +124,10 @@ absl::StatusOr<VersionInfo> VersionStore::WriteInto(const std::string& dir, cons
   info.model_bytes = int64_t(model.num_bytes());
   info.memory_bytes = int64_t(model.resident_bytes());
   const std::string json = InfoToJson(info).dump(1);
-  absl::Status s = WriteDirectoryAtomically(dir, {{"model.ckpt", *bytes}, {"version.json", json}});
+  const std::string optimizer_bytes = optimizer != nullptr ? optimizer->Serialize() : std::string();
+  std::vector<std::pair<std::string, std::string_view>> files = {{"model.ckpt", *bytes}, {"version.json", json}};
+  if (optimizer != nullptr) files.emplace_back(kOptimizerFile, optimizer_bytes);
+  absl::Status s = WriteDirectoryAtomically(dir, files);
   if (!s.ok()) return absl::Status(s.code(), absl::StrCat("cannot publish version ", info.version, ": ", s.message()));
   return info;
 }
@@ -157,6 +163,17 @@ absl::StatusOr<LoadedVersion> VersionStore::Load(int64_t version) const {
                                             ck->model.num_time_steps(), " time steps)"));
   }
   return LoadedVersion{*std::move(info), std::move(ck->model), *std::move(memory)};
+}
+
+absl::StatusOr<std::shared_ptr<const OptimizerState>> VersionStore::LoadOptimizer(int64_t version) const {
+  const std::string path = VersionDir(version) + "/" + kOptimizerFile;
+  std::error_code ec;
+  if (!fs::exists(path, ec)) return std::shared_ptr<const OptimizerState>();
+  absl::StatusOr<std::string> bytes = ReadFileToString(path, "optimizer state");
+  if (!bytes.ok()) return bytes.status();
+  absl::StatusOr<OptimizerState> s = OptimizerState::Deserialize(*bytes);
+  if (!s.ok()) return absl::DataLossError(absl::StrCat("version ", version, ": ", s.status().message()));
+  return std::make_shared<const OptimizerState>(*std::move(s));
 }
 
 absl::StatusOr<std::vector<VersionInfo>> VersionStore::List() const {

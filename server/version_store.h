@@ -2,6 +2,10 @@
 //
 //   <store>/versions/<000007>/model.ckpt   θ (checkpoint) + replay memory M
 //   <store>/versions/<000007>/version.json metadata (parent, metrics, ...)
+//   <store>/versions/<000007>/optimizer.bin θ's Adam state (optional: only
+//                                          with UpdateOptions::carry_optimizer;
+//                                          read by the next update, never
+//                                          by serving)
 //   <store>/manifest.json                  deployed version and id counters
 //
 // A version is written into versions/.tmp-<n>/ (files fsync'd), renamed to
@@ -24,6 +28,7 @@
 #include "absl/status/statusor.h"
 #include "core/field/ngp_model.h"
 #include "core/continual/replay_memory.h"
+#include "core/train/optimizer_state.h"
 
 namespace clnerf {
 
@@ -68,12 +73,19 @@ class VersionStore {
 
   // Writes version `info.version` durably; fills info.size_bytes and
   // info.model_bytes.
-  absl::StatusOr<VersionInfo> Write(const NgpModel& model, const ReplayMemory& memory, VersionInfo info);
+  // `optimizer` (optional) is stored beside the model as optimizer.bin.
+  absl::StatusOr<VersionInfo> Write(const NgpModel& model, const ReplayMemory& memory, VersionInfo info,
+                                    const OptimizerState* optimizer = nullptr);
   // Write()'s bytes into `dir`.
   absl::StatusOr<VersionInfo> WriteInto(const std::string& dir, const NgpModel& model, const ReplayMemory& memory,
+                                        const OptimizerState* optimizer,
                                         VersionInfo info);
   // NOT_FOUND for a version that does not exist.
   absl::StatusOr<LoadedVersion> Load(int64_t version) const;
+  // The optimiser state stored with `version`; null when it has none (a
+  // version written without carry_optimizer, or by an older build).
+  // DATA_LOSS when the file is corrupt.
+  absl::StatusOr<std::shared_ptr<const OptimizerState>> LoadOptimizer(int64_t version) const;
   absl::StatusOr<VersionInfo> Info(int64_t version) const;
   // All versions, ascending. A version whose version.json cannot be read is
   // listed with only its number and `unavailable` set (the reason).
@@ -87,7 +99,7 @@ class VersionStore {
   // hidden directory versions/.staged-N-TAG, which List and Load ignore until
   // PromoteStaged renames it to versions/N once the publish is committed.
   absl::StatusOr<VersionInfo> WriteStaged(const NgpModel& model, const ReplayMemory& memory, VersionInfo info,
-                                          const std::string& tag);
+                                          const std::string& tag, const OptimizerState* optimizer = nullptr);
   // ALREADY_EXISTS if versions/N exists; NOT_FOUND if the staged one does not.
   absl::Status PromoteStaged(int64_t version, const std::string& tag);
   void RemoveStaged(int64_t version, const std::string& tag);
