@@ -110,6 +110,7 @@ struct BenchContinualArgs {
   std::string data;               // Dataset, scan-folder directory, or "procedural".
   int tasks = 0;                  // 0 = 10 for a static dataset, 5 procedural scans.
   UbBudget ub_budget = UbBudget::kTotal;
+  bool paper_protocol = false;    // Every update: re-init, ub's whole budget.
   UpdateOptions update;           // The verb's default: 300 iterations per update.
   DatasetOptions dataset;
   int procedural_size = 64;       // Image size of the procedural scans.

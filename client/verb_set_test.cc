@@ -73,7 +73,13 @@ TEST(VerbSetTest, ContinualBenchBindsUpdateOptionsAndEnums) {
   const BenchContinualArgs a =
       Parse(BindBenchContinual,
             "continual --data procedural --init reinit --replay online --ub-budget per-step --buffer 3 "
-            "--ewc-lambda 5 --new-share 0.3 --copy-embedding --iters 40 --seed 9");
+            "--ewc-lambda 5 --new-share 0.3 --copy-embedding --iters 40 --seed 9 --carry-optimizer "
+            "--lr-schedule inverse-sqrt-cosine --lr-timescale 500 --paper-protocol");
+  EXPECT_TRUE(a.update.carry_optimizer);
+  EXPECT_EQ(a.update.train.lr_schedule, LrSchedule::kInverseSqrtCosine);
+  EXPECT_EQ(a.update.train.lr_timescale, 500);
+  EXPECT_TRUE(a.paper_protocol);
+  EXPECT_FALSE(Parse(BindBenchContinual, "continual --data procedural --fresh-optimizer").update.carry_optimizer);
   EXPECT_EQ(a.update.init, InitMode::kReinit);
   EXPECT_EQ(a.update.replay, ReplayMode::kOnline);
   EXPECT_EQ(a.ub_budget, UbBudget::kPerStep);
@@ -91,11 +97,15 @@ TEST(VerbSetTest, ContinualBenchBindsUpdateOptionsAndEnums) {
   EXPECT_EQ(d.update.buffer_size, core.buffer_size);
   EXPECT_EQ(d.update.ewc_lambda, core.ewc_lambda);
   EXPECT_EQ(d.update.new_scan_share, core.new_scan_share);
+  EXPECT_EQ(d.update.carry_optimizer, core.carry_optimizer);
+  EXPECT_EQ(d.update.train.lr_schedule, core.train.lr_schedule);
+  EXPECT_FALSE(d.paper_protocol);
   EXPECT_EQ(d.update.train.iterations, 300);  // The verb's own default.
   EXPECT_EQ(d.ub_budget, UbBudget::kTotal);
 
   EXPECT_THROW(Parse(BindBenchContinual, "continual --data procedural --init bogus"), CLI::ValidationError);
   EXPECT_THROW(Parse(BindBenchContinual, "continual --data procedural --replay 1"), CLI::ValidationError);
+  EXPECT_THROW(Parse(BindBenchContinual, "continual --data procedural --lr-schedule linear"), CLI::ValidationError);
 }
 
 TEST(VerbSetTest, DemoSizeAndSeedSetEveryFieldTheyName) {
