@@ -346,9 +346,10 @@ TEST(ContinualUpdateTest, CarriedOptimizerRoundTripsAndResumesTheSame) {
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->optimizer->step, 12u);
   EXPECT_GT(max_diff(a->model->params().mlp, c->model->params().mlp), 1e-4f);
-  // Off by default: no state is produced.
-  absl::StatusOr<ContinualState> d =
-      ContinualUpdate(seq.ScanScene(0), nullptr, TinyOptions(ContinualMethod::kCLNeRF, 4), nullptr, nullptr, nullptr);
+  // Switched off, no state is produced.
+  UpdateOptions off = TinyOptions(ContinualMethod::kCLNeRF, 4);
+  off.carry_optimizer = false;
+  absl::StatusOr<ContinualState> d = ContinualUpdate(seq.ScanScene(0), nullptr, off, nullptr, nullptr, nullptr);
   ASSERT_TRUE(d.ok());
   EXPECT_EQ(d->optimizer, nullptr);
 }
