@@ -103,6 +103,9 @@ CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* a) {
   c->add_option("--replay-labels-per-draw", u.replay_labels.labels_per_draw,
                  "Offline replay: labels rendered per replay ray the update draws (0 = every pixel of every past view)")
       ->capture_default_str();
+  c->add_option("--replay-seen-weight", u.replay_weights.seen_weight,
+                "Offline replay: weight of labels whose surface the new scan sees unchanged (1 = off, 0 = dropped)")
+      ->capture_default_str();
   c->add_option("--buffer", u.buffer_size, "Real images kept for experience replay (clnerf, er)")
       ->capture_default_str();
   c->add_flag("--prioritized", u.prioritized_buffer, "Buffer keeps the lowest-PSNR images instead of a reservoir");
@@ -193,6 +196,7 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   if (uo.new_scan_share > 0) j["new_scan_share"] = uo.new_scan_share;
   if (uo.copy_embedding) j["copy_embedding"] = true;
   j["carry_optimizer"] = uo.carry_optimizer;
+  j["replay_seen_weight"] = uo.replay_weights.seen_weight;
   j["lr_schedule"] = LrScheduleName(uo.train.lr_schedule);
   j["protocol"] = a.paper_protocol ? "paper" : "equal-compute";
   nlohmann::json matrix = nlohmann::json::array(), step_seconds = nlohmann::json::array();
@@ -273,6 +277,8 @@ int RunBenchContinual(const BenchContinualArgs& a) {
                        {"replay_prepare_seconds", rep.replay_prepare_seconds},
                        {"replay_cache_bytes", rep.replay_cache_bytes},
                        {"replay_labels", rep.replay_labels},
+                       {"replay_seen_labels", rep.replay_seen_labels},
+                       {"replay_weight_seconds", rep.replay_weight_seconds},
                        {"replay_view_pixels", rep.replay_view_pixels},
                        {"new_views", rep.new_views},
                        {"replay_views", rep.replay_views},

@@ -13,6 +13,7 @@
 #include "server/etcd_client.h"
 #include "server/etcd_test_util.h"
 #include "server/metrics.h"
+#include "server/model_host.h"
 #include "server/server_test_util.h"
 
 namespace clnerf {
@@ -185,6 +186,44 @@ TEST_F(EtcdTest, IdsAreUniqueAcrossReplicasAndTheFirstHeadSticks) {
   ASSERT_TRUE(again.ok());
   EXPECT_EQ(again->version, 3);
   EXPECT_EQ(again->generation, h->generation);
+}
+
+// A replica that never saw a scan queued (uploaded and trained elsewhere
+// between two of its polls) still learns its job from the version it
+// published: GetJob answers DONE with that version on every replica.
+TEST_F(EtcdTest, AJobTrainedBetweenTwoPollsIsKnownDoneOnTheOtherReplica) {
+  const std::string store = testing_util::TempDir("srv_follow_unseen");
+  auto ca = MakeEtcdCoordinator(Options("A", 5));
+  auto cb = MakeEtcdCoordinator(Options("B", 5));
+  ASSERT_TRUE(ca.ok() && cb.ok());
+  SharedServices sa, sb;
+  sa.coordinator = std::move(*ca);
+  sb.coordinator = std::move(*cb);
+  const ServerOptions o = testing_util::TinyServerOptions(store);
+  absl::StatusOr<std::unique_ptr<ModelHost>> a = ModelHost::Open(o, sa);
+  ASSERT_TRUE(a.ok()) << a.status();
+  absl::StatusOr<std::unique_ptr<ModelHost>> b = ModelHost::Open(o, sb);
+  ASSERT_TRUE(b.ok()) << b.status();
+  absl::StatusOr<UploadAck> ack = (*a)->AcceptScan(testing_util::UploadOf(testing_util::TinyScans(1), 0));
+  ASSERT_TRUE(ack.ok()) << ack.status();
+  for (int i = 0; i < 1200 && (*a)->deployed_version() == 0; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  }
+  ASSERT_EQ((*a)->deployed_version(), 1);
+  EXPECT_EQ((*b)->GetJob(ack->job_id).status().code(), absl::StatusCode::kNotFound);  // Not polled yet.
+  absl::StatusOr<PlaceHead> head = sb.coordinator->ReadHead("default");
+  ASSERT_TRUE(head.ok()) << head.status();
+  (*b)->FollowReplicas(*head);
+  absl::StatusOr<JobStatus> job = (*b)->GetJob(ack->job_id);
+  ASSERT_TRUE(job.ok()) << job.status();
+  EXPECT_EQ(job->phase, JobPhase::kDone);
+  EXPECT_EQ(job->version, 1);
+  EXPECT_EQ(job->scan_id, ack->scan_id);
+  EXPECT_EQ((*b)->deployed_version(), 1);
+  (*b)->FollowReplicas(*head);  // Idempotent: still one record.
+  EXPECT_EQ((*b)->ListJobs().size(), 1u);
+  (*a)->Shutdown();
+  (*b)->Shutdown();
 }
 
 TEST(CoordinatorTest, UnreachableEtcdIsUnavailableQuickly) {

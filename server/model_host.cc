@@ -18,6 +18,19 @@ double SecondsSince(std::chrono::steady_clock::time_point t) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
 }
 
+// The finished record of the job that published `v` (`known`: what this
+// host knew of it, or null).
+JobStatus DoneJobOf(const VersionInfo& v, const JobStatus* known) {
+  JobStatus j;
+  j.job_id = v.job_id;
+  j.scan_id = v.scan_id;
+  j.scan_name = v.scan_name;
+  MarkDoneBy(v, &j);
+  j.created_unix_ms = known != nullptr ? known->created_unix_ms : v.created_unix_ms;
+  j.finished_unix_ms = v.created_unix_ms;
+  return j;
+}
+
 }  // namespace
 
 ModelHost::ModelHost(const ServerOptions& options, SharedServices shared)
@@ -95,16 +108,10 @@ absl::Status ModelHost::RecoverScans() {
     if (v.job_id.empty() || !v.unavailable.empty()) continue;
     absl::StatusOr<JobStatus> known = jobs_.Get(v.job_id);
     if (known.ok() && known->phase == JobPhase::kDone && known->version == v.version) continue;
-    JobStatus j;
-    j.job_id = v.job_id;
-    j.scan_id = v.scan_id;
-    j.scan_name = v.scan_name;
-    MarkDoneBy(v, &j);
-    j.created_unix_ms = known.ok() ? known->created_unix_ms : v.created_unix_ms;
-    j.finished_unix_ms = v.created_unix_ms;
-    jobs_.AddFinished(std::move(j));
+    jobs_.AddFinished(DoneJobOf(v, known.ok() ? &*known : nullptr));
     spdlog::warn("recovery: job {} published version {} before a crash; recorded as done", v.job_id, v.version);
   }
+  for (const VersionInfo& v : *all) followed_version_ = std::max(followed_version_, v.version);
   int requeued = 0;
   for (const ScanRecord& r : *pending) {
     const bool trained = std::any_of(all->begin(), all->end(), [&](const VersionInfo& v) { return v.scan_id == r.scan_id; });
@@ -159,6 +166,16 @@ void ModelHost::FollowReplicas(const std::optional<PlaceHead>& head) {
     if (jobs_.Enqueue(QueuedJobFor(r), /*force=*/true).ok()) {
       spdlog::info("job {}: scan {} uploaded through another replica", r.job_id, r.scan_id);
     }
+  }
+  // Versions published elsewhere by jobs this replica never saw queued (the
+  // scan was uploaded and trained between two of its polls): known here as
+  // done, so GetJob answers the same on every replica.
+  for (const VersionInfo& v : *versions) {
+    if (v.version <= followed_version_) continue;
+    followed_version_ = v.version;
+    if (v.job_id.empty() || !v.unavailable.empty() || jobs_.Get(v.job_id).ok()) continue;
+    jobs_.AddFinished(DoneJobOf(v, nullptr));
+    spdlog::info("job {}: published version {} through another replica", v.job_id, v.version);
   }
   // Jobs whose scan left the store elsewhere: trained into a version there,
   // or cancelled or parked there.

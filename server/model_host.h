@@ -200,6 +200,7 @@ class ModelHost {
   JobTracker jobs_;
   std::unique_ptr<UpdateWorker> worker_;
   std::mutex upload_mu_;  // Serialises uploads (id reservation, save, enqueue).
+  int64_t followed_version_ = 0;  // Newest version FollowReplicas has seen; guarded by upload_mu_.
   const std::shared_ptr<TrainingScheduler> trainings_;
   const std::shared_ptr<RenderSlots> render_slots_;
   const std::shared_ptr<Coordinator> coordinator_;  // Null: a single server.

@@ -79,23 +79,23 @@ void UpdateWorker::Loop() {
   }
   omp_set_num_threads(options_.train_threads);
   while (!stopping_) {
-    if (trainings_ == nullptr) {
+    if (trainings_ == nullptr && coordinator_ == nullptr) {  // Alone: train whatever is queued.
       std::optional<std::string> id = jobs_->WaitNext();
       if (!id) return;
       RunJob(*id);
       continue;
     }
-    // A training slot shared with the other places first; the job stays
-    // queued (and cancellable as such) until it has one.
+    // The place's lease and a training slot shared with the other places
+    // first; the job stays queued (and cancellable as such) until it has both.
     if (!jobs_->WaitQueued()) return;
     if (coordinator_ != nullptr && !HoldLease()) {  // Another replica trains this place now.
       if (!Pause()) return;
       continue;
     }
-    if (!trainings_->Acquire(place_, &stopping_)) return;
+    if (trainings_ != nullptr && !trainings_->Acquire(place_, &stopping_)) return;
     std::optional<std::string> id = jobs_->TryNext();  // Cancelled meanwhile: none.
     if (id) RunJob(*id);
-    trainings_->Finish(place_);
+    if (trainings_ != nullptr) trainings_->Finish(place_);
     // Nothing more to train here: let any replica take the next upload.
     if (coordinator_ != nullptr && jobs_->queued() == 0) coordinator_->Release(place_);
   }

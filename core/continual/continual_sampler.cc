@@ -54,7 +54,7 @@ void ContinualRaySampler::FillRay(int v, std::mt19937_64& r, RayBatch* out, int 
   }
   PixelRay(model_cameras_[v], pixel, &out->origin[3 * size_t(i)], &out->dir[3 * size_t(i)]);
   out->time_step[i] = view.camera.time_step;
-  out->weight[i] = 1.0f;
+  out->weight[i] = view.label_weight != nullptr && label < view.label_weight->size() ? (*view.label_weight)[label] : 1.0f;
   out->robust[i] = 0;
   out->view[i] = view.replay ? -1 : v;  // Photos (new scan, buffered) have their own colour transform.
   if (view.image != nullptr) {
@@ -96,7 +96,7 @@ void ContinualRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
     FillRay(v, r, out, i, &online);
     if (meil && views_[v].replay) {
       out->robust[i] = 1;
-      out->weight[i] = meil_weight;
+      out->weight[i] *= meil_weight;
     }
   }
   if (online.empty() || frozen_ == nullptr) return;

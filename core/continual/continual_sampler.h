@@ -32,6 +32,9 @@ struct SamplerView {
   // (image->rgb[3k..3k+2]) is pixel (*label_pixels)[k]; rays are drawn from
   // these pixels. Null = `image` covers every pixel.
   const std::vector<uint32_t>* label_pixels = nullptr;
+  // Loss weight per label (replay_weights.h), indexed as the labels are;
+  // null = 1.
+  const std::vector<float>* label_weight = nullptr;
 };
 
 class ContinualRaySampler : public RaySampler {

@@ -73,7 +73,8 @@ absl::Status UpdateOptions::Validate() const {
   if (!(meil_new_fraction > 0 && meil_new_fraction < 1)) {
     return absl::InvalidArgumentError("meil_new_fraction must be in (0, 1)");
   }
-  for (const absl::Status& s : {train.Validate(), model.Validate(), capacity.Validate(), replay_labels.Validate()}) {
+  for (const absl::Status& s : {train.Validate(), model.Validate(), capacity.Validate(), replay_labels.Validate(),
+                                 replay_weights.Validate()}) {
     if (!s.ok()) return s;
   }
   return absl::OkStatus();
@@ -197,13 +198,23 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
             &lr);
         if (!labels.ok()) return labels.status();
         cache = std::move(*labels);
+        ReplayWeightReport wr;
+        if (absl::Status s = WeightReplayLabels(*prev->model, cams, scan.train, options.replay_weights, cancel, &cache,
+                                                &wr);
+            !s.ok()) {
+          return s;
+        }
+        rep.replay_seen_labels = wr.seen;
+        rep.replay_weight_seconds = wr.seconds;
         rep.replay_cache_bytes = lr.bytes;
         rep.replay_labels = lr.labels;
         rep.replay_view_pixels = lr.view_pixels;
         rep.replay_probe_samples_per_ray = spr;
         for (size_t k = 0; k < gr.size(); ++k) {
+          if (cache[k].rgb.empty()) continue;  // Every label was seen by the new scan (seen_weight 0).
           SamplerView sv{cams[k], &cache[k].rgb, nullptr, true, true};
           if (!cache[k].pixels.empty()) sv.label_pixels = &cache[k].pixels;
+          if (!cache[k].weight.empty()) sv.label_weight = &cache[k].weight;
           views.push_back(sv);
         }
       } else {

@@ -31,6 +31,7 @@
 #include "core/field/capacity.h"
 #include "core/field/ngp_model.h"
 #include "core/continual/replay_labels.h"
+#include "core/continual/replay_weights.h"
 #include "core/continual/replay_memory.h"
 #include "core/data/scene.h"
 #include "core/train/ray_sampler.h"
@@ -61,6 +62,9 @@ struct UpdateOptions {
   // Offline replay renders only as many of each past view's pixels as the
   // update can draw (replay_labels.h); labels_per_draw 0 renders them all.
   ReplayLabelOptions replay_labels;
+  // Offline replay: labels whose surface the new scan sees unchanged are
+  // down-weighted (replay_weights.h); seen_weight 1 = off.
+  ReplayWeightOptions replay_weights;
   int buffer_size = 10;                 // K for clnerf / er (clnerf-noer forces 0).
   bool prioritized_buffer = false;      // Keep the K lowest-PSNR views instead of a reservoir.
   float ewc_lambda = 1e5f;              // Paper's value.
@@ -126,6 +130,8 @@ struct UpdateReport {
   long long replay_labels = 0;        // Offline: pixels rendered as labels,
   long long replay_view_pixels = 0;   // of this many in the replayed views.
   double replay_probe_samples_per_ray = 0;  // θ_{t-1}'s, from the probe.
+  long long replay_seen_labels = 0;   // Labels the new scan sees (replay_weights.h).
+  double replay_weight_seconds = 0;   // Time spent finding them.
   double train_seconds = 0;
   long long samples = 0;
   int skipped_batches = 0;            // NaN/Inf batches skipped by the trainer.

@@ -27,12 +27,13 @@ uint64_t NumPixels(const Camera& c) { return uint64_t(c.intrinsics.width) * uint
 
 // Renders the model-space rays of `pixels` of `camera`; false when stopped.
 bool RenderPixels(const NgpModel& model, const Camera& world, const std::vector<uint32_t>& pixels,
-                  const RenderOptions& ro, float* rgb, long long* samples) {
+                  const RenderOptions& ro, float* rgb, long long* samples, float* opacity = nullptr,
+                  float* depth = nullptr) {
   const Camera cam = model.ToModelCamera(world);
   std::vector<float> o(3 * pixels.size()), d(3 * pixels.size());
   for (size_t k = 0; k < pixels.size(); ++k) PixelRay(cam, pixels[k], &o[3 * k], &d[3 * k]);
-  const long long s = RenderRays(model, o.data(), d.data(), int(pixels.size()), world.time_step, ro, rgb, nullptr,
-                                 nullptr);
+  const long long s = RenderRays(model, o.data(), d.data(), int(pixels.size()), world.time_step, ro, rgb, opacity,
+                                 depth);
   if (s < 0) return false;
   if (samples != nullptr) *samples += s;
   return true;
@@ -91,6 +92,9 @@ absl::StatusOr<std::vector<ReplayLabelView>> RenderReplayLabels(
       if (absl::IsCancelled(r.status())) return absl::CancelledError("update cancelled while preparing replay");
       if (!r.ok()) return r.status();
       lv.rgb = std::move(r->rgb);
+      lv.opacity = std::move(r->opacity);
+      lv.depth = std::move(r->depth);
+      for (float& z : lv.depth) z *= model.normalization().scale;  // World to model units.
       rep.labels += (long long)n;
     } else {
       // A partial Fisher-Yates shuffle picks the subset; sorted, the rays
@@ -104,12 +108,15 @@ absl::StatusOr<std::vector<ReplayLabelView>> RenderReplayLabels(
       lv.pixels.assign(all.begin(), all.begin() + labels_per_view);
       std::sort(lv.pixels.begin(), lv.pixels.end());
       lv.rgb = Image(int(lv.pixels.size()), 1);
-      if (!RenderPixels(model, cam, lv.pixels, ro, lv.rgb.rgb.data(), nullptr)) {
+      lv.opacity.resize(lv.pixels.size());
+      lv.depth.resize(lv.pixels.size());
+      if (!RenderPixels(model, cam, lv.pixels, ro, lv.rgb.rgb.data(), nullptr, lv.opacity.data(), lv.depth.data())) {
         return absl::CancelledError("update cancelled while preparing replay");
       }
       rep.labels += labels_per_view;
     }
-    rep.bytes += lv.rgb.rgb.size() * sizeof(float) + lv.pixels.size() * sizeof(uint32_t);
+    rep.bytes += (lv.rgb.rgb.size() + lv.depth.size() + lv.opacity.size()) * sizeof(float) +
+                 lv.pixels.size() * sizeof(uint32_t);
     out.push_back(std::move(lv));
     if (progress) progress(int(v + 1), int(cameras.size()));
   }

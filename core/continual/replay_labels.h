@@ -46,6 +46,11 @@ struct ReplayLabelOptions {
 struct ReplayLabelView {
   Image rgb;
   std::vector<uint32_t> pixels;
+  // θ_{t-1}'s expected depth (model units, along the pixel's unit ray) and
+  // accumulated opacity per label, in label order.
+  std::vector<float> depth, opacity;
+  // Loss weight per label (replay_weights.h); empty = 1 for every label.
+  std::vector<float> weight;
 };
 
 struct ReplayLabelReport {

@@ -59,11 +59,14 @@ TEST(ReplayLabelsTest, LabelsAreTheModelsRendersOfTheirPixels) {
   EXPECT_EQ(calls, 3);
   EXPECT_EQ(rep.labels, 3 * 40);
   EXPECT_EQ(rep.view_pixels, 3 * npix);
-  EXPECT_EQ(rep.bytes, 3 * 40 * (3 * sizeof(float) + sizeof(uint32_t)));
+  // RGB, depth and opacity per label, and its pixel index.
+  EXPECT_EQ(rep.bytes, 3 * 40 * (5 * sizeof(float) + sizeof(uint32_t)));
   for (size_t v = 0; v < cams.size(); ++v) {
     const ReplayLabelView& lv = (*part)[v];
     ASSERT_EQ(lv.pixels.size(), 40u);
     ASSERT_EQ(lv.rgb.num_pixels(), 40u);
+    ASSERT_EQ(lv.depth.size(), 40u);
+    ASSERT_EQ(lv.opacity.size(), 40u);
     EXPECT_EQ(std::set<uint32_t>(lv.pixels.begin(), lv.pixels.end()).size(), 40u) << "drawn without replacement";
     EXPECT_TRUE(std::is_sorted(lv.pixels.begin(), lv.pixels.end()));
     RenderOptions ro;
