@@ -105,13 +105,13 @@ absl::Status ModelHost::RecoverScans() {
   // written when a job finishes) would lose an acknowledged job: every
   // version names the job that trained it, so restore that record as DONE.
   for (const VersionInfo& v : *all) {
+    followed_version_ = std::max(followed_version_, v.version);
     if (v.job_id.empty() || !v.unavailable.empty()) continue;
     absl::StatusOr<JobStatus> known = jobs_.Get(v.job_id);
     if (known.ok() && known->phase == JobPhase::kDone && known->version == v.version) continue;
     jobs_.AddFinished(DoneJobOf(v, known.ok() ? &*known : nullptr));
     spdlog::warn("recovery: job {} published version {} before a crash; recorded as done", v.job_id, v.version);
   }
-  for (const VersionInfo& v : *all) followed_version_ = std::max(followed_version_, v.version);
   int requeued = 0;
   for (const ScanRecord& r : *pending) {
     const bool trained = std::any_of(all->begin(), all->end(), [&](const VersionInfo& v) { return v.scan_id == r.scan_id; });

@@ -67,7 +67,8 @@ absl::Status WeightReplayLabels(const NgpModel& prev, const std::vector<Camera>&
     if (report != nullptr) *report = rep;
     return absl::OkStatus();
   }
-  // θ_{t-1}'s depth maps of the new views, at its newest time step.
+  // θ_{t-1}'s depth maps of the new views' photos, at its newest time step.
+  std::vector<const View*> photos;
   std::vector<Camera> new_cams;
   std::vector<NewViewDepth> maps;
   for (const View& v : new_views) {
@@ -88,12 +89,9 @@ absl::Status WeightReplayLabels(const NgpModel& prev, const std::vector<Camera>&
                    dm.depth.data()) < 0) {
       return absl::CancelledError("update cancelled while weighting replay");
     }
+    photos.push_back(&v);
     new_cams.push_back(cam);
     maps.push_back(std::move(dm));
-  }
-  std::vector<const View*> photos;
-  for (const View& v : new_views) {
-    if (!v.image.empty()) photos.push_back(&v);
   }
   for (size_t v = 0; v < cameras.size(); ++v) {
     if (cancel != nullptr && cancel->load()) return absl::CancelledError("update cancelled while weighting replay");
@@ -103,7 +101,6 @@ absl::Status WeightReplayLabels(const NgpModel& prev, const std::vector<Camera>&
       return absl::InvalidArgumentError("replay weights: the labels carry no depth and opacity");
     }
     const Camera cam = prev.ToModelCamera(cameras[v]);
-    lv.weight.assign(n, 1.0f);
     std::vector<char> seen(n, 0);
     long long nseen = 0;
 #pragma omp parallel for schedule(static) reduction(+ : nseen)
@@ -124,6 +121,7 @@ absl::Status WeightReplayLabels(const NgpModel& prev, const std::vector<Camera>&
     rep.labels += (long long)n;
     rep.seen += nseen;
     if (options.seen_weight > 0.0f) {
+      lv.weight.assign(n, 1.0f);
       for (size_t k = 0; k < n; ++k) {
         if (seen[k]) lv.weight[k] = options.seen_weight;
       }
@@ -131,10 +129,7 @@ absl::Status WeightReplayLabels(const NgpModel& prev, const std::vector<Camera>&
     }
     // Weight 0: seen labels leave the view (a whole view becomes a list of
     // its unseen pixels); a view left with none has rgb empty.
-    if (nseen == 0) {
-      lv.weight.clear();
-      continue;
-    }
+    if (nseen == 0) continue;
     ReplayLabelView kept;
     kept.rgb = Image(int(n - size_t(nseen)), n == size_t(nseen) ? 0 : 1);
     size_t m = 0;
@@ -146,7 +141,6 @@ absl::Status WeightReplayLabels(const NgpModel& prev, const std::vector<Camera>&
       kept.opacity.push_back(lv.opacity[k]);
       ++m;
     }
-    if (m == 0) kept.rgb = Image();
     lv = std::move(kept);
   }
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
