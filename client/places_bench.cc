@@ -33,10 +33,8 @@
 namespace clnerf {
 namespace {
 
-constexpr const char* kVerb = "bench places";
+constexpr const char* kPlacesBenchVerb = "bench places";
 using Clock = std::chrono::steady_clock;
-
-double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
 
 absl::Status RpcError(const std::string& what, const grpc::Status& s) {
   return absl::UnavailableError(absl::StrCat(what, ": ", StatusCodeName(s.error_code()), ": ", s.error_message()));
@@ -137,7 +135,7 @@ CLI::App* BindBenchPlaces(CLI::App* parent, BenchPlacesArgs* a) {
 
 int RunBenchPlaces(const BenchPlacesArgs& a) {
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
-  if (!client.ok()) return FailRemote(kVerb, client.status());
+  if (!client.ok()) return FailRemote(kPlacesBenchVerb, client.status());
   RemoteClient& c = **client;
   // The scene: procedural, 100x100, two time steps (seed with the first,
   // time the upload of the second).
@@ -147,9 +145,9 @@ int RunBenchPlaces(const BenchPlacesArgs& a) {
   po.num_train_views = 10;
   po.num_test_views = 8;
   absl::StatusOr<Scene> scene = GenerateProceduralScene(po);
-  if (!scene.ok()) return FailRemote(kVerb, scene.status());
+  if (!scene.ok()) return FailRemote(kPlacesBenchVerb, scene.status());
   absl::StatusOr<ScanSequence> seq = FromTimeSteps(*scene);
-  if (!seq.ok()) return FailRemote(kVerb, seq.status());
+  if (!seq.ok()) return FailRemote(kPlacesBenchVerb, seq.status());
   const Scene scan0 = seq->ScanScene(0), scan1 = seq->ScanScene(1);
   std::vector<Camera> cams;
   for (const View& v : scan0.test) cams.push_back(v.camera);
@@ -158,7 +156,7 @@ int RunBenchPlaces(const BenchPlacesArgs& a) {
   j["label"] = a.label;
   if (a.seed > 0) {
     absl::StatusOr<std::vector<clnerf::v1::Place>> have = ListPlaces(c);
-    if (!have.ok()) return FailRemote(kVerb, have.status());
+    if (!have.ok()) return FailRemote(kPlacesBenchVerb, have.status());
     std::map<std::string, int64_t> deployed;
     for (const auto& p : *have) deployed[p.name()] = p.deployed_version();
     const auto t0 = Clock::now();
@@ -172,12 +170,12 @@ int RunBenchPlaces(const BenchPlacesArgs& a) {
         clnerf::v1::Place p;
         auto ctx = c.Context(kUnaryTimeoutSeconds);
         grpc::Status s = c.service().CreatePlace(ctx.get(), req, &p);
-        if (!s.ok()) return FailRemote(kVerb, RpcError("create " + name, s));
+        if (!s.ok()) return FailRemote(kPlacesBenchVerb, RpcError("create " + name, s));
       }
       absl::StatusOr<std::pair<std::string, Clock::time_point>> up = UploadTo(c, name, scan0, "bench-seed");
-      if (!up.ok()) return FailRemote(kVerb, up.status());
+      if (!up.ok()) return FailRemote(kPlacesBenchVerb, up.status());
       absl::StatusOr<int64_t> v = WaitServed(c, name, up->first, cams[0]);
-      if (!v.ok()) return FailRemote(kVerb, v.status());
+      if (!v.ok()) return FailRemote(kPlacesBenchVerb, v.status());
       ++made;
       spdlog::info("seeded {} ({}/{})", name, i + 1, a.seed);
     }
@@ -186,13 +184,13 @@ int RunBenchPlaces(const BenchPlacesArgs& a) {
     std::printf("bench places --seed %d: %d place(s) made in %.1f s\n", a.seed, made,
                 j["seed_seconds"].get<double>());
     if (!a.json.empty()) {
-      if (absl::Status s = WriteJson(a.json, j); !s.ok()) return FailRemote(kVerb, s);
+      if (absl::Status s = WriteJson(a.json, j); !s.ok()) return FailRemote(kPlacesBenchVerb, s);
     }
     return 0;
   }
 
   absl::StatusOr<std::vector<clnerf::v1::Place>> places = ListPlaces(c);
-  if (!places.ok()) return FailRemote(kVerb, places.status());
+  if (!places.ok()) return FailRemote(kPlacesBenchVerb, places.status());
   std::vector<std::string> names;
   int loaded_before = 0;
   std::map<std::string, bool> was_loaded;
@@ -202,14 +200,14 @@ int RunBenchPlaces(const BenchPlacesArgs& a) {
     was_loaded[p.name()] = p.loaded();
     loaded_before += p.loaded() ? 1 : 0;
   }
-  if (names.empty()) return FailRemote(kVerb, absl::FailedPreconditionError("no place has a model: run --seed first"));
+  if (names.empty()) return FailRemote(kPlacesBenchVerb, absl::FailedPreconditionError("no place has a model: run --seed first"));
   const int64_t rss_before = ResidentBytes(a.server_pid);
 
   // First render of each place: cold if its model was not in memory.
   std::vector<double> cold, first_warm;
   for (size_t i = 0; i < names.size(); ++i) {
     absl::StatusOr<double> ms = RenderMs(c, names[i], cams[i % cams.size()]);
-    if (!ms.ok()) return FailRemote(kVerb, ms.status());
+    if (!ms.ok()) return FailRemote(kPlacesBenchVerb, ms.status());
     (was_loaded[names[i]] ? first_warm : cold).push_back(*ms);
   }
   // Warm renders: round robin; a render is warm if every model stays in
@@ -229,7 +227,7 @@ int RunBenchPlaces(const BenchPlacesArgs& a) {
     warm.push_back(*ms);
   }
   absl::StatusOr<std::vector<clnerf::v1::Place>> after = ListPlaces(c);
-  if (!after.ok()) return FailRemote(kVerb, after.status());
+  if (!after.ok()) return FailRemote(kPlacesBenchVerb, after.status());
   int loaded_after = 0;
   int64_t model_bytes_loaded = 0;  // As counted against the memory budget.
   for (const auto& p : *after) {
@@ -264,9 +262,9 @@ int RunBenchPlaces(const BenchPlacesArgs& a) {
   double served_s = 0;
   if (a.upload_served) {
     absl::StatusOr<std::pair<std::string, Clock::time_point>> up = UploadTo(c, names[0], scan1, "bench-scan-1");
-    if (!up.ok()) return FailRemote(kVerb, up.status());
+    if (!up.ok()) return FailRemote(kPlacesBenchVerb, up.status());
     absl::StatusOr<int64_t> v = WaitServed(c, names[0], up->first, cams[0]);
-    if (!v.ok()) return FailRemote(kVerb, v.status());
+    if (!v.ok()) return FailRemote(kPlacesBenchVerb, v.status());
     served_s = std::chrono::duration<double>(Clock::now() - up->second).count();
     j["upload_to_served_seconds"] = served_s;
     j["upload_version"] = *v;
@@ -280,7 +278,7 @@ int RunBenchPlaces(const BenchPlacesArgs& a) {
       Percentile(warm, 0.99), warm.size(), failures,
       a.upload_served ? absl::StrFormat(" | upload ack -> served %.1f s", served_s).c_str() : "");
   if (!a.json.empty()) {
-    if (absl::Status s = WriteJson(a.json, j); !s.ok()) return FailRemote(kVerb, s);
+    if (absl::Status s = WriteJson(a.json, j); !s.ok()) return FailRemote(kPlacesBenchVerb, s);
   }
   return failures == 0 ? 0 : 1;
 }

@@ -24,7 +24,7 @@
 namespace clnerf {
 namespace {
 
-constexpr const char* kVerb = "render";
+constexpr const char* kRenderVerb = "render";
 
 // What to render: cameras, their names, and ground truth when known.
 struct Shots {
@@ -167,21 +167,21 @@ class FrameSink {
 
 int RunRemoteRender(const RenderArgs& a) {
   absl::StatusOr<Shots> shots = CollectShots(a);
-  if (!shots.ok()) return FailRemote(kVerb, shots.status());
+  if (!shots.ok()) return FailRemote(kRenderVerb, shots.status());
   const int n = int(shots->cameras.size());
   namespace fs = std::filesystem;
   const bool single_file = n == 1 && fs::path(a.out).has_extension() && !fs::is_directory(a.out);
   if (!single_file) {
     if (fs::path(a.out).has_extension() && !fs::is_directory(a.out)) {
-      return FailRemote(kVerb, absl::InvalidArgumentError(absl::StrFormat(
+      return FailRemote(kRenderVerb, absl::InvalidArgumentError(absl::StrFormat(
                                    "%d views need a directory for --out, not the file '%s'", n, a.out)));
     }
     std::error_code ec;
     fs::create_directories(a.out, ec);
-    if (ec) return FailRemote(kVerb, absl::InternalError(absl::StrFormat("cannot create '%s': %s", a.out, ec.message())));
+    if (ec) return FailRemote(kRenderVerb, absl::InternalError(absl::StrFormat("cannot create '%s': %s", a.out, ec.message())));
   }
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
-  if (!client.ok()) return FailRemote(kVerb, client.status());
+  if (!client.ok()) return FailRemote(kRenderVerb, client.status());
   FrameSink sink(a, *shots, single_file);
   const auto start = std::chrono::steady_clock::now();
   int64_t version = 0;
@@ -195,8 +195,8 @@ int RunRemoteRender(const RenderArgs& a) {
     request.set_place(a.remote.place);
     clnerf::v1::RenderResponse response;
     grpc::Status s = (*client)->service().Render((*client)->Context(kRenderTimeoutSeconds).get(), request, &response);
-    if (!s.ok()) return FailRemote(kVerb, s, a.remote);
-    if (absl::Status st = sink.Add(0, response.image()); !st.ok()) return FailRemote(kVerb, st);
+    if (!s.ok()) return FailRemote(kRenderVerb, s, a.remote);
+    if (absl::Status st = sink.Add(0, response.image()); !st.ok()) return FailRemote(kRenderVerb, st);
     version = response.version();
     time_step = response.time_step();
   } else {
@@ -234,11 +234,11 @@ int RunRemoteRender(const RenderArgs& a) {
     if (!error.ok()) ctx->TryCancel();
     const grpc::Status s = reader->Finish();
     if (!error.ok() || !s.ok()) bar.Abort();
-    if (!error.ok()) return FailRemote(kVerb, error);
-    if (!s.ok()) return FailRemote(kVerb, s, a.remote);
+    if (!error.ok()) return FailRemote(kRenderVerb, error);
+    if (!s.ok()) return FailRemote(kRenderVerb, s, a.remote);
     if (sink.count() != n) {
       bar.Abort();
-      return FailRemote(kVerb, absl::DataLossError(absl::StrFormat("the server sent %d of %d frames", sink.count(), n)));
+      return FailRemote(kRenderVerb, absl::DataLossError(absl::StrFormat("the server sent %d of %d frames", sink.count(), n)));
     }
     bar.Finish();
   }

@@ -33,10 +33,8 @@
 namespace clnerf {
 namespace {
 
-constexpr const char* kVerb = "bench serve";
+constexpr const char* kServeBenchVerb = "bench serve";
 using Clock = std::chrono::steady_clock;
-
-double Ms(Clock::duration d) { return std::chrono::duration<double, std::milli>(d).count(); }
 
 struct Latency {
   int size = 0, clients = 0, requests = 0, failures = 0;
@@ -222,11 +220,11 @@ CLI::App* BindBenchServe(CLI::App* parent, BenchServeArgs* a) {
 
 int RunBenchServe(const BenchServeArgs& a) {
   absl::StatusOr<std::vector<int>> sizes = ParseInts(a.sizes);
-  if (!sizes.ok()) return FailRemote(kVerb, sizes.status());
+  if (!sizes.ok()) return FailRemote(kServeBenchVerb, sizes.status());
   absl::StatusOr<std::vector<int>> clients = ParseInts(a.clients);
-  if (!clients.ok()) return FailRemote(kVerb, clients.status());
+  if (!clients.ok()) return FailRemote(kServeBenchVerb, clients.status());
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
-  if (!client.ok()) return FailRemote(kVerb, client.status());
+  if (!client.ok()) return FailRemote(kServeBenchVerb, client.status());
 
   absl::StatusOr<ScanSequence> seq;
   if (a.data == "procedural") {
@@ -236,13 +234,13 @@ int RunBenchServe(const BenchServeArgs& a) {
     po.num_train_views = 10;
     po.num_test_views = 20;
     absl::StatusOr<Scene> s = GenerateProceduralScene(po);
-    if (!s.ok()) return FailRemote(kVerb, s.status());
+    if (!s.ok()) return FailRemote(kServeBenchVerb, s.status());
     seq = FromTimeSteps(*s);
   } else {
     seq = LoadScanSequence(a.data, a.tasks, DatasetOptions{});
   }
-  if (!seq.ok()) return FailRemote(kVerb, seq.status());
-  if (seq->size() < 2) return FailRemote(kVerb, absl::InvalidArgumentError("need at least 2 scans"));
+  if (!seq.ok()) return FailRemote(kServeBenchVerb, seq.status());
+  if (seq->size() < 2) return FailRemote(kServeBenchVerb, absl::InvalidArgumentError("need at least 2 scans"));
   const Scene scan0 = seq->ScanScene(0), scan1 = seq->ScanScene(1);
   std::vector<Camera> cams;
   for (const View& v : scan0.test) cams.push_back(v.camera);
@@ -254,8 +252,8 @@ int RunBenchServe(const BenchServeArgs& a) {
   spdlog::info("uploading scan 0 ({} train + {} test views) and waiting for it to be served", scan0.train.size(),
                scan0.test.size());
   absl::StatusOr<UploadFigures> up0 = Upload(**client, scan0, "bench-scan-0");
-  if (!up0.ok()) return FailRemote(kVerb, up0.status());
-  if (absl::Status s = WaitServed(**client, cams[0], &*up0); !s.ok()) return FailRemote(kVerb, s);
+  if (!up0.ok()) return FailRemote(kServeBenchVerb, up0.status());
+  if (absl::Status s = WaitServed(**client, cams[0], &*up0); !s.ok()) return FailRemote(kServeBenchVerb, s);
   spdlog::info("scan 0: {:.2f} MB/s upload, served {:.1f} s after the upload ended", up0->mb_per_s,
                up0->upload_end_to_served_seconds);
 
@@ -318,10 +316,10 @@ int RunBenchServe(const BenchServeArgs& a) {
 
   // 3. The same while the second scan trains.
   absl::StatusOr<UploadFigures> up1 = Upload(**client, scan1, "bench-scan-1");
-  if (!up1.ok()) return FailRemote(kVerb, up1.status());
+  if (!up1.ok()) return FailRemote(kServeBenchVerb, up1.status());
   absl::StatusOr<clnerf::v1::Job> jt =
       WaitWhile(**client, up1->job_id, {clnerf::v1::JOB_PHASE_QUEUED, clnerf::v1::JOB_PHASE_PREPARING_REPLAY});
-  if (!jt.ok()) return FailRemote(kVerb, jt.status());
+  if (!jt.ok()) return FailRemote(kServeBenchVerb, jt.status());
   for (int size : *sizes) {
     for (int c : *clients) {
       Latency l = MeasureRenders(**client, cams, size, c, a.renders_per_client);
@@ -332,13 +330,13 @@ int RunBenchServe(const BenchServeArgs& a) {
                    size, c, l.p50_ms, l.p99_ms, l.failures, l.update_running_throughout);
     }
   }
-  if (absl::Status s = WaitServed(**client, cams[0], &*up1); !s.ok()) return FailRemote(kVerb, s);
+  if (absl::Status s = WaitServed(**client, cams[0], &*up1); !s.ok()) return FailRemote(kServeBenchVerb, s);
 
   // 4. Throughput on a bigger upload: every view of every scan as one scan;
   // its job is cancelled right after the acknowledgement.
   const Scene all = seq->Union(seq->size() - 1);
   absl::StatusOr<UploadFigures> big = Upload(**client, all, "bench-throughput");
-  if (!big.ok()) return FailRemote(kVerb, big.status());
+  if (!big.ok()) return FailRemote(kServeBenchVerb, big.status());
   {
     clnerf::v1::CancelJobRequest req;
     req.set_job_id(big->job_id);
@@ -382,7 +380,7 @@ int RunBenchServe(const BenchServeArgs& a) {
               up0->upload_end_to_served_seconds,
               up1->upload_end_to_served_seconds);
   if (!a.json.empty()) {
-    if (absl::Status s = WriteJson(a.json, j); !s.ok()) return FailRemote(kVerb, s);
+    if (absl::Status s = WriteJson(a.json, j); !s.ok()) return FailRemote(kServeBenchVerb, s);
   }
   return 0;
 }

@@ -18,7 +18,7 @@
 namespace clnerf {
 namespace {
 
-constexpr const char* kVerb = "upload";
+constexpr const char* kUploadVerb = "upload";
 // The held-out views to send with the scan (`split` is test, val or none).
 std::vector<View>* TestViews(Scene& scene, const std::string& split) {
   static std::vector<View> none;
@@ -43,19 +43,19 @@ CLI::App* BindUpload(CLI::App* parent, UploadArgs* a) {
 
 int RunUpload(const UploadArgs& a) {
   if (a.test_split != "test" && a.test_split != "val" && a.test_split != "none") {
-    return FailRemote(kVerb, absl::InvalidArgumentError("--test-split must be test, val or none, not '" +
+    return FailRemote(kUploadVerb, absl::InvalidArgumentError("--test-split must be test, val or none, not '" +
                                                         a.test_split + "'"));
   }
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
-  if (!client.ok()) return FailRemote(kVerb, client.status());
+  if (!client.ok()) return FailRemote(kUploadVerb, client.status());
   absl::StatusOr<Scene> scene = LoadScene(a.dir);
-  if (!scene.ok()) return FailRemote(kVerb, scene.status());
-  if (scene->train.empty()) return FailRemote(kVerb, absl::InvalidArgumentError(a.dir + " has no training views"));
+  if (!scene.ok()) return FailRemote(kUploadVerb, scene.status());
+  if (scene->train.empty()) return FailRemote(kUploadVerb, absl::InvalidArgumentError(a.dir + " has no training views"));
   std::vector<View>* test = TestViews(*scene, a.test_split);
 
   const std::string name = a.name.empty() ? scene->name : a.name;
   absl::StatusOr<EncodedScan> scan = EncodeScan(name, scene->kind, scene->train, *test, scene->sparse_points);
-  if (!scan.ok()) return FailRemote(kVerb, scan.status());
+  if (!scan.ok()) return FailRemote(kUploadVerb, scan.status());
   scan->header.mutable_header()->set_place(a.remote.place);
   scene->train.clear();  // Only the encoded copy is needed from here on.
   test->clear();
@@ -68,7 +68,7 @@ int RunUpload(const UploadArgs& a) {
   const SendResult sent_scan = SendScan(**client, *scan, &bar);
   if (!sent_scan.status.ok()) {
     bar.Abort();
-    return FailRemote(kVerb, sent_scan.status, a.remote);
+    return FailRemote(kUploadVerb, sent_scan.status, a.remote);
   }
   const clnerf::v1::UploadScanResponse& response = sent_scan.response;
   const int64_t sent = sent_scan.bytes_sent;
@@ -93,7 +93,7 @@ int RunUpload(const UploadArgs& a) {
     if (a.remote.json) std::printf("%s\n", j.dump(2).c_str());
     return 0;
   }
-  return ReportJob(kVerb, FollowJob(**client, response.job_id(), a.remote.place), a.remote, a.remote.json ? j : nullptr);
+  return ReportJob(kUploadVerb, FollowJob(**client, response.job_id(), a.remote.place), a.remote, a.remote.json ? j : nullptr);
 }
 
 }  // namespace clnerf

@@ -10,7 +10,9 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 WHAT=${1:-all}
 FUZZ_SECONDS=${FUZZ_SECONDS:-30}
-cmake -S . -B build-san -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
+GEN=()
+if [ ! -f build-san/CMakeCache.txt ] && command -v ninja > /dev/null; then GEN=(-G Ninja); fi
+cmake -S . -B build-san "${GEN[@]}" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCMAKE_C_COMPILER=clang -DCMAKE_CXX_COMPILER=clang++ \
   -DCLNERF_SANITIZE=ON -DCLNERF_FUZZ=ON > build-san.configure.log 2>&1 || { cat build-san.configure.log; exit 1; }
 TARGETS="fuzz_checkpoint fuzz_scan_assembler"
 CORE_TESTS="core_data_tests core_field_tests core_io_tests core_render_tests core_train_tests core_continual_tests"

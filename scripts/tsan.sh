@@ -18,7 +18,9 @@ FILTER=${1:-'ModelRegistry*:JobTracker*:TrainingScheduler*:ModelCache*:ServerFix
 # every other server test under TSan; a filter given here uses them all.
 TARGET=server_concurrency_tests
 if [ $# -gt 0 ]; then TARGET=server_tests; fi
-cmake -S . -B build-tsan -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCLNERF_TSAN=ON > build-tsan.configure.log 2>&1 || {
+GEN=()
+if [ ! -f build-tsan/CMakeCache.txt ] && command -v ninja > /dev/null; then GEN=(-G Ninja); fi
+cmake -S . -B build-tsan "${GEN[@]}" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCLNERF_TSAN=ON > build-tsan.configure.log 2>&1 || {
   cat build-tsan.configure.log; exit 1; }
 cmake --build build-tsan -j "${JOBS:-$(nproc)}" --target "$TARGET"
 OMP_NUM_THREADS=1 OMP_THREAD_LIMIT=1 TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1 suppressions=$PWD/scripts/tsan.supp" \

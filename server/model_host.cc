@@ -7,16 +7,13 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/render/renderer.h"
+#include "core/data/stopwatch.h"
 #include "server/log_util.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {
 
 namespace {
-
-double SecondsSince(std::chrono::steady_clock::time_point t) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
-}
 
 // The finished record of the job that published `v` (`known`: what this
 // host knew of it, or null).

@@ -244,7 +244,7 @@ absl::StatusOr<Scene> ScanStore::Load(const std::string& scan_id, int time_step,
                                                 " bytes, not ", n, " points"));
       }
       scene.sparse_points.resize(n);
-      std::memcpy(scene.sparse_points.data(), bytes->data(), bytes->size());
+      std::memcpy(static_cast<void*>(scene.sparse_points.data()), bytes->data(), bytes->size());
       for (const Eigen::Vector3f& p : scene.sparse_points) {
         if (!p.allFinite()) return absl::DataLossError(absl::StrCat("corrupt scan ", scan_id, ": a point is not finite"));
       }

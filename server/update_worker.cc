@@ -5,6 +5,7 @@
 #include "absl/strings/str_cat.h"
 #include "core/continual/continual_update.h"
 #include "core/continual/deployment_gate.h"
+#include "core/data/stopwatch.h"
 #include "server/crash_point.h"
 #include "server/log_util.h"
 #include "server/metrics.h"
@@ -15,10 +16,6 @@
 namespace clnerf {
 
 namespace {
-
-double SecondsSince(std::chrono::steady_clock::time_point t) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
-}
 
 JobPhase ToJobPhase(UpdatePhase p) {
   switch (p) {

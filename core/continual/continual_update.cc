@@ -6,6 +6,7 @@
 
 #include "absl/strings/str_format.h"
 #include "core/continual/continual_sampler.h"
+#include "core/data/stopwatch.h"
 #include "core/render/metrics.h"
 #include "core/render/renderer.h"
 #include "spdlog/spdlog.h"
@@ -18,10 +19,6 @@ constexpr std::pair<ContinualMethod, const char*> kMethods[] = {
     {ContinualMethod::kER, "er"},         {ContinualMethod::kMEIL, "meil"},
     {ContinualMethod::kCLNeRF, "clnerf"}, {ContinualMethod::kCLNeRFNoER, "clnerf-noer"},
 };
-
-double Since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
 }  // namespace
 
 absl::StatusOr<ContinualMethod> ParseContinualMethod(const std::string& name) {
@@ -192,7 +189,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
               p.phase = UpdatePhase::kPreparingReplay;
               p.iteration = done;
               p.total = total;
-              p.elapsed_seconds = Since(start);
+              p.elapsed_seconds = SecondsSince(start);
               progress(p);
             },
             &lr);
@@ -220,7 +217,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
       } else {
         for (uint32_t i : gr) views.push_back({mem.GetCamera(i), nullptr, nullptr, true, true});
       }
-      rep.replay_prepare_seconds = Since(t0);
+      rep.replay_prepare_seconds = SecondsSince(t0);
     }
   }
   const float meil = method == ContinualMethod::kMEIL ? options.meil_new_fraction : 0.0f;
@@ -248,7 +245,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
         p.phase = UpdatePhase::kTraining;
         p.iteration = s.step;
         p.total = to.iterations;
-        p.elapsed_seconds = Since(start);
+        p.elapsed_seconds = SecondsSince(start);
         p.eta_seconds = trainer.total_seconds() / std::max(1, s.step) * (to.iterations - s.step);
         p.loss = s.loss;
         p.psnr = s.psnr;
@@ -265,7 +262,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
     UpdateProgress p;
     p.phase = UpdatePhase::kFinalizing;
     p.iteration = p.total = to.iterations;
-    p.elapsed_seconds = Since(start);
+    p.elapsed_seconds = SecondsSince(start);
     progress(p);
   }
 

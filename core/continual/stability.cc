@@ -9,6 +9,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/continual/continual_update.h"
+#include "core/data/stopwatch.h"
 #include "core/render/evaluate.h"
 #include "core/train/fit.h"
 #include "core/data/procedural_scene.h"
@@ -30,10 +31,6 @@ constexpr std::pair<Stressor, const char*> kStressors[] = {
     {Stressor::kNanGradient, "nan_gradient"},
     {Stressor::kStaleMemory, "stale_memory"},
 };
-
-double Since(std::chrono::steady_clock::time_point t0) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-}
 
 absl::StatusOr<ScanSequence> Sequence(const StabilityOptions& o, int scans, float camera_radius) {
   ProceduralSceneOptions po;
@@ -161,7 +158,7 @@ absl::StatusOr<StabilityCell> RunUpperBound(StabilityCell cell, const ScanSequen
     if (!absl::IsInternal(fit.status())) return fit.status();
     cell.failed = 1;
     cell.reason = std::string(fit.status().message());
-    cell.seconds = Since(t0);
+    cell.seconds = SecondsSince(t0);
     return cell;
   }
   cell.skipped_batches = fit->skipped_batches;
@@ -174,14 +171,14 @@ absl::StatusOr<StabilityCell> RunUpperBound(StabilityCell cell, const ScanSequen
     cell.refused = 1;
     cell.reason = std::string(gate.status.message());
     cell.refused_psnr = sc->first;
-    cell.seconds = Since(t0);
+    cell.seconds = SecondsSince(t0);
     return cell;
   }
   cell.stressed_deployed = cell.has_model = true;
   cell.deployed_always_finite = fit->model->AllFinite();
   cell.psnr = sc->first;
   cell.scored_scans = sc->second;
-  cell.seconds = Since(t0);
+  cell.seconds = SecondsSince(t0);
   return cell;
 }
 
@@ -335,7 +332,7 @@ absl::StatusOr<StabilityCell> RunStabilityCell(const std::string& method, Stress
     cell.psnr = sc->first;
     cell.scored_scans = sc->second;
   }
-  cell.seconds = Since(t0);
+  cell.seconds = SecondsSince(t0);
   return cell;
 }
 

@@ -42,8 +42,12 @@ TEST(StabilityTest, EveryStressorSucceedsFinitelyOrFailsCleanly) {
     EXPECT_TRUE(c->previous_always_intact);
     EXPECT_TRUE(c->has_model);  // The unstressed first scan is always deployed.
     EXPECT_EQ(c->updates, s == Stressor::kChain20 ? o.chain_scans : o.scans);
-    if (!c->stressed_deployed) EXPECT_FALSE(c->reason.empty());
-    if (c->has_model) EXPECT_TRUE(std::isfinite(c->psnr) && c->psnr > 0) << c->psnr;
+    if (!c->stressed_deployed) {
+      EXPECT_FALSE(c->reason.empty());
+    }
+    if (c->has_model) {
+      EXPECT_TRUE(std::isfinite(c->psnr) && c->psnr > 0) << c->psnr;
+    }
     EXPECT_FALSE(c->Summary().empty());
     std::printf("%-13s %-22s %.2fs\n", StressorName(s), c->Summary().c_str(), c->seconds);
   }

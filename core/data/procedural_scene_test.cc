@@ -40,14 +40,14 @@ double MeanAbsDiff(const Image& a, const Image& b) {
 }
 
 // A fresh directory under the gtest temp dir, removed on destruction.
-class TempDir {
+class ScopedTempDir {
  public:
-  explicit TempDir(const std::string& tag)
+  explicit ScopedTempDir(const std::string& tag)
       : path_(fs::path(::testing::TempDir()) /
               ("procedural_scene_test_" + tag + "_" + std::to_string(::getpid()))) {
     fs::remove_all(path_);
   }
-  ~TempDir() {
+  ~ScopedTempDir() {
     std::error_code ec;
     fs::remove_all(path_, ec);
   }
@@ -267,7 +267,7 @@ TEST(ProceduralSceneTest, BlenderDatasetRoundTrips) {
   const ProceduralSceneOptions o = SmallOptions();
   auto ds = GenerateProceduralDataset(o);
   ASSERT_TRUE(ds.ok());
-  TempDir dir("blender");
+  ScopedTempDir dir("blender");
   ASSERT_TRUE(WriteBlenderDataset(*ds, dir.str()).ok());
 
   for (const char* split : {"train", "test", "val"}) {
@@ -337,7 +337,7 @@ TEST(ProceduralSceneTest, ScanFoldersHoldOneTimeStepEach) {
   o.num_time_steps = 3;
   auto ds = GenerateProceduralDataset(o);
   ASSERT_TRUE(ds.ok());
-  TempDir dir("scans");
+  ScopedTempDir dir("scans");
   ASSERT_TRUE(WriteScanFolders(*ds, dir.str()).ok());
   for (int t = 0; t < 3; ++t) {
     char name[16];
@@ -364,7 +364,7 @@ TEST(ProceduralSceneTest, WriterRejectsUnsupportedCameras) {
   o.num_time_steps = 1;
   auto scene = GenerateProceduralScene(o);
   ASSERT_TRUE(scene.ok());
-  TempDir dir("errors");
+  ScopedTempDir dir("errors");
 
   Scene distorted = *scene;
   distorted.train[1].camera.intrinsics.k1 = 0.1f;

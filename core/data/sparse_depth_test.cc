@@ -44,7 +44,7 @@ TEST(SparseDepthTest, ProjectPointInvertsTheCameraRay) {
   c.intrinsics.p2 = 0.002f;
   c.c2w.leftCols<3>() = Eigen::AngleAxisf(0.4f, Eigen::Vector3f(0.2f, 1.0f, -0.3f).normalized()).toRotationMatrix();
   c.c2w.col(3) = Eigen::Vector3f(1.0f, -2.0f, 0.5f);
-  for (const Eigen::Vector2f px : {Eigen::Vector2f(10.3f, 50.8f), Eigen::Vector2f(32.0f, 32.0f), Eigen::Vector2f(60.1f, 3.2f)}) {
+  for (const Eigen::Vector2f& px : {Eigen::Vector2f(10.3f, 50.8f), Eigen::Vector2f(32.0f, 32.0f), Eigen::Vector2f(60.1f, 3.2f)}) {
     Eigen::Vector3f o, d;
     c.Ray(px.x(), px.y(), &o, &d);
     const Eigen::Vector3f x = o + 3.0f * d;

@@ -230,7 +230,9 @@ TEST(ProposalSamplerTest, ResampleFollowsTheWeightsAndStaysOrdered) {
   for (int j = 0; j <= m; ++j) {
     EXPECT_GE(out[j], 0.0f);
     EXPECT_LE(out[j], 8.0f);
-    if (j > 0) EXPECT_GE(out[j], out[j - 1]);
+    if (j > 0) {
+      EXPECT_GE(out[j], out[j - 1]);
+    }
     inside += out[j] >= 5.0f && out[j] <= 6.0f;
   }
   EXPECT_GE(inside, 28);  // 1 / 1.08 of the mass.
@@ -287,7 +289,9 @@ TEST(ProposalSamplerTest, PlacementIsOrderedInsideTheRayAndDeterministic) {
         EXPECT_GE(s.dt, 0.0f);
         EXPECT_GE(s.t - 0.5f * s.dt, t0 * (1 - 1e-5f));
         EXPECT_LE(s.t + 0.5f * s.dt, t1 * (1 + 1e-5f));
-        if (j > sa[k]) EXPECT_GE(s.t, (*v)[j - 1].t);
+        if (j > sa[k]) {
+          EXPECT_GE(s.t, (*v)[j - 1].t);
+        }
       }
     }
   }

@@ -80,7 +80,7 @@ TEST(IntersectBoxTest, MatchesReferenceOnRandomRays) {
     if (d.norm() < 1e-3f) continue;
     d.normalize();
     float t0, t1;
-    double r0, r1;
+    double r0 = 0, r1 = 0;
     const bool hit = IntersectBox(o, d, 0.5f, &t0, &t1);
     const bool ref = ReferenceIntersect(o.cast<double>(), d.cast<double>(), 0.5, &r0, &r1);
     if (ref && r1 - std::max(r0, 0.0) < 1e-4) continue;  // Numerically ambiguous grazing rays.

@@ -504,7 +504,7 @@ TEST(TrainerGradientTest, ContractedSceneWithViewColourTransformsMatchesFiniteDi
 // renderer's, for bounded and contracted scenes.
 TEST(FieldCallersTest, TrainerAndRendererAgreeOnEveryRay) {
   SerialEigen serial;
-  for (const auto [kind, sampler_kind] : {std::pair{SceneKind::kBounded, SamplerKind::kOccupancy},
+  for (const auto& [kind, sampler_kind] : {std::pair{SceneKind::kBounded, SamplerKind::kOccupancy},
                                           std::pair{SceneKind::kUnbounded, SamplerKind::kOccupancy},
                                           std::pair{SceneKind::kUnbounded, SamplerKind::kProposal}}) {
     SCOPED_TRACE(std::string(kind == SceneKind::kBounded ? "bounded " : "contracted ") +
