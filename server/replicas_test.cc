@@ -1,7 +1,7 @@
 // Replicas end to end (issue 22): three real clnerf-server processes on
 // 127.0.0.1:0 over one store directory, coordinated by a real etcd on
-// loopback (etcd_test_util.h), with tiny procedural scenes, two-second
-// leases and 0.2 s polls:
+// loopback (etcd_test_util.h), with tiny procedural scenes trained in small
+// batches (as TinyServerOptions), two-second leases and 0.2 s polls:
 //   * an upload through one replica is served by all three within the bound;
 //   * kill -9 of the replica that is training: another finishes the scan,
 //     versions stay contiguous and no scan is trained twice;
@@ -58,7 +58,8 @@ class ReplicasTest : public ::testing::Test {
     ASSERT_EQ(etcd_.Start(root_ + "/etcd"), "");
     store_ = root_ + "/store";
     std::ofstream(root_ + "/config.json")
-        << R"({"gate": {"min_new_psnr": 8, "min_replay_consistency_psnr": 10, "max_replay_drop_db": 10}})";
+        << R"({"batch_rays": 512, "target_samples": 8192,)"
+        << R"( "gate": {"min_new_psnr": 8, "min_replay_consistency_psnr": 10, "max_replay_drop_db": 10}})";
     scene_ = testing_util::TinyScans(3);
   }
 

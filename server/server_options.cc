@@ -157,6 +157,8 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "buffer_size") s = Get(*it, k.c_str(), &o->update.buffer_size);
     else if (k == "seed") s = Get(*it, k.c_str(), &o->update.train.seed);
     else if (k == "learning_rate") s = Get(*it, k.c_str(), &o->update.train.learning_rate);
+    else if (k == "batch_rays") s = Get(*it, k.c_str(), &o->update.train.batch_rays);  // First batch's rays.
+    else if (k == "target_samples") s = Get(*it, k.c_str(), &o->update.train.target_samples);  // 0 = fixed batch.
     else if (k == "depth_fraction") s = Get(*it, k.c_str(), &o->update.depth_fraction);  // Sparse depth; 0 = off.
     else if (k == "view_colour") s = Get(*it, k.c_str(), &o->update.train.view_colour);  // Per-photo colour transforms.
     else if (k == "replay_labels_per_draw") s = Get(*it, k.c_str(), &o->update.replay_labels.labels_per_draw);

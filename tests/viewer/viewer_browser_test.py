@@ -42,14 +42,18 @@ def main():
     ap.add_argument("--server", required=True)
     ap.add_argument("--client", required=True)
     ap.add_argument("--out", required=True)
-    ap.add_argument("--iters", type=int, default=60)
+    ap.add_argument("--iters", type=int, default=120)  # Updates outlast the panel's 2.5 s idle poll.
     args = ap.parse_args()
     os.makedirs(args.out, exist_ok=True)
     work = tempfile.mkdtemp(prefix="clnerf_viewer_")
     t_start = time.time()
     subprocess.run([args.client, "--log-level", "warn", "scans", "--out", f"{work}/scans", "--scans", "3",
                     "--size", "32", "--train-views", "20", "--test-views", "2"], check=True)
-    server = Server(args.server, f"{work}/store", f"{args.out}/server.log", ["--iters", str(args.iters)])
+    # Small batches, as the server tests train (server_test_util.h: TinyServerOptions).
+    with open(f"{work}/config.json", "w") as f:
+        f.write('{"batch_rays": 512, "target_samples": 8192}')
+    server = Server(args.server, f"{work}/store", f"{args.out}/server.log",
+                    ["--iters", str(args.iters), "--config", f"{work}/config.json"])
     env = dict(os.environ, CLNERF_SERVER=f"127.0.0.1:{server.grpc}")
     driver = None
     try:
