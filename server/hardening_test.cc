@@ -270,7 +270,8 @@ TEST_F(ServerFixture, AJobCrashedAtAnyPublishStepIsKnownAfterRestart) {
     const std::string store = TempDir("srv_crash");
     {
       std::ofstream cfg(store + ".json");
-      cfg << R"({"gate": {"min_new_psnr": 8, "min_replay_consistency_psnr": 10, "max_replay_drop_db": 10}})";
+      cfg << R"({"batch_rays": 512, "target_samples": 8192,)"
+          << R"( "gate": {"min_new_psnr": 8, "min_replay_consistency_psnr": 10, "max_replay_drop_db": 10}})";
     }
     ServerProcess proc(absl::StrCat("CLNERF_CRASH_AT=", point),
                        absl::StrFormat("--store %s --listen 127.0.0.1:0 --iters 30 --config %s.json --log-level warn",
