@@ -69,18 +69,36 @@ TEST(ReplayWeightsTest, SeenMeansInFrontInsideUnoccludedAndUnchanged) {
   EXPECT_FALSE(SeenByNewView(x, label, masked, cam, dm, o));
 }
 
+// θ_0 trained once on the tiny scene for the whole suite (training is the
+// suite's cost, ten times more under ASan), and its labels of one past view.
 class ReplayWeightsModelTest : public ::testing::Test {
  protected:
-  void SetUp() override {
-    seq_ = TinySequence(2);
-    absl::StatusOr<ContinualState> s = ContinualUpdate(seq_.ScanScene(0), nullptr, TinyOptions(ContinualMethod::kCLNeRF, 150), nullptr, nullptr, nullptr);
+  struct Shared {
+    ScanSequence seq;
+    ContinualState state;
+    Camera past;
+    std::vector<ReplayLabelView> labels;
+  };
+  static void SetUpTestSuite() {
+    shared_ = new Shared;
+    shared_->seq = TinySequence(2);
+    absl::StatusOr<ContinualState> s = ContinualUpdate(shared_->seq.ScanScene(0), nullptr,
+                                                       TinyOptions(ContinualMethod::kCLNeRF, 150), nullptr, nullptr, nullptr);
     ASSERT_TRUE(s.ok()) << s.status();
-    state_ = std::move(*s);
-    past_ = seq_.scans[0].train[0].camera;
+    shared_->state = std::move(*s);
+    shared_->past = shared_->seq.scans[0].train[0].camera;
     absl::StatusOr<std::vector<ReplayLabelView>> l =
-        RenderReplayLabels(*state_.model, {past_}, 0, 1, nullptr, nullptr, nullptr);
+        RenderReplayLabels(*shared_->state.model, {shared_->past}, 0, 1, nullptr, nullptr, nullptr);
     ASSERT_TRUE(l.ok()) << l.status();
-    labels_ = std::move(*l);
+    shared_->labels = std::move(*l);
+  }
+  static void TearDownTestSuite() {
+    delete shared_;
+    shared_ = nullptr;
+  }
+  void SetUp() override {
+    ASSERT_NE(shared_->state.model, nullptr) << "training θ_0 failed";
+    ASSERT_EQ(shared_->labels.size(), 1u);
     ASSERT_EQ(labels_[0].depth.size(), labels_[0].rgb.num_pixels());
     ASSERT_EQ(labels_[0].opacity.size(), labels_[0].rgb.num_pixels());
   }
@@ -102,11 +120,12 @@ class ReplayWeightsModelTest : public ::testing::Test {
     return n;
   }
 
-  ScanSequence seq_;
-  ContinualState state_;
-  Camera past_;
-  std::vector<ReplayLabelView> labels_;
+  static Shared* shared_;
+  const ContinualState& state_ = shared_->state;
+  const Camera& past_ = shared_->past;
+  const std::vector<ReplayLabelView>& labels_ = shared_->labels;
 };
+ReplayWeightsModelTest::Shared* ReplayWeightsModelTest::shared_ = nullptr;
 
 TEST_F(ReplayWeightsModelTest, ARayTheNewCameraSeesUnchangedGetsTheLowerWeight) {
   const long long opaque = Opaque();
