@@ -106,6 +106,9 @@ CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* a) {
   c->add_option("--replay-seen-weight", u.replay_weights.seen_weight,
                 "Offline replay: weight of labels whose surface the new scan sees unchanged (1 = off, 0 = dropped)")
       ->capture_default_str();
+  c->add_option("--replay-depth-min-opacity", u.replay_labels.depth_min_opacity,
+                "Offline replay: labels at least this opaque also teach θ_{t-1}'s depth (0 = off)")
+      ->capture_default_str();
   c->add_option("--buffer", u.buffer_size, "Real images kept for experience replay (clnerf, er)")
       ->capture_default_str();
   c->add_flag("--prioritized", u.prioritized_buffer, "Buffer keeps the lowest-PSNR images instead of a reservoir");
@@ -197,6 +200,7 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   if (uo.copy_embedding) j["copy_embedding"] = true;
   j["carry_optimizer"] = uo.carry_optimizer;
   j["replay_seen_weight"] = uo.replay_weights.seen_weight;
+  j["replay_depth_min_opacity"] = uo.replay_labels.depth_min_opacity;
   j["lr_schedule"] = LrScheduleName(uo.train.lr_schedule);
   j["protocol"] = a.paper_protocol ? "paper" : "equal-compute";
   nlohmann::json matrix = nlohmann::json::array(), step_seconds = nlohmann::json::array();
@@ -278,6 +282,7 @@ int RunBenchContinual(const BenchContinualArgs& a) {
                        {"replay_cache_bytes", rep.replay_cache_bytes},
                        {"replay_labels", rep.replay_labels},
                        {"replay_seen_labels", rep.replay_seen_labels},
+                       {"replay_depth_labels", rep.replay_depth_labels},
                        {"replay_weight_seconds", rep.replay_weight_seconds},
                        {"replay_view_pixels", rep.replay_view_pixels},
                        {"new_views", rep.new_views},

@@ -191,13 +191,14 @@ TEST_F(ReplicasTest, AnUploadToOneIsServedByAllAndAKilledTrainerIsReplaced) {
   ASSERT_GE(served, 0) << "not every replica serves version 1";
   EXPECT_LE(served, kServeBoundSeconds);
   // Every replica knows the job, whichever trained it (within a poll of serving it).
-  for (auto& r : replicas_) {
-    int64_t v = 0;
-    for (const auto t0 = Clock::now(); Since(t0) < 5 && v != 1;) {
-      v = Job(*r, ack0.job_id()).version();
-      if (v != 1) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  for (size_t i = 0; i < replicas_.size(); ++i) {
+    v1::Job job;
+    for (const auto t0 = Clock::now(); Since(t0) < 5 && job.version() != 1;) {
+      job = Job(*replicas_[i], ack0.job_id());
+      if (job.version() != 1) std::this_thread::sleep_for(std::chrono::milliseconds(50));
     }
-    EXPECT_EQ(v, 1);
+    EXPECT_EQ(job.version(), 1) << "replica " << "ABC"[i] << ": phase " << v1::JobPhase_Name(job.phase()) << ", error '"
+                                << job.error() << "'";
   }
 
   // Scan 1 through B; kill -9 whichever replica trains it, mid-update.

@@ -164,6 +164,7 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "replay_labels_per_draw") s = Get(*it, k.c_str(), &o->update.replay_labels.labels_per_draw);
     else if (k == "carry_optimizer") s = Get(*it, k.c_str(), &o->update.carry_optimizer);
     else if (k == "replay_seen_weight") s = Get(*it, k.c_str(), &o->update.replay_weights.seen_weight);
+    else if (k == "replay_depth_min_opacity") s = Get(*it, k.c_str(), &o->update.replay_labels.depth_min_opacity);
     else if (k == "lr_schedule") {
       s = Get(*it, k.c_str(), &str);
       if (s.ok()) {

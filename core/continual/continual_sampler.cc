@@ -55,6 +55,7 @@ void ContinualRaySampler::FillRay(int v, std::mt19937_64& r, RayBatch* out, int 
   PixelRay(model_cameras_[v], pixel, &out->origin[3 * size_t(i)], &out->dir[3 * size_t(i)]);
   out->time_step[i] = view.camera.time_step;
   out->weight[i] = view.label_weight != nullptr && label < view.label_weight->size() ? (*view.label_weight)[label] : 1.0f;
+  if (view.label_depth != nullptr && label < view.label_depth->size()) out->depth[i] = (*view.label_depth)[label];
   out->robust[i] = 0;
   out->view[i] = view.replay ? -1 : v;  // Photos (new scan, buffered) have their own colour transform.
   if (view.image != nullptr) {

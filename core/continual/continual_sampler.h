@@ -35,6 +35,9 @@ struct SamplerView {
   // Loss weight per label (replay_weights.h), indexed as the labels are;
   // null = 1.
   const std::vector<float>* label_weight = nullptr;
+  // Depth-distillation target per label (ReplayLabelView::target_depth),
+  // indexed as the labels are, copied to RayBatch::depth; null = none.
+  const std::vector<float>* label_depth = nullptr;
 };
 
 class ContinualRaySampler : public RaySampler {

@@ -202,6 +202,9 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
           return s;
         }
         rep.replay_seen_labels = wr.seen;
+        for (ReplayLabelView& v : cache) {
+          rep.replay_depth_labels += SetDistillationDepths(options.replay_labels.depth_min_opacity, &v);
+        }
         rep.replay_weight_seconds = wr.seconds;
         rep.replay_cache_bytes = lr.bytes;
         rep.replay_labels = lr.labels;
@@ -212,6 +215,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
           SamplerView sv{cams[k], &cache[k].rgb, nullptr, true, true};
           if (!cache[k].pixels.empty()) sv.label_pixels = &cache[k].pixels;
           if (!cache[k].weight.empty()) sv.label_weight = &cache[k].weight;
+          if (!cache[k].target_depth.empty()) sv.label_depth = &cache[k].target_depth;
           views.push_back(sv);
         }
       } else {

@@ -131,6 +131,7 @@ struct UpdateReport {
   long long replay_view_pixels = 0;   // of this many in the replayed views.
   double replay_probe_samples_per_ray = 0;  // θ_{t-1}'s, from the probe.
   long long replay_seen_labels = 0;   // Labels the new scan sees (replay_weights.h).
+  long long replay_depth_labels = 0;  // Labels with a distilled depth target (replay_labels.h).
   double replay_weight_seconds = 0;   // Time spent finding them.
   double train_seconds = 0;
   long long samples = 0;

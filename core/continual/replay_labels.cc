@@ -18,7 +18,27 @@ absl::Status ReplayLabelOptions::Validate() const {
         absl::StrFormat("replay labels: labels_per_draw must be >= 0 (0 = every pixel), got %g", labels_per_draw));
   }
   if (probe_rays < 1) return absl::InvalidArgumentError("replay labels: probe_rays must be >= 1");
+  if (!(depth_min_opacity >= 0 && depth_min_opacity <= 1)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "replay labels: depth_min_opacity must be in [0, 1] (0 = no depth distillation), got %g", depth_min_opacity));
+  }
   return absl::OkStatus();
+}
+
+long long SetDistillationDepths(float min_opacity, ReplayLabelView* view) {
+  view->target_depth.clear();
+  const size_t n = view->depth.size();
+  if (min_opacity <= 0 || n == 0 || view->opacity.size() != n) return 0;
+  view->target_depth.assign(n, 0.0f);
+  long long targets = 0;
+  for (size_t k = 0; k < n; ++k) {
+    const float a = view->opacity[k], d = view->depth[k];
+    if (a >= min_opacity && d > 0 && std::isfinite(d)) {
+      view->target_depth[k] = d / a;
+      ++targets;
+    }
+  }
+  return targets;
 }
 
 namespace {

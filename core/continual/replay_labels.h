@@ -37,6 +37,13 @@ struct ReplayLabelOptions {
   // Rays of θ_{t-1} rendered to measure its samples per ray, from which the
   // trainer's adaptive batch (and so the draws) is estimated.
   int probe_rays = 1024;
+  // Depth distillation (issue 23, item 3): a label whose θ_{t-1} render is
+  // opaque, opacity >= depth_min_opacity, also teaches θ_{t-1}'s surface
+  // distance (depth / opacity) through the sparse-depth loss
+  // (TrainOptions::depth_weight, depth_sigma), scaled by the label's
+  // weight: one colour per pixel constrains a whole ray of samples only
+  // weakly. 0 = off; else in (0, 1].
+  float depth_min_opacity = 0.0f;
   absl::Status Validate() const;
 };
 
@@ -51,6 +58,9 @@ struct ReplayLabelView {
   std::vector<float> depth, opacity;
   // Loss weight per label (replay_weights.h); empty = 1 for every label.
   std::vector<float> weight;
+  // Depth-distillation target per label (model units along the ray; 0 =
+  // none); empty = none at all. Filled by SetDistillationDepths.
+  std::vector<float> target_depth;
 };
 
 struct ReplayLabelReport {
@@ -78,6 +88,12 @@ long long LabelsPerView(double expected_draws, int num_views, const ReplayLabelO
 absl::StatusOr<std::vector<ReplayLabelView>> RenderReplayLabels(
     const NgpModel& model, const std::vector<Camera>& cameras, long long labels_per_view, uint64_t seed,
     const std::atomic<bool>* cancel, const std::function<void(int, int)>& progress, ReplayLabelReport* report);
+
+// Fills view->target_depth: depth / opacity for each label that is opaque
+// (opacity >= min_opacity, depth > 0), 0 for the others; clears it when
+// min_opacity is 0 (off) or the labels carry no depth. Returns the labels
+// that got a target.
+long long SetDistillationDepths(float min_opacity, ReplayLabelView* view);
 
 }  // namespace clnerf
 

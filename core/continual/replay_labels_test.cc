@@ -139,9 +139,41 @@ TEST(ReplayLabelsTest, UpdateRendersWhatItCanDraw) {
   const long long expect = std::min<long long>(16 * 16, (long long)std::ceil(4.0 * 1 * batch * 0.5 / 8));
   EXPECT_EQ(rep.replay_labels, 8 * expect);
   EXPECT_LT(rep.replay_labels, rep.replay_view_pixels);
+  EXPECT_EQ(rep.replay_depth_labels, 0);  // Depth distillation is off by default.
   o.replay_labels.labels_per_draw = 0;
+  o.replay_labels.depth_min_opacity = 0.5f;
   ASSERT_TRUE(ContinualUpdate(seq.ScanScene(1), &*s0, o, nullptr, nullptr, &rep).ok());
   EXPECT_EQ(rep.replay_labels, 8 * 16 * 16);
+  EXPECT_GT(rep.replay_depth_labels, 0);  // The tiny scene's object is opaque somewhere.
+  EXPECT_LT(rep.replay_depth_labels, rep.replay_labels);  // Its white background is not.
+}
+
+// Depth distillation targets: depth / opacity where θ_{t-1} is opaque
+// enough, none elsewhere, none at all when off.
+TEST(ReplayLabelsTest, DistillationDepthsOnlyWhereOpaque) {
+  ReplayLabelOptions bad;
+  bad.depth_min_opacity = 1.5f;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad.depth_min_opacity = NAN;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad.depth_min_opacity = -0.1f;
+  EXPECT_FALSE(bad.Validate().ok());
+
+  ReplayLabelView v;
+  v.depth = {1.8f, 0.5f, 0.0f, 2.0f};
+  v.opacity = {0.9f, 0.4f, 1.0f, 1.0f};
+  EXPECT_EQ(SetDistillationDepths(0.8f, &v), 2);
+  ASSERT_EQ(v.target_depth.size(), 4u);
+  EXPECT_FLOAT_EQ(v.target_depth[0], 2.0f);  // 1.8 / 0.9: the surface, not the expectation with the background.
+  EXPECT_EQ(v.target_depth[1], 0.0f);        // Too translucent to trust.
+  EXPECT_EQ(v.target_depth[2], 0.0f);        // No depth.
+  EXPECT_FLOAT_EQ(v.target_depth[3], 2.0f);
+  EXPECT_EQ(SetDistillationDepths(0.0f, &v), 0);  // Off.
+  EXPECT_TRUE(v.target_depth.empty());
+  ReplayLabelView no_depth;
+  no_depth.opacity = {1.0f};
+  EXPECT_EQ(SetDistillationDepths(0.5f, &no_depth), 0);
+  EXPECT_TRUE(no_depth.target_depth.empty());
 }
 
 }  // namespace

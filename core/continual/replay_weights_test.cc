@@ -189,6 +189,25 @@ TEST_F(ReplayWeightsModelTest, SeenWeightZeroDropsTheLabelsAndTheSamplerCarriesW
   std::set<float> got;
   for (int i = 0; i < b.size(); ++i) got.insert(b.weight[i]);
   EXPECT_EQ(got, (std::set<float>{0.25f, 1.0f}));
+  for (int i = 0; i < b.size(); ++i) EXPECT_EQ(b.depth[i], 0.0f) << "no depth distillation asked";
+
+  // Depth distillation: replay rays of opaque labels carry θ_{t-1}'s surface
+  // distance (and their weight), the others none.
+  const long long targets = SetDistillationDepths(0.9f, &weighted[0]);
+  ASSERT_GT(targets, 0);
+  sv.label_depth = &weighted[0].target_depth;
+  ContinualRaySampler depth_sampler({sv}, *state_.model, nullptr, 0.0f);
+  std::mt19937_64 rng2(5);
+  depth_sampler.Sample(2000, &rng2, &b);
+  const std::set<float> allowed(weighted[0].target_depth.begin(), weighted[0].target_depth.end());
+  int with_depth = 0;
+  for (int i = 0; i < b.size(); ++i) {
+    EXPECT_TRUE(allowed.count(b.depth[i])) << "ray " << i << " depth " << b.depth[i] << " is no label's target";
+    with_depth += b.depth[i] > 0;
+  }
+  // About the opaque labels' share of the 2000 draws.
+  const double share = double(targets) / double(weighted[0].target_depth.size());
+  EXPECT_NEAR(with_depth / 2000.0, share, 0.05);
 }
 
 }  // namespace

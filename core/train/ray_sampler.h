@@ -28,8 +28,9 @@ struct RayBatch {
   std::vector<int> time_step;  // n.
   std::vector<float> weight;   // n, loss weight (1 for plain training).
   std::vector<uint8_t> robust; // n, 1 = Charbonnier loss sqrt(e^2 + 1e-6) instead of MSE.
-  // n, the ray distance (model units) to a known surface point on this ray,
-  // or 0 when none (sparse-depth supervision; TrainOptions::depth_weight).
+  // n, the ray distance (model units) to a known surface point on this ray
+  // (a capture's point, or θ_{t-1}'s surface behind a replay label), or 0
+  // when none (sparse-depth supervision; TrainOptions::depth_weight).
   std::vector<float> depth;
   // n, the index of the photo this ray's target comes from (for its
   // per-view colour transform, view_colour.h), in [0, RaySampler::

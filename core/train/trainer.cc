@@ -450,9 +450,11 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
           // Ray distances of the samples, as for the distortion loss.
           s.gdepth_mid.resize(used);
           for (int j = 0; j < used; ++j) s.gdepth_mid[j] = proposals ? s.gt[a + j] : s.gt[a + j] + 0.5f * s.gdt[a + j];
-          s.loss += depth_w * inv_n *
-                    SparseDepthLoss(&s.gdt[a], &s.gw[a], s.gdepth_mid.data(), used, known_depth, options_.depth_sigma,
-                                    depth_w * inv_n, &s.gdsigma[a]);
+          // Scaled by the ray's weight, as its colour loss is (a replay
+          // label's depth target carries the label's weight).
+          const float dw = depth_w * batch.weight[r] * inv_n;
+          s.loss += dw * SparseDepthLoss(&s.gdt[a], &s.gw[a], s.gdepth_mid.data(), used, known_depth,
+                                         options_.depth_sigma, dw, &s.gdsigma[a]);
         }
       }
       // 4b. Interlevel loss: the proposal histograms must cover the full

@@ -105,8 +105,10 @@ struct TrainOptions {
   float interlevel_weight = 1.0f;
   int proposal_anneal_iterations = -1;
   // Sparse-depth supervision (rays with RayBatch::depth > 0, from a
-  // capture's points; sparse_depth.h): weight of SparseDepthLoss
-  // (volume_rendering.h), averaged over the batch as the colour loss is, and
+  // capture's points, sparse_depth.h, or distilled from a replay label,
+  // UpdateOptions::replay_depth_min_opacity): weight of SparseDepthLoss
+  // (volume_rendering.h), times the ray's RayBatch::weight and averaged over
+  // the batch as the colour loss is, and
   // its Gaussian's width in model units (scaled by the depth beyond 1).
   // depth-nerfacto uses 1e-3 and a variance of 0.01 (width 0.1); 1e-2 won on
   // flower_4 (+1.1 dB over three seeds; 1e-3: -0.5) and beer_2 (+0.3 dB)
