@@ -7,8 +7,8 @@
 # Usage: scripts/tsan.sh [gtest filter]
 # The default filter is what CI runs: the concurrency tests (registry under a
 # swapping writer, renders during an update, the job queue, the training-slot
-# scheduler, the model cache's single-flight loads), renders during an
-# update, the full queue and the health service. Training under TSan is ~50x
+# scheduler, the model cache's single-flight loads), the full queue and the
+# health service. Training under TSan is ~50x
 # slower, so the rest (which repeat the same threads on more scenarios, e.g.
 # UploadTrainPublishRenderAnyTimeStep: 65 s here for one worker thread and
 # sequential calls) is left to `scripts/tsan.sh '*'`.

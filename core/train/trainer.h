@@ -106,7 +106,7 @@ struct TrainOptions {
   int proposal_anneal_iterations = -1;
   // Sparse-depth supervision (rays with RayBatch::depth > 0, from a
   // capture's points, sparse_depth.h, or distilled from a replay label,
-  // UpdateOptions::replay_depth_min_opacity): weight of SparseDepthLoss
+  // ReplayLabelOptions::depth_min_opacity): weight of SparseDepthLoss
   // (volume_rendering.h), times the ray's RayBatch::weight and averaged over
   // the batch as the colour loss is, and
   // its Gaussian's width in model units (scaled by the depth beyond 1).
