@@ -106,6 +106,15 @@ CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* a) {
   c->add_option("--replay-seen-weight", u.replay_weights.seen_weight,
                 "Offline replay: weight of labels whose surface the new scan sees unchanged (1 = off, 0 = dropped)")
       ->capture_default_str();
+  c->add_option("--error-share", u.view_error.error_share,
+                 "Share of view draws proportional to each view's current error (0 = uniform over views)")
+      ->capture_default_str();
+  c->add_option("--replay-agreement", u.replay_confidence.agreement_tolerance,
+                 "Replay labels where θ_{t-1} and θ_{t-2} differ by this much (mean |RGB|) get half weight (0 = off)")
+      ->capture_default_str();
+  c->add_option("--replay-transmittance", u.replay_confidence.transmittance_weight,
+                "Weight a half-opaque replay label loses, in [0, 1] (0 = off)")
+      ->capture_default_str();
   c->add_option("--replay-depth-min-opacity", u.replay_labels.depth_min_opacity,
                 "Offline replay: labels at least this opaque also teach θ_{t-1}'s depth (0 = off)")
       ->capture_default_str();
@@ -201,6 +210,9 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   j["carry_optimizer"] = uo.carry_optimizer;
   j["replay_seen_weight"] = uo.replay_weights.seen_weight;
   j["replay_depth_min_opacity"] = uo.replay_labels.depth_min_opacity;
+  j["error_share"] = uo.view_error.error_share;
+  j["replay_agreement"] = uo.replay_confidence.agreement_tolerance;
+  j["replay_transmittance"] = uo.replay_confidence.transmittance_weight;
   j["lr_schedule"] = LrScheduleName(uo.train.lr_schedule);
   j["protocol"] = a.paper_protocol ? "paper" : "equal-compute";
   nlohmann::json matrix = nlohmann::json::array(), step_seconds = nlohmann::json::array();
@@ -284,6 +296,9 @@ int RunBenchContinual(const BenchContinualArgs& a) {
                        {"replay_seen_labels", rep.replay_seen_labels},
                        {"replay_depth_labels", rep.replay_depth_labels},
                        {"replay_weight_seconds", rep.replay_weight_seconds},
+                       {"replay_confidence_mean", rep.replay_confidence_mean},
+                       {"replay_compared_labels", rep.replay_compared_labels},
+                       {"replay_confidence_seconds", rep.replay_confidence_seconds},
                        {"replay_view_pixels", rep.replay_view_pixels},
                        {"new_views", rep.new_views},
                        {"replay_views", rep.replay_views},

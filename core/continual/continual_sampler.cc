@@ -36,6 +36,20 @@ ContinualRaySampler::ContinualRaySampler(std::vector<SamplerView> views, const N
   }
 }
 
+void ContinualRaySampler::SetViewErrorSampling(const ViewErrorOptions& options) {
+  error_ = std::make_unique<ViewErrorSampler>(int(views_.size()), options);
+}
+
+std::vector<double> ContinualRaySampler::ViewProbabilities() const {
+  if (error_ != nullptr) return error_->Probabilities();
+  return std::vector<double>(views_.size(), views_.empty() ? 0.0 : 1.0 / double(views_.size()));
+}
+
+void ContinualRaySampler::ObserveErrors(const RayBatch& batch, const std::vector<float>& sq_err) {
+  if (error_ == nullptr || !error_->enabled() || last_view_.size() != size_t(batch.size())) return;
+  error_->Observe(last_view_, sq_err);
+}
+
 void ContinualRaySampler::FillRay(int v, std::mt19937_64& r, RayBatch* out, int i, std::vector<int>* online,
                                   int64_t given_pixel) {
   const SamplerView& view = views_[v];
@@ -77,8 +91,11 @@ void ContinualRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
   std::mt19937_64& r = *rng;
   // Sparse-depth rays first (new-scan views with known depths).
   const int ndepth = depth_views_.empty() ? 0 : int(std::lround(depth_fraction_ * n));
+  last_view_.assign(size_t(n), -1);
+  const bool by_error = error_ != nullptr && error_->enabled();
   for (int i = 0; i < ndepth; ++i) {
     const int v = depth_views_[r() % depth_views_.size()];
+    last_view_[i] = v;
     const size_t k = r() % depth_pixel_[v].size();
     FillRay(v, r, out, i, nullptr, depth_pixel_[v][k]);
     out->depth[i] = depth_t_[v][k];
@@ -88,12 +105,13 @@ void ContinualRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
     if (shared) {
       v = i < n_new ? current_views_[r() % current_views_.size()] : past_views_[r() % past_views_.size()];
     } else if (!meil) {
-      v = int(r() % views_.size());
+      v = by_error ? error_->Pick(&r) : int(r() % views_.size());
     } else if (i < n_new) {
       v = new_views_[r() % new_views_.size()];
     } else {
       v = replay_views_[r() % replay_views_.size()];
     }
+    last_view_[i] = v;
     FillRay(v, r, out, i, &online);
     if (meil && views_[v].replay) {
       out->robust[i] = 1;

@@ -13,10 +13,12 @@
 #define CLNERF_CORE_CONTINUAL_CONTINUAL_SAMPLER_H_
 
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "core/field/ngp_model.h"
 #include "core/train/ray_sampler.h"
+#include "core/train/view_error_sampler.h"
 
 namespace clnerf {
 
@@ -62,6 +64,12 @@ class ContinualRaySampler : public RaySampler {
     return n;
   }
   void SetProgress(float progress) override { progress_ = progress; }
+  // Uniform mode: draw views partly in proportion to their current error
+  // (view_error_sampler.h) instead of uniformly. Off until called.
+  void SetViewErrorSampling(const ViewErrorOptions& options);
+  void ObserveErrors(const RayBatch& batch, const std::vector<float>& sq_err) override;
+  // The error sampler's current probability of each view (uniform when off).
+  std::vector<double> ViewProbabilities() const;
 
  private:
   // pixel < 0: a random unmasked pixel.
@@ -77,6 +85,8 @@ class ContinualRaySampler : public RaySampler {
   float new_share_;
   float progress_ = 0;
   float depth_fraction_ = 0;
+  std::unique_ptr<ViewErrorSampler> error_;
+  std::vector<int> last_view_;  // The view of each ray of the last batch.
   std::vector<int> depth_views_;
   std::vector<std::vector<uint32_t>> depth_pixel_;
   std::vector<std::vector<float>> depth_t_;

@@ -71,7 +71,7 @@ absl::Status UpdateOptions::Validate() const {
     return absl::InvalidArgumentError("meil_new_fraction must be in (0, 1)");
   }
   for (const absl::Status& s : {train.Validate(), model.Validate(), capacity.Validate(), replay_labels.Validate(),
-                                 replay_weights.Validate()}) {
+                                 replay_weights.Validate(), replay_confidence.Validate(), view_error.Validate()}) {
     if (!s.ok()) return s;
   }
   return absl::OkStatus();
@@ -202,6 +202,15 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
           return s;
         }
         rep.replay_seen_labels = wr.seen;
+        ReplayConfidenceReport cr;
+        if (absl::Status s = ApplyReplayConfidence(prev->previous_model.get(), cams, options.replay_confidence, cancel,
+                                                   &cache, &cr);
+            !s.ok()) {
+          return s;
+        }
+        rep.replay_confidence_mean = cr.mean_factor;
+        rep.replay_compared_labels = cr.compared;
+        rep.replay_confidence_seconds = cr.seconds;
         for (ReplayLabelView& v : cache) {
           rep.replay_depth_labels += SetDistillationDepths(options.replay_labels.depth_min_opacity, &v);
         }
@@ -229,6 +238,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
                               method == ContinualMethod::kMEIL ? 0.0f : options.new_scan_share,
                               options.depth_fraction);
 
+  if (method != ContinualMethod::kMEIL && options.new_scan_share <= 0) sampler.SetViewErrorSampling(options.view_error);
   rep.depth_pixels = options.depth_fraction > 0 ? sampler.num_depth_pixels() : 0;
   TrainOptions to = options.train;
   to.seed = seed;
@@ -273,6 +283,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
   // M_t: every new camera, then the buffer policy.
   ContinualState next;
   if (options.carry_optimizer) next.optimizer = std::make_shared<const OptimizerState>(trainer.ExportOptimizerState());
+  if (options.replay_confidence.agreement_tolerance > 0.0f && prev != nullptr) next.previous_model = prev->model;
   // Only methods that replay real images keep any (clnerf-noer, nt, ewc and
   // meil store cameras only).
   const int k_buffer = use_buffer ? options.buffer_size : 0;

@@ -30,12 +30,14 @@
 #include "absl/status/statusor.h"
 #include "core/field/capacity.h"
 #include "core/field/ngp_model.h"
+#include "core/continual/replay_confidence.h"
 #include "core/continual/replay_labels.h"
 #include "core/continual/replay_weights.h"
 #include "core/continual/replay_memory.h"
 #include "core/data/scene.h"
 #include "core/train/ray_sampler.h"
 #include "core/train/trainer.h"
+#include "core/train/view_error_sampler.h"
 
 namespace clnerf {
 
@@ -65,6 +67,10 @@ struct UpdateOptions {
   // Offline replay: labels whose surface the new scan sees unchanged are
   // down-weighted (replay_weights.h); seen_weight 1 = off.
   ReplayWeightOptions replay_weights;
+  // Offline replay: labels θ_{t-1} is unsure of (it disagrees with θ_{t-2},
+  // or its ray is half transparent) are down-weighted too
+  // (replay_confidence.h); off by default.
+  ReplayConfidenceOptions replay_confidence;
   int buffer_size = 10;                 // K for clnerf / er (clnerf-noer forces 0).
   bool prioritized_buffer = false;      // Keep the K lowest-PSNR views instead of a reservoir.
   float ewc_lambda = 1e5f;              // Paper's value.
@@ -75,6 +81,10 @@ struct UpdateOptions {
   // 0 = uniform over every view revealed so far (the paper), where the new
   // scan of step t gets only 1/(t+1) of the rays.
   float new_scan_share = 0.0f;
+  // Uniform-sampling methods: a share of each batch's view draws goes to
+  // views in proportion to their current error (view_error_sampler.h), so
+  // rays go where the model is still wrong. error_share 0 = uniform.
+  ViewErrorOptions view_error;
   // Share of each batch drawn from the new scan's sparse-depth pixels when
   // it has any (an upload's point cloud; sparse_depth.h), as
   // FitOptions::depth_fraction. 0 = off.
@@ -110,6 +120,9 @@ struct ContinualState {
   std::shared_ptr<const EwcPenalty> ewc;
   // θ_t's optimiser state (UpdateOptions::carry_optimizer; else null).
   std::shared_ptr<const OptimizerState> optimizer;
+  // θ_t's predecessor θ_{t-1}, kept only when the next update compares
+  // teachers (replay_confidence.agreement_tolerance > 0); else null.
+  std::shared_ptr<const NgpModel> previous_model;
 };
 
 enum class UpdatePhase { kPreparingReplay, kTraining, kFinalizing };
@@ -133,6 +146,9 @@ struct UpdateReport {
   long long replay_seen_labels = 0;   // Labels the new scan sees (replay_weights.h).
   long long replay_depth_labels = 0;  // Labels with a distilled depth target (replay_labels.h).
   double replay_weight_seconds = 0;   // Time spent finding them.
+  double replay_confidence_mean = 1;  // Mean confidence factor of the labels (replay_confidence.h).
+  long long replay_compared_labels = 0;  // Labels θ_{t-2} rendered too.
+  double replay_confidence_seconds = 0;
   double train_seconds = 0;
   long long samples = 0;
   int skipped_batches = 0;            // NaN/Inf batches skipped by the trainer.

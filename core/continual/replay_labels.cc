@@ -45,10 +45,10 @@ namespace {
 
 uint64_t NumPixels(const Camera& c) { return uint64_t(c.intrinsics.width) * uint64_t(c.intrinsics.height); }
 
-// Renders the model-space rays of `pixels` of `camera`; false when stopped.
-bool RenderPixels(const NgpModel& model, const Camera& world, const std::vector<uint32_t>& pixels,
-                  const RenderOptions& ro, float* rgb, long long* samples, float* opacity = nullptr,
-                  float* depth = nullptr) {
+}  // namespace
+
+bool RenderLabelPixels(const NgpModel& model, const Camera& world, const std::vector<uint32_t>& pixels,
+                       const RenderOptions& ro, float* rgb, long long* samples, float* opacity, float* depth) {
   const Camera cam = model.ToModelCamera(world);
   std::vector<float> o(3 * pixels.size()), d(3 * pixels.size());
   for (size_t k = 0; k < pixels.size(); ++k) PixelRay(cam, pixels[k], &o[3 * k], &d[3 * k]);
@@ -58,8 +58,6 @@ bool RenderPixels(const NgpModel& model, const Camera& world, const std::vector<
   if (samples != nullptr) *samples += s;
   return true;
 }
-
-}  // namespace
 
 double ProbeSamplesPerRay(const NgpModel& model, const std::vector<Camera>& cameras, int probe_rays, uint64_t seed) {
   if (cameras.empty() || probe_rays < 1) return 0;
@@ -76,7 +74,7 @@ double ProbeSamplesPerRay(const NgpModel& model, const std::vector<Camera>& came
   for (size_t v = 0; v < cameras.size(); ++v) {
     if (pixels[v].empty()) continue;
     rgb.resize(3 * pixels[v].size());
-    if (RenderPixels(model, cameras[v], pixels[v], RenderOptions{}, rgb.data(), &samples)) rays += pixels[v].size();
+    if (RenderLabelPixels(model, cameras[v], pixels[v], RenderOptions{}, rgb.data(), &samples)) rays += pixels[v].size();
   }
   return rays > 0 ? double(samples) / double(rays) : 0.0;
 }
@@ -130,7 +128,7 @@ absl::StatusOr<std::vector<ReplayLabelView>> RenderReplayLabels(
       lv.rgb = Image(int(lv.pixels.size()), 1);
       lv.opacity.resize(lv.pixels.size());
       lv.depth.resize(lv.pixels.size());
-      if (!RenderPixels(model, cam, lv.pixels, ro, lv.rgb.rgb.data(), nullptr, lv.opacity.data(), lv.depth.data())) {
+      if (!RenderLabelPixels(model, cam, lv.pixels, ro, lv.rgb.rgb.data(), nullptr, lv.opacity.data(), lv.depth.data())) {
         return absl::CancelledError("update cancelled while preparing replay");
       }
       rep.labels += labels_per_view;

@@ -27,6 +27,7 @@
 #include "core/data/camera.h"
 #include "core/data/image.h"
 #include "core/field/ngp_model.h"
+#include "core/render/renderer.h"
 
 namespace clnerf {
 
@@ -88,6 +89,14 @@ long long LabelsPerView(double expected_draws, int num_views, const ReplayLabelO
 absl::StatusOr<std::vector<ReplayLabelView>> RenderReplayLabels(
     const NgpModel& model, const std::vector<Camera>& cameras, long long labels_per_view, uint64_t seed,
     const std::atomic<bool>* cancel, const std::function<void(int, int)>& progress, ReplayLabelReport* report);
+
+// Renders `pixels` of the world-space camera `world` with `model` at the
+// camera's time step: colour to rgb (3 per pixel) and, when not null,
+// accumulated opacity and expected depth (model units); adds the density
+// evaluations to *samples when not null. False when ro.should_stop stopped it.
+bool RenderLabelPixels(const NgpModel& model, const Camera& world, const std::vector<uint32_t>& pixels,
+                       const RenderOptions& ro, float* rgb, long long* samples, float* opacity = nullptr,
+                       float* depth = nullptr);
 
 // Fills view->target_depth: depth / opacity for each label that is opaque
 // (opacity >= min_opacity, depth > 0), 0 for the others; clears it when

@@ -47,6 +47,10 @@ class RaySampler {
   // Training progress in [0, 1], set by the trainer before each Sample()
   // (MEIL-NeRF weights its replay rays by it).
   virtual void SetProgress(float progress) {}
+  // After each applied step: the batch just trained and each ray's squared
+  // colour error (mean over RGB) under the model before the update, for
+  // samplers that draw where the model is wrong (view_error_sampler.h).
+  virtual void ObserveErrors(const RayBatch& batch, const std::vector<float>& sq_err) {}
   // Model-space cameras of every view the sampler draws from (for the
   // occupancy grid's visibility mask).
   virtual std::vector<Camera> Cameras() const = 0;

@@ -207,6 +207,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
   const float depth_w = options_.depth_weight;
 
   const int nblocks = (nrays + kBlockRays - 1) / kBlockRays;
+  ray_sq_err_.assign(size_t(nrays), 0.0f);
   // Reset every scratch, not only those of the threads that run: the OpenMP
   // runtime may grant fewer threads than requested (OMP_THREAD_LIMIT, nested
   // regions), and the reductions below read all of them.
@@ -407,6 +408,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         }
         const float o = 1.0f - s.t_final[i] + 1e-10f;
         s.sq_err += se / 3.0f;
+        ray_sq_err_[r] = se / 3.0f;
         s.loss += (wr * data_loss / 3.0f + lambda * (-o * std::log(o))) * inv_n;
         const float d_opacity = lambda * -(std::log(o) + 1.0f) * inv_n;
         if (vc != nullptr) {
@@ -732,6 +734,7 @@ absl::Status Trainer::Step() {
         "training diverged at step %d: parameters became NaN/Inf after the update", next));
   }
   step_ = next;
+  sampler_->ObserveErrors(batch, ray_sq_err_);
 
   // Adapt the batch so it marches about target_samples samples.
   const double spr = batch.size() > 0 ? double(batch_samples_) / batch.size() : 0.0;
@@ -755,6 +758,8 @@ absl::Status Trainer::Step() {
   total_samples_ += batch_samples_;
   total_rays_ += batch.size();
   total_composited_ += batch_composited_;
+  spdlog::trace("step {}: {} rays, {} samples ({} composited), lr {:.3g}, batch psnr {:.2f}, {:.3f}s", step_,
+                batch.size(), batch_samples_, batch_composited_, lr, last_.psnr, secs);
   return absl::OkStatus();
 }
 

@@ -242,6 +242,7 @@ class Trainer {
   std::vector<std::unique_ptr<ThreadScratch>> scratch_;
   // Batch statistics from the last ForwardBackward.
   double batch_mse_ = 0;
+  std::vector<float> ray_sq_err_;  // Per ray of the last batch: mean squared colour error.
   long long batch_samples_ = 0, batch_composited_ = 0;
 };
 
