@@ -109,6 +109,11 @@ CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* a) {
   c->add_option("--error-share", u.view_error.error_share,
                  "Share of view draws proportional to each view's current error (0 = uniform over views)")
       ->capture_default_str();
+  c->add_option("--error-tiles", u.view_error.tiles,
+                 "Error sampling: each view is cut into this many x this many tiles, each with its own error")
+      ->capture_default_str();
+  c->add_option("--error-decay", u.view_error.decay, "Error sampling: per-step decay of the error estimates")
+      ->capture_default_str();
   c->add_option("--replay-agreement", u.replay_confidence.agreement_tolerance,
                  "Replay labels where θ_{t-1} and θ_{t-2} differ by this much (mean |RGB|) get half weight (0 = off)")
       ->capture_default_str();
@@ -211,6 +216,8 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   j["replay_seen_weight"] = uo.replay_weights.seen_weight;
   j["replay_depth_min_opacity"] = uo.replay_labels.depth_min_opacity;
   j["error_share"] = uo.view_error.error_share;
+  j["error_tiles"] = uo.view_error.tiles;
+  j["error_decay"] = uo.view_error.decay;
   j["replay_agreement"] = uo.replay_confidence.agreement_tolerance;
   j["replay_transmittance"] = uo.replay_confidence.transmittance_weight;
   j["lr_schedule"] = LrScheduleName(uo.train.lr_schedule);
@@ -230,6 +237,7 @@ int RunBenchContinual(const BenchContinualArgs& a) {
     fo.train = uo.train;
     fo.train.iterations = ub_iterations;
     fo.model = uo.model;
+    fo.view_error = uo.view_error;
     const Scene all = seq.Union(T - 1);
     ProgressBar bar(absl::StrFormat("ub %d steps", T), ub_iterations);
     const auto t0 = std::chrono::steady_clock::now();

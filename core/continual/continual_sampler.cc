@@ -37,28 +37,49 @@ ContinualRaySampler::ContinualRaySampler(std::vector<SamplerView> views, const N
 }
 
 void ContinualRaySampler::SetViewErrorSampling(const ViewErrorOptions& options) {
-  error_ = std::make_unique<ViewErrorSampler>(int(views_.size()), options);
+  error_.reset();
+  if (!(options.error_share > 0.0f) || views_.empty()) return;
+  std::vector<ErrorSampledView> ev;
+  for (size_t v = 0; v < views_.size(); ++v) {
+    const SamplerView& view = views_[v];
+    ErrorSampledView e{view.camera.intrinsics.width, view.camera.intrinsics.height, nullptr};
+    if (view.label_pixels != nullptr) {
+      e.pixels = view.label_pixels;
+    } else if (!valid_[v].empty()) {
+      e.pixels = &valid_[v];
+    }
+    ev.push_back(e);
+  }
+  error_ = std::make_unique<ViewErrorSampler>(ViewErrorSampler::ForViews(ev, options));
+  tiles_ = std::clamp(options.tiles, 1, 64);
 }
 
 std::vector<double> ContinualRaySampler::ViewProbabilities() const {
-  if (error_ != nullptr) return error_->Probabilities();
-  return std::vector<double>(views_.size(), views_.empty() ? 0.0 : 1.0 / double(views_.size()));
+  std::vector<double> p(views_.size(), views_.empty() ? 0.0 : 1.0 / double(views_.size()));
+  if (error_ == nullptr) return p;
+  const std::vector<double> cells = error_->Probabilities();
+  const size_t per_view = size_t(tiles_) * size_t(tiles_);
+  for (size_t v = 0; v < views_.size(); ++v) {
+    p[v] = 0;
+    for (size_t t = 0; t < per_view; ++t) p[v] += cells[v * per_view + t];
+  }
+  return p;
 }
 
 void ContinualRaySampler::ObserveErrors(const RayBatch& batch, const std::vector<float>& sq_err) {
-  if (error_ == nullptr || !error_->enabled() || last_view_.size() != size_t(batch.size())) return;
-  error_->Observe(last_view_, sq_err);
+  if (error_ == nullptr || !error_->enabled() || last_cell_.size() != size_t(batch.size())) return;
+  error_->Observe(last_cell_, sq_err);
 }
 
 void ContinualRaySampler::FillRay(int v, std::mt19937_64& r, RayBatch* out, int i, std::vector<int>* online,
-                                  int64_t given_pixel) {
+                                  int64_t given_pixel, int64_t given_label) {
   const SamplerView& view = views_[v];
   const Intrinsics& in = view.camera.intrinsics;
   const std::vector<uint32_t>& valid = valid_[v];
   uint32_t pixel;
   size_t label;  // Index of the pixel's label in view.image.
   if (view.label_pixels != nullptr && given_pixel < 0) {
-    label = r() % view.label_pixels->size();
+    label = given_label >= 0 ? size_t(given_label) : r() % view.label_pixels->size();
     pixel = (*view.label_pixels)[label];
   } else {
     pixel = given_pixel >= 0 ? uint32_t(given_pixel)
@@ -91,11 +112,10 @@ void ContinualRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
   std::mt19937_64& r = *rng;
   // Sparse-depth rays first (new-scan views with known depths).
   const int ndepth = depth_views_.empty() ? 0 : int(std::lround(depth_fraction_ * n));
-  last_view_.assign(size_t(n), -1);
-  const bool by_error = error_ != nullptr && error_->enabled();
+  const bool by_error = !meil && !shared && error_ != nullptr && error_->enabled();
+  last_cell_.assign(by_error ? size_t(n) : 0, -1);
   for (int i = 0; i < ndepth; ++i) {
     const int v = depth_views_[r() % depth_views_.size()];
-    last_view_[i] = v;
     const size_t k = r() % depth_pixel_[v].size();
     FillRay(v, r, out, i, nullptr, depth_pixel_[v][k]);
     out->depth[i] = depth_t_[v][k];
@@ -104,14 +124,23 @@ void ContinualRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
     int v;
     if (shared) {
       v = i < n_new ? current_views_[r() % current_views_.size()] : past_views_[r() % past_views_.size()];
+    } else if (by_error) {
+      const ViewErrorSampler::Draw d = error_->PickRay(&r);
+      last_cell_[i] = d.cell;
+      const SamplerView& view = views_[d.view];
+      if (view.label_pixels != nullptr) {
+        FillRay(d.view, r, out, i, &online, -1, d.item);
+      } else {
+        FillRay(d.view, r, out, i, &online, valid_[d.view].empty() ? int64_t(d.item) : int64_t(valid_[d.view][d.item]));
+      }
+      continue;
     } else if (!meil) {
-      v = by_error ? error_->Pick(&r) : int(r() % views_.size());
+      v = int(r() % views_.size());
     } else if (i < n_new) {
       v = new_views_[r() % new_views_.size()];
     } else {
       v = replay_views_[r() % replay_views_.size()];
     }
-    last_view_[i] = v;
     FillRay(v, r, out, i, &online);
     if (meil && views_[v].replay) {
       out->robust[i] = 1;

@@ -64,16 +64,19 @@ class ContinualRaySampler : public RaySampler {
     return n;
   }
   void SetProgress(float progress) override { progress_ = progress; }
-  // Uniform mode: draw views partly in proportion to their current error
-  // (view_error_sampler.h) instead of uniformly. Off until called.
+  // Uniform mode: draw views (or tiles of views, options.tiles) partly in
+  // proportion to their current error (view_error_sampler.h) instead of
+  // uniformly. Off until called with error_share > 0.
   void SetViewErrorSampling(const ViewErrorOptions& options);
   void ObserveErrors(const RayBatch& batch, const std::vector<float>& sq_err) override;
-  // The error sampler's current probability of each view (uniform when off).
+  // Each view's current probability of being drawn (summed over its tiles).
   std::vector<double> ViewProbabilities() const;
 
  private:
-  // pixel < 0: a random unmasked pixel.
-  void FillRay(int view, std::mt19937_64& r, RayBatch* out, int i, std::vector<int>* online, int64_t pixel = -1);
+  // pixel < 0: a random unmasked pixel (or label, for label views); label
+  // >= 0: that label of a label view.
+  void FillRay(int view, std::mt19937_64& r, RayBatch* out, int i, std::vector<int>* online, int64_t pixel = -1,
+               int64_t label = -1);
 
   std::vector<SamplerView> views_;
   std::vector<Camera> model_cameras_;
@@ -85,8 +88,10 @@ class ContinualRaySampler : public RaySampler {
   float new_share_;
   float progress_ = 0;
   float depth_fraction_ = 0;
+  // Error sampling (null = off); cells are tiles_ x tiles_ tiles of each view.
   std::unique_ptr<ViewErrorSampler> error_;
-  std::vector<int> last_view_;  // The view of each ray of the last batch.
+  int tiles_ = 1;
+  std::vector<int> last_cell_;  // The cell of each ray of the last batch (-1: none).
   std::vector<int> depth_views_;
   std::vector<std::vector<uint32_t>> depth_pixel_;
   std::vector<std::vector<float>> depth_t_;

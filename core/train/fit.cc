@@ -11,7 +11,8 @@ namespace clnerf {
 
 absl::Status FitOptions::Validate() const {
   for (const absl::Status& s :
-       {train.Validate(), model.Validate(), capacity.Validate(), overrides.Validate(), prune_options.Validate()}) {
+       {train.Validate(), model.Validate(), capacity.Validate(), overrides.Validate(), prune_options.Validate(),
+        view_error.Validate()}) {
     if (!s.ok()) return s;
   }
   if (curve_every < 0 || curve_views < 1) return absl::InvalidArgumentError("fit: bad curve options");
@@ -55,6 +56,7 @@ absl::StatusOr<FitResult> FitScene(const Scene& scene, const FitOptions& options
     spdlog::info("sparse depth: {} pixels with a known depth; {:.0f}% of each batch, weight {:g}",
                  (*sampler)->num_depth_pixels(), 100.0 * options.depth_fraction, options.train.depth_weight);
   }
+  (*sampler)->SetViewErrorSampling(options.view_error);
   Trainer trainer(result.model.get(), sampler->get(), options.train);
 
   const std::vector<View>& held_out = scene.test.empty() ? scene.val : scene.test;

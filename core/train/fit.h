@@ -18,6 +18,7 @@
 #include "core/train/occupancy_prune.h"
 #include "core/train/ray_sampler.h"
 #include "core/train/trainer.h"
+#include "core/train/view_error_sampler.h"
 
 namespace clnerf {
 
@@ -39,6 +40,9 @@ struct FitOptions {
   // beer_2 rendered 1.9x faster (292 -> 131 samples per ray) for 0.10 dB of
   // test PSNR (docs/render_cost.md).
   bool prune = false;
+  // Draw views (or tiles) partly in proportion to their current error
+  // (view_error_sampler.h); error_share 0 = uniform over views, the default.
+  ViewErrorOptions view_error;
   PruneOptions prune_options;
   absl::Status Validate() const;
 };

@@ -106,11 +106,37 @@ absl::StatusOr<std::unique_ptr<ImageRaySampler>> ImageRaySampler::Create(const s
   return s;
 }
 
+void ImageRaySampler::SetViewErrorSampling(const ViewErrorOptions& options) {
+  error_.reset();
+  if (!(options.error_share > 0.0f) || views_.size() < 2) return;
+  std::vector<ErrorSampledView> ev;
+  for (size_t v = 0; v < views_.size(); ++v) {
+    ev.push_back({views_[v]->image.width, views_[v]->image.height, valid_[v].empty() ? nullptr : &valid_[v]});
+  }
+  error_ = std::make_unique<ViewErrorSampler>(ViewErrorSampler::ForViews(ev, options));
+}
+
+void ImageRaySampler::ObserveErrors(const RayBatch& batch, const std::vector<float>& sq_err) {
+  if (error_ == nullptr || last_cell_.size() != size_t(batch.size())) return;
+  error_->Observe(last_cell_, sq_err);
+}
+
 void ImageRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
   out->Resize(n);
   const uint64_t base = (*rng)();
   const int nviews = int(views_.size());
   const int ndepth = depth_views_.empty() ? 0 : int(std::lround(depth_fraction_ * n));
+  // Error sampling picks its views and pixels serially (one distribution).
+  std::vector<ViewErrorSampler::Draw> draws;
+  last_cell_.clear();
+  if (error_ != nullptr && error_->enabled()) {
+    last_cell_.assign(size_t(n), -1);
+    draws.resize(size_t(n));
+    for (int i = ndepth; i < n; ++i) {
+      draws[i] = error_->PickRay(rng);
+      last_cell_[i] = draws[i].cell;
+    }
+  }
 #pragma omp parallel
   {
     std::mt19937_64 r(base + 0x9E3779B97F4A7C15ull * (omp_get_thread_num() + 1));
@@ -123,6 +149,9 @@ void ImageRaySampler::Sample(int n, std::mt19937_64* rng, RayBatch* out) {
         const size_t k = r() % depth_pixel_[v].size();
         pixel = depth_pixel_[v][k];
         out->depth[i] = depth_t_[v][k];
+      } else if (!draws.empty()) {
+        v = draws[i].view;
+        pixel = valid_[v].empty() ? draws[i].item : valid_[v][draws[i].item];
       } else {
         v = int(r() % uint64_t(nviews));
         const std::vector<uint32_t>& valid = valid_[v];

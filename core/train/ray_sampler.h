@@ -18,6 +18,7 @@
 #include "core/data/camera.h"
 #include "core/field/ngp_model.h"
 #include "core/data/scene.h"
+#include "core/train/view_error_sampler.h"
 
 namespace clnerf {
 
@@ -73,6 +74,11 @@ class ImageRaySampler : public RaySampler {
   // Depth pixels over all views.
   long long num_depth_pixels() const { return num_depth_pixels_; }
   void Sample(int n, std::mt19937_64* rng, RayBatch* out) override;
+  // Draw views (or tiles of views) partly in proportion to their current
+  // error (view_error_sampler.h) instead of uniformly; off until called with
+  // error_share > 0. Sparse-depth rays are drawn as before.
+  void SetViewErrorSampling(const ViewErrorOptions& options);
+  void ObserveErrors(const RayBatch& batch, const std::vector<float>& sq_err) override;
   std::vector<Camera> Cameras() const override { return cameras_; }
   // Every view is a photo; RayBatch::view is its index in `views`.
   int NumPhotoViews() const override { return int(views_.size()); }
@@ -89,6 +95,8 @@ class ImageRaySampler : public RaySampler {
   std::vector<std::vector<uint32_t>> depth_pixel_;
   std::vector<std::vector<float>> depth_t_;
   long long num_depth_pixels_ = 0;
+  std::unique_ptr<ViewErrorSampler> error_;  // Null = uniform over views.
+  std::vector<int> last_cell_;               // Each ray's cell in the last batch (-1: none).
 };
 
 // Renders the rays `rays` (indices into `batch`) with `model`, each with its

@@ -101,5 +101,45 @@ TEST(RaySamplerTest, RaysNameTheirPhoto) {
   for (int v = 0; v < 3; ++v) EXPECT_GT(seen[v], 100) << v;
 }
 
+// Error sampling: after one batch in which only view 1's top-left tile was
+// wrong, most rays come from that tile; each ray's colour is still its own
+// pixel's.
+TEST(RaySamplerTest, ErrorSamplingDrawsWhereTheErrorIs) {
+  std::vector<Eigen::Vector3f> unused;
+  std::vector<View> views(3, PlaneView(&unused));
+  std::vector<const View*> ptrs = {&views[0], &views[1], &views[2]};
+  NgpModel model = SmallModel();
+  auto sampler = ImageRaySampler::Create(ptrs, model);
+  ASSERT_TRUE(sampler.ok()) << sampler.status();
+  ViewErrorOptions o;
+  o.error_share = 0.8f;
+  o.tiles = 2;
+  (*sampler)->SetViewErrorSampling(o);
+  RayBatch b;
+  std::mt19937_64 rng(4);
+  auto in_hot_tile = [&](int i) {
+    // The ray's pixel: recover it from its colour's index pattern is
+    // fiddly, so use its direction: the top-left tile looks up and left.
+    return b.view[i] == 1 && b.dir[3 * size_t(i)] < 0 && b.dir[3 * size_t(i) + 1] < 0;
+  };
+  (*sampler)->Sample(4000, &rng, &b);
+  int hot = 0;
+  for (int i = 0; i < b.size(); ++i) hot += in_hot_tile(i);
+  EXPECT_NEAR(hot / 4000.0, 1.0 / 12, 0.02) << "before any error: uniform over views and pixels";
+  std::vector<float> err(b.size(), 0.0f);
+  for (int i = 0; i < b.size(); ++i) err[i] = in_hot_tile(i) ? 0.5f : 0.0f;
+  (*sampler)->ObserveErrors(b, err);
+  (*sampler)->Sample(4000, &rng, &b);
+  hot = 0;
+  for (int i = 0; i < b.size(); ++i) {
+    hot += in_hot_tile(i);
+    ASSERT_GE(b.view[i], 0);
+  }
+  EXPECT_GT(hot / 4000.0, 0.6);
+  int others = 0;
+  for (int i = 0; i < b.size(); ++i) others += b.view[i] == 0;
+  EXPECT_GT(others, 0) << "the uniform floor keeps every view in the draws";
+}
+
 }  // namespace
 }  // namespace clnerf
