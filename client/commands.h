@@ -111,6 +111,9 @@ struct BenchContinualArgs {
   int tasks = 0;                  // 0 = 10 for a static dataset, 5 procedural scans.
   UbBudget ub_budget = UbBudget::kTotal;
   bool paper_protocol = false;    // Every update: re-init, ub's whole budget.
+  // ub's sampling: uniform over views by default (its best: the error
+  // sampling the updates use measured no gain for ub).
+  float ub_error_share = 0.0f;
   UpdateOptions update;           // The verb's default: 300 iterations per update.
   DatasetOptions dataset;
   int procedural_size = 64;       // Image size of the procedural scans.

@@ -109,11 +109,16 @@ CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* a) {
   c->add_option("--error-share", u.view_error.error_share,
                  "Share of view draws proportional to each view's current error (0 = uniform over views)")
       ->capture_default_str();
+  c->add_option("--ub-error-share", a->ub_error_share,
+                 "ub only: share of view draws proportional to error (0 = uniform over views)")
+      ->capture_default_str();
   c->add_option("--error-tiles", u.view_error.tiles,
                  "Error sampling: each view is cut into this many x this many tiles, each with its own error")
       ->capture_default_str();
   c->add_option("--error-decay", u.view_error.decay, "Error sampling: per-step decay of the error estimates")
       ->capture_default_str();
+  c->add_flag("--seen-label-from-photo", u.replay_weights.seen_label_from_photo,
+              "A replay label the new scan sees unchanged takes the new photo's colour there (with --replay-seen-weight)");
   c->add_option("--replay-agreement", u.replay_confidence.agreement_tolerance,
                  "Replay labels where θ_{t-1} and θ_{t-2} differ by this much (mean |RGB|) get half weight (0 = off)")
       ->capture_default_str();
@@ -206,6 +211,7 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   if (uo.method == ContinualMethod::kEWC && !ub) j["ewc_lambda"] = uo.ewc_lambda;
   const int ub_iterations = UpperBoundIterations(a.ub_budget, T, iterations);
   if (ub) {
+    j["ub_error_share"] = a.ub_error_share;
     j["ub_budget"] = UbBudgetName(a.ub_budget);
     j["ub_iterations"] = ub_iterations;
   }
@@ -215,9 +221,10 @@ int RunBenchContinual(const BenchContinualArgs& a) {
   j["carry_optimizer"] = uo.carry_optimizer;
   j["replay_seen_weight"] = uo.replay_weights.seen_weight;
   j["replay_depth_min_opacity"] = uo.replay_labels.depth_min_opacity;
-  j["error_share"] = uo.view_error.error_share;
+  j["error_share"] = ub ? a.ub_error_share : uo.view_error.error_share;
   j["error_tiles"] = uo.view_error.tiles;
   j["error_decay"] = uo.view_error.decay;
+  j["seen_label_from_photo"] = uo.replay_weights.seen_label_from_photo;
   j["replay_agreement"] = uo.replay_confidence.agreement_tolerance;
   j["replay_transmittance"] = uo.replay_confidence.transmittance_weight;
   j["lr_schedule"] = LrScheduleName(uo.train.lr_schedule);
@@ -237,7 +244,8 @@ int RunBenchContinual(const BenchContinualArgs& a) {
     fo.train = uo.train;
     fo.train.iterations = ub_iterations;
     fo.model = uo.model;
-    fo.view_error = uo.view_error;
+    fo.view_error = uo.view_error;  // Tiles and decay as the updates'; the share is ub's own.
+    fo.view_error.error_share = a.ub_error_share;
     const Scene all = seq.Union(T - 1);
     ProgressBar bar(absl::StrFormat("ub %d steps", T), ub_iterations);
     const auto t0 = std::chrono::steady_clock::now();

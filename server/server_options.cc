@@ -163,6 +163,8 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "view_colour") s = Get(*it, k.c_str(), &o->update.train.view_colour);  // Per-photo colour transforms.
     else if (k == "replay_labels_per_draw") s = Get(*it, k.c_str(), &o->update.replay_labels.labels_per_draw);
     else if (k == "carry_optimizer") s = Get(*it, k.c_str(), &o->update.carry_optimizer);
+    else if (k == "error_share") s = Get(*it, k.c_str(), &o->update.view_error.error_share);  // 0 = uniform.
+    else if (k == "error_tiles") s = Get(*it, k.c_str(), &o->update.view_error.tiles);
     else if (k == "replay_seen_weight") s = Get(*it, k.c_str(), &o->update.replay_weights.seen_weight);
     else if (k == "replay_depth_min_opacity") s = Get(*it, k.c_str(), &o->update.replay_labels.depth_min_opacity);
     else if (k == "lr_schedule") {

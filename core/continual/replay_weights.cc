@@ -31,7 +31,7 @@ absl::Status ReplayWeightOptions::Validate() const {
 }
 
 bool SeenByNewView(const Eigen::Vector3f& x, const float* rgb, const View& view, const Camera& cam,
-                   const NewViewDepth& dm, const ReplayWeightOptions& options) {
+                   const NewViewDepth& dm, const ReplayWeightOptions& options, float* photo_rgb) {
   Eigen::Vector2f p;
   float z;
   if (!ProjectPoint(cam, x, &p, &z)) return false;
@@ -49,7 +49,9 @@ bool SeenByNewView(const Eigen::Vector3f& x, const float* rgb, const View& view,
   // Photo-consistency: the surface still looks as θ_{t-1} remembers it.
   const float* c = view.image.rgb.data() + 3 * pixel;
   const float diff = (std::abs(c[0] - rgb[0]) + std::abs(c[1] - rgb[1]) + std::abs(c[2] - rgb[2])) / 3.0f;
-  return diff <= options.colour_tolerance;
+  if (!(diff <= options.colour_tolerance)) return false;
+  if (photo_rgb != nullptr) std::copy_n(c, 3, photo_rgb);
+  return true;
 }
 
 absl::Status WeightReplayLabels(const NgpModel& prev, const std::vector<Camera>& cameras,
@@ -63,7 +65,8 @@ absl::Status WeightReplayLabels(const NgpModel& prev, const std::vector<Camera>&
   }
   const auto t0 = std::chrono::steady_clock::now();
   ReplayWeightReport rep;
-  if (options.seen_weight >= 1.0f || new_views.empty() || prev.num_time_steps() < 1) {
+  if ((options.seen_weight >= 1.0f && !options.seen_label_from_photo) || new_views.empty() ||
+      prev.num_time_steps() < 1) {
     if (report != nullptr) *report = rep;
     return absl::OkStatus();
   }
@@ -109,9 +112,11 @@ absl::Status WeightReplayLabels(const NgpModel& prev, const std::vector<Camera>&
       float o[3], d[3];
       PixelRay(cam, lv.pixels.empty() ? uint32_t(k) : lv.pixels[k], o, d);
       const Eigen::Vector3f x = Eigen::Map<const Eigen::Vector3f>(o) + lv.depth[k] * Eigen::Map<const Eigen::Vector3f>(d);
-      const float* rgb = lv.rgb.rgb.data() + 3 * k;
+      float* rgb = lv.rgb.rgb.data() + 3 * k;
+      float photo[3];
       for (size_t j = 0; j < photos.size(); ++j) {
-        if (SeenByNewView(x, rgb, *photos[j], new_cams[j], maps[j], options)) {
+        if (SeenByNewView(x, rgb, *photos[j], new_cams[j], maps[j], options, photo)) {
+          if (options.seen_label_from_photo) std::copy_n(photo, 3, rgb);
           seen[k] = 1;
           ++nseen;
           break;

@@ -51,6 +51,10 @@ struct ReplayWeightOptions {
   // The new views' depth maps for the occlusion test are rendered with at
   // most this many pixels on their longer side.
   int depth_map_max_side = 64;
+  // A seen label takes the new photo's colour at its surface point instead
+  // of θ_{t-1}'s render (a real measurement of an unchanged surface, moved
+  // into the past view), with `seen_weight` as its weight.
+  bool seen_label_from_photo = false;
   absl::Status Validate() const;
 };
 
@@ -68,14 +72,16 @@ struct NewViewDepth {
 };
 
 // Whether a model-space point `x` (θ_{t-1}'s surface along a past pixel with
-// label colour `rgb`) is seen by the new view `view` (world camera and photo)
+// label colour `rgb`) is seen by the new view `view` (world camera and photo).
+// When seen and `photo_rgb` is not null, the photo's colour there is written
+// to it.
 bool SeenByNewView(const Eigen::Vector3f& x, const float* rgb, const View& view, const Camera& view_model_camera,
-                   const NewViewDepth& dm, const ReplayWeightOptions& options);
+                   const NewViewDepth& dm, const ReplayWeightOptions& options, float* photo_rgb = nullptr);
 
 // Fills labels[v].weight for every past view v (cameras[v], world space)
 // from θ_{t-1} (`prev`) and the new scan's training views. Needs the labels'
-// depth and opacity (RenderReplayLabels fills them). With seen_weight 1 it
-// does nothing. CANCELLED when *cancel turns true.
+// depth and opacity (RenderReplayLabels fills them). With seen_weight 1 (and no
+// seen_label_from_photo) it does nothing. CANCELLED when *cancel turns true.
 absl::Status WeightReplayLabels(const NgpModel& prev, const std::vector<Camera>& cameras,
                                 const std::vector<View>& new_views, const ReplayWeightOptions& options,
                                 const std::atomic<bool>* cancel, std::vector<ReplayLabelView>* labels,
