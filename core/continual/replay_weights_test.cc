@@ -158,6 +158,38 @@ TEST_F(ReplayWeightsModelTest, ARayTheNewCameraSeesUnchangedGetsTheLowerWeight) 
   EXPECT_EQ(seen, 0);
 }
 
+TEST_F(ReplayWeightsModelTest, ASeenLabelCanTakeThePhotosColour) {
+  // The new photo shows the same surface a little brighter (within the
+  // colour tolerance): seen labels take the photo's colour, the rest keep
+  // θ_{t-1}'s render.
+  View brighter;
+  brighter.camera = past_;
+  brighter.camera.time_step = 1;
+  brighter.image = labels_[0].rgb;
+  for (float& c : brighter.image.rgb) c = std::min(1.0f, c + 0.05f);
+  std::vector<ReplayLabelView> l = labels_;
+  ReplayWeightOptions o;
+  o.seen_weight = 1.0f;  // Weight unchanged: only the colour moves.
+  o.seen_label_from_photo = true;
+  ReplayWeightReport r;
+  ASSERT_TRUE(WeightReplayLabels(*state_.model, {past_}, {brighter}, o, nullptr, &l, &r).ok());
+  ASSERT_GT(r.seen, 0);
+  long long moved = 0;
+  for (size_t k = 0; k < l[0].rgb.num_pixels(); ++k) {
+    const bool same = l[0].rgb.rgb[3 * k] == labels_[0].rgb.rgb[3 * k];
+    if (!same) {
+      // The photo's pixel this label's surface projects to: the same pixel
+      // or a neighbour, so its colour is a brighter label colour nearby.
+      EXPECT_GE(l[0].rgb.rgb[3 * k], 0.05f - 1e-6f);
+      ++moved;
+    }
+    EXPECT_EQ(l[0].weight[k], 1.0f);
+  }
+  // Only seen labels move (a label already at 1 cannot get brighter).
+  EXPECT_LE(moved, r.seen);
+  EXPECT_GE(moved, r.seen * 9 / 10);
+}
+
 TEST_F(ReplayWeightsModelTest, SeenWeightZeroDropsTheLabelsAndTheSamplerCarriesWeights) {
   View same;
   same.camera = past_;
