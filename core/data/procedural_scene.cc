@@ -770,6 +770,20 @@ ProceduralRender RenderProceduralView(const ProceduralWorld& world, const Camera
   return out;
 }
 
+std::vector<float> RenderProceduralDistance(const ProceduralWorld& world, const Camera& camera) {
+  const int w = camera.intrinsics.width, h = camera.intrinsics.height;
+  std::vector<float> out(size_t(w) * h, kInf);
+  for (int py = 0; py < h; ++py) {
+    for (int px = 0; px < w; ++px) {
+      Eigen::Vector3f o, d;
+      camera.Ray(float(px) + 0.5f, float(py) + 0.5f, &o, &d);
+      Hit hit;
+      if (CastRay(world, o, d, /*any_hit=*/false, &hit)) out[size_t(py) * w + px] = hit.t;
+    }
+  }
+  return out;
+}
+
 absl::StatusOr<ProceduralDataset> GenerateProceduralDataset(
     const ProceduralSceneOptions& options) {
   absl::Status s = options.Validate();

@@ -215,6 +215,11 @@ ProceduralRender RenderProceduralView(const ProceduralWorld& world, const Camera
 
 // --- Datasets -----------------------------------------------------------------
 
+// Distance along each pixel centre's unit ray to the first surface (world
+// units), +inf where the ray hits nothing; row-major, width * height. A
+// ground-truth depth map for tests of what renders depth (registration).
+std::vector<float> RenderProceduralDistance(const ProceduralWorld& world, const Camera& camera);
+
 struct ProceduralDataset {
   Scene scene;
   ViewAlphas alpha;

@@ -1,0 +1,219 @@
+#include "core/pose/feature_localizer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <map>
+
+#include "absl/strings/str_cat.h"
+#include "opencv2/calib3d.hpp"
+#include "opencv2/core.hpp"
+#include "opencv2/features2d.hpp"
+#include "opencv2/imgproc.hpp"
+
+namespace clnerf {
+
+namespace {
+
+cv::Mat ToGray(const Image& image) {
+  cv::Mat gray(image.height, image.width, CV_8UC1);
+  for (int y = 0; y < image.height; ++y) {
+    uint8_t* row = gray.ptr<uint8_t>(y);
+    for (int x = 0; x < image.width; ++x) {
+      const float* p = image.pixel(x, y);
+      const float l = 0.299f * p[0] + 0.587f * p[1] + 0.114f * p[2];
+      row[x] = uint8_t(std::clamp(std::lround(l * 255.0f), 0l, 255l));
+    }
+  }
+  return gray;
+}
+
+struct Features {
+  std::vector<cv::KeyPoint> keypoints;
+  cv::Mat descriptors;
+};
+
+Features Detect(const cv::Mat& gray, int max_features) {
+  Features f;
+  cv::Ptr<cv::SIFT> sift = cv::SIFT::create(max_features);
+  sift->detectAndCompute(gray, cv::noArray(), f.keypoints, f.descriptors);
+  return f;
+}
+
+// The render's distance at keypoint `p` (OpenCV pixel coordinates: pixel i's
+// centre at i), interpolated bilinearly, if the surface around it is solid
+// and smooth.
+bool SolidDepth(const MapView& v, const cv::Point2f& p, const LocalizerOptions& o, float* depth) {
+  const int w = v.camera.intrinsics.width, h = v.camera.intrinsics.height;
+  const int x0 = int(std::floor(p.x)), y0 = int(std::floor(p.y));
+  if (x0 < 1 || y0 < 1 || x0 + 2 >= w || y0 + 2 >= h) return false;
+  const float fx = p.x - x0, fy = p.y - y0;
+  auto at = [&](int x, int y) { return v.depth[size_t(y) * w + x]; };
+  const float d = (1 - fy) * ((1 - fx) * at(x0, y0) + fx * at(x0 + 1, y0)) +
+                  fy * ((1 - fx) * at(x0, y0 + 1) + fx * at(x0 + 1, y0 + 1));
+  if (!(d > 0) || !std::isfinite(d)) return false;
+  for (int y = y0 - 1; y <= y0 + 2; ++y) {
+    for (int x = x0 - 1; x <= x0 + 2; ++x) {
+      if (v.opacity[size_t(y) * w + x] < o.min_opacity) return false;
+      if (!(std::abs(at(x, y) - d) <= o.max_depth_jump * d)) return false;
+    }
+  }
+  *depth = d;
+  return true;
+}
+
+}  // namespace
+
+absl::Status LocalizerOptions::Validate() const {
+  if (max_side < 32) return absl::InvalidArgumentError("localizer max_side must be >= 32");
+  if (max_features < 50) return absl::InvalidArgumentError("localizer max_features must be >= 50");
+  if (!(ratio > 0 && ratio <= 1)) return absl::InvalidArgumentError("localizer ratio must be in (0, 1]");
+  if (!(min_opacity >= 0 && min_opacity <= 1)) return absl::InvalidArgumentError("min_opacity must be in [0, 1]");
+  if (!(max_depth_jump > 0)) return absl::InvalidArgumentError("max_depth_jump must be > 0");
+  if (references_per_frame < 1) return absl::InvalidArgumentError("references_per_frame must be >= 1");
+  if (!(reprojection_px > 0)) return absl::InvalidArgumentError("reprojection_px must be > 0");
+  if (ransac_iterations < 10) return absl::InvalidArgumentError("ransac_iterations must be >= 10");
+  if (min_inliers < 6) return absl::InvalidArgumentError("min_inliers must be >= 6");
+  return absl::OkStatus();
+}
+
+struct FeatureLocalizer::Impl {
+  LocalizerOptions options;
+  struct Reference {
+    cv::Mat descriptors;                  // Only of keypoints with a 3-D point.
+    std::vector<cv::Point3f> points;      // Row i of descriptors.
+  };
+  std::vector<Reference> refs;
+  int num_points = 0;
+};
+
+FeatureLocalizer::FeatureLocalizer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+FeatureLocalizer::~FeatureLocalizer() = default;
+
+int FeatureLocalizer::num_points() const { return impl_->num_points; }
+
+absl::StatusOr<std::unique_ptr<FeatureLocalizer>> FeatureLocalizer::Build(const std::vector<MapView>& renders,
+                                                                           const LocalizerOptions& options) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  cv::setNumThreads(1);  // Callers parallelise over frames.
+  auto impl = std::make_unique<Impl>();
+  impl->options = options;
+  impl->refs.resize(renders.size());
+  for (const MapView& v : renders) {
+    const size_t n = size_t(v.camera.intrinsics.width) * v.camera.intrinsics.height;
+    if (v.rgb.width != v.camera.intrinsics.width || v.rgb.height != v.camera.intrinsics.height ||
+        v.depth.size() != n || v.opacity.size() != n) {
+      return absl::InvalidArgumentError("FeatureLocalizer: a render's buffers do not match its camera");
+    }
+  }
+#pragma omp parallel for schedule(dynamic, 1)
+  for (int r = 0; r < int(renders.size()); ++r) {
+    const MapView& v = renders[r];
+    Features f = Detect(ToGray(v.rgb), options.max_features);
+    Impl::Reference& ref = impl->refs[r];
+    std::vector<int> rows;
+    for (int k = 0; k < int(f.keypoints.size()); ++k) {
+      const cv::Point2f& p = f.keypoints[k].pt;
+      float d = 0;
+      if (!SolidDepth(v, p, options, &d)) continue;
+      Eigen::Vector3f o, dir;
+      v.camera.Ray(p.x + 0.5f, p.y + 0.5f, &o, &dir);
+      const Eigen::Vector3f x = o + dir * d;
+      ref.points.emplace_back(x.x(), x.y(), x.z());
+      rows.push_back(k);
+    }
+    ref.descriptors = cv::Mat(int(rows.size()), f.descriptors.cols, CV_32F);
+    for (int i = 0; i < int(rows.size()); ++i) f.descriptors.row(rows[i]).copyTo(ref.descriptors.row(i));
+  }
+  for (const auto& r : impl->refs) impl->num_points += int(r.points.size());
+  return std::unique_ptr<FeatureLocalizer>(new FeatureLocalizer(std::move(impl)));
+}
+
+FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& camera) const {
+  const LocalizerOptions& o = impl_->options;
+  FrameLocalization out;
+  const Camera cam = CameraAtMostSide(camera, o.max_side);
+  cv::Mat gray = ToGray(image);
+  if (gray.cols != cam.intrinsics.width || gray.rows != cam.intrinsics.height) {
+    cv::Mat small;
+    cv::resize(gray, small, cv::Size(cam.intrinsics.width, cam.intrinsics.height), 0, 0, cv::INTER_AREA);
+    gray = small;
+  }
+  const Features q = Detect(gray, o.max_features);
+  if (q.descriptors.empty()) return out;
+  // Ratio-test matches against every render; keep the best renders'.
+  cv::BFMatcher matcher(cv::NORM_L2);
+  std::vector<std::vector<cv::DMatch>> good(impl_->refs.size());
+  for (size_t r = 0; r < impl_->refs.size(); ++r) {
+    const auto& ref = impl_->refs[r];
+    if (ref.descriptors.rows < 2) continue;
+    std::vector<std::vector<cv::DMatch>> knn;
+    matcher.knnMatch(q.descriptors, ref.descriptors, knn, 2);
+    for (const auto& m : knn) {
+      if (m.size() == 2 && m[0].distance < o.ratio * m[1].distance) good[r].push_back(m[0]);
+    }
+  }
+  std::vector<int> order(impl_->refs.size());
+  for (size_t i = 0; i < order.size(); ++i) order[i] = int(i);
+  std::sort(order.begin(), order.end(), [&](int a, int b) { return good[a].size() > good[b].size(); });
+  // One correspondence per photo keypoint: the closest descriptor.
+  std::map<int, std::pair<float, cv::Point3f>> by_query;
+  for (int k = 0; k < std::min<int>(o.references_per_frame, int(order.size())); ++k) {
+    const int r = order[k];
+    for (const cv::DMatch& m : good[r]) {
+      auto it = by_query.find(m.queryIdx);
+      if (it == by_query.end() || m.distance < it->second.first) {
+        by_query[m.queryIdx] = {m.distance, impl_->refs[r].points[m.trainIdx]};
+      }
+    }
+  }
+  out.matches = int(by_query.size());
+  if (out.matches < o.min_inliers) return out;
+  std::vector<cv::Point3f> object;
+  std::vector<cv::Point2f> normalised;
+  for (const auto& [qi, m] : by_query) {
+    const cv::Point2f& p = q.keypoints[qi].pt;
+    const Eigen::Vector3f d = cam.CameraDirection(p.x + 0.5f, p.y + 0.5f);
+    object.push_back(m.second);
+    normalised.emplace_back(d.x() / d.z(), d.y() / d.z());
+  }
+  const double f = 0.5 * (cam.intrinsics.fx + cam.intrinsics.fy);
+  const cv::Mat k = cv::Mat::eye(3, 3, CV_64F);
+  cv::Mat rvec, tvec;
+  std::vector<int> inliers;
+  const bool ok = cv::solvePnPRansac(object, normalised, k, cv::noArray(), rvec, tvec, false, o.ransac_iterations,
+                                     float(o.reprojection_px / f), 0.999, inliers, cv::SOLVEPNP_EPNP);
+  if (!ok || int(inliers.size()) < o.min_inliers) {
+    out.inliers = int(inliers.size());
+    return out;
+  }
+  std::vector<cv::Point3f> obj_in;
+  std::vector<cv::Point2f> img_in;
+  for (int i : inliers) {
+    obj_in.push_back(object[i]);
+    img_in.push_back(normalised[i]);
+  }
+  cv::solvePnPRefineLM(obj_in, img_in, k, cv::noArray(), rvec, tvec);
+  std::vector<cv::Point2f> proj;
+  cv::projectPoints(obj_in, rvec, tvec, k, cv::noArray(), proj);
+  double sq = 0;
+  for (size_t i = 0; i < proj.size(); ++i) {
+    const cv::Point2f e = proj[i] - img_in[i];
+    sq += double(e.x) * e.x + double(e.y) * e.y;
+  }
+  cv::Mat rm;
+  cv::Rodrigues(rvec, rm);
+  Eigen::Matrix3d r;
+  Eigen::Vector3d t;
+  for (int i = 0; i < 3; ++i) {
+    t(i) = tvec.at<double>(i);
+    for (int j = 0; j < 3; ++j) r(i, j) = rm.at<double>(i, j);
+  }
+  out.c2w.leftCols<3>() = r.transpose().cast<float>();
+  out.c2w.col(3) = (-r.transpose() * t).cast<float>();
+  out.inliers = int(inliers.size());
+  out.reprojection_px = std::sqrt(sq / std::max<size_t>(1, proj.size())) * f;
+  out.placed = out.c2w.allFinite();
+  return out;
+}
+
+}  // namespace clnerf

@@ -1,0 +1,81 @@
+// FeatureLocalizer: finds where a photo was taken in a place's frame from
+// renders of the place (PlaceMap): SIFT features of each render, lifted to
+// 3-D through the render's depth where the surface is solid, are matched to
+// the photo's SIFT features (Lowe's ratio test), and the photo's pose is
+// solved by PnP with RANSAC, then refined (Levenberg-Marquardt) on the
+// inliers. OpenCV (Debian's libopencv, 4.6) does the features, matching and
+// PnP; it is used nowhere else, and stays out of this header.
+//
+// Renders are softer than photos and a place changes between scans: a frame
+// is placed only with enough inliers, and callers (registration.h) fit one
+// similarity over many frames rather than trusting any single one.
+//
+// Thread-safety: Build once; Localize is const and may run on several threads
+// at once (OpenCV's own threading is turned off by Build, so callers
+// parallelise over frames).
+#ifndef CLNERF_CORE_POSE_FEATURE_LOCALIZER_H_
+#define CLNERF_CORE_POSE_FEATURE_LOCALIZER_H_
+
+#include <memory>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/data/camera.h"
+#include "core/data/image.h"
+#include "core/pose/place_map.h"
+
+namespace clnerf {
+
+struct LocalizerOptions {
+  // Photos are matched at most this many pixels on their long side (the
+  // renders are made at that size too). Larger finds more, slower.
+  int max_side = 480;
+  // SIFT keypoints kept per image (strongest first).
+  int max_features = 2000;
+  // Lowe's ratio test: best / second-best descriptor distance below this.
+  float ratio = 0.8f;
+  // A render's keypoint gets a 3-D point only where the render is this
+  // opaque and its depth varies by less than max_depth_jump (relative)
+  // across the 4 x 4 pixels around it (no points on silhouettes or haze).
+  float min_opacity = 0.95f;
+  float max_depth_jump = 0.05f;
+  // Each photo uses the correspondences of the renders it matched best.
+  int references_per_frame = 3;
+  // PnP: RANSAC threshold (pixels at the matching size), hypotheses, and the
+  // inliers a frame needs to count as placed.
+  float reprojection_px = 4.0f;
+  int ransac_iterations = 1000;
+  int min_inliers = 15;
+  absl::Status Validate() const;
+};
+
+struct FrameLocalization {
+  bool placed = false;
+  Pose c2w = Pose::Identity();  // The photo's pose in the place's frame.
+  int matches = 0;              // 2-D/3-D correspondences tried.
+  int inliers = 0;              // PnP inliers.
+  double reprojection_px = 0;   // RMS over the inliers, at the matching size.
+};
+
+class FeatureLocalizer {
+ public:
+  ~FeatureLocalizer();
+  // Detects and lifts the features of every render. INVALID_ARGUMENT for bad
+  // options or renders whose buffers do not match their camera.
+  static absl::StatusOr<std::unique_ptr<FeatureLocalizer>> Build(const std::vector<MapView>& renders,
+                                                                 const LocalizerOptions& options);
+  // Localises one photo taken with `camera`'s intrinsics (its pose is not
+  // used). The image is resized to the matching size here.
+  FrameLocalization Localize(const Image& image, const Camera& camera) const;
+  // 3-D points over all renders (a map with none cannot place anything).
+  int num_points() const;
+
+ private:
+  struct Impl;
+  explicit FeatureLocalizer(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_POSE_FEATURE_LOCALIZER_H_

@@ -1,0 +1,207 @@
+#include "core/pose/registration.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "core/data/stopwatch.h"
+
+namespace clnerf {
+
+namespace {
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  const size_t mid = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + mid, v.end());
+  return v[mid];
+}
+
+bool Cancelled(const std::atomic<bool>* cancel) { return cancel != nullptr && cancel->load(); }
+
+// Step 1: renders of the place at spread-out stored cameras.
+absl::StatusOr<std::vector<MapView>> RenderReferences(const PlaceMap& map, const std::vector<Camera>& cameras,
+                                                      const RegistrationOptions& o,
+                                                      const std::atomic<bool>* cancel) {
+  std::vector<MapView> out;
+  for (int i : SpreadCameras(cameras, o.max_references)) {
+    if (Cancelled(cancel)) return absl::CancelledError("registration cancelled");
+    absl::StatusOr<MapView> v = map.Render(CameraAtMostSide(cameras[i], o.localizer.max_side));
+    if (!v.ok()) return v.status();
+    out.push_back(*std::move(v));
+  }
+  return out;
+}
+
+// Step 2: where each of the chosen frames is in the place's frame.
+std::vector<FrameLocalization> LocalizeFrames(const FeatureLocalizer& loc, const std::vector<const View*>& frames,
+                                              const RegistrationProgressFn& progress,
+                                              const std::atomic<bool>* cancel) {
+  std::vector<FrameLocalization> out(frames.size());
+  std::atomic<int> done{0};
+#pragma omp parallel for schedule(dynamic, 1)
+  for (int i = 0; i < int(frames.size()); ++i) {
+    if (Cancelled(cancel)) continue;
+    out[i] = loc.Localize(frames[i]->image, frames[i]->camera);
+    const int d = ++done;
+    if (progress) {
+#pragma omp critical(registration_progress)
+      progress(d, int(frames.size()));
+    }
+  }
+  return out;
+}
+
+// Step 4: the checks a fit must pass; sets report->status.
+void Accept(const RobustSimilarity& fit, const std::vector<PosePair>& pairs, const std::vector<Camera>& place,
+            const RegistrationOptions& o, RegistrationReport* r) {
+  r->frames_agreeing = int(fit.inliers.size());
+  r->median_centre_residual = fit.median_centre_error / r->place_extent;
+  r->median_rotation_residual_deg = fit.median_rotation_error_deg;
+  const int need = std::max(o.min_frames, int(std::ceil(o.min_frame_fraction * r->frames_localized)));
+  if (r->frames_agreeing < need) {
+    r->status = absl::FailedPreconditionError(
+        absl::StrCat("only ", r->frames_agreeing, " frames agree on where the scan is (", need, " needed)"));
+    return;
+  }
+  if (r->median_centre_residual > o.max_centre_residual ||
+      r->median_rotation_residual_deg > o.max_rotation_residual_deg) {
+    r->status = absl::FailedPreconditionError("the frames disagree too much about where the scan is");
+    return;
+  }
+  Eigen::Vector3d mid = Eigen::Vector3d::Zero();
+  for (const Camera& c : place) mid += c.position().cast<double>();
+  mid /= double(std::max<size_t>(1, place.size()));
+  for (const PosePair& p : pairs) {
+    const Eigen::Vector3d c = fit.transform.Apply(Eigen::Vector3d(p.from.col(3).cast<double>()));
+    if ((c - mid).norm() > o.max_distance * r->place_extent) {
+      r->status = absl::FailedPreconditionError("implausible scale: the placed scan reaches far outside the place");
+      return;
+    }
+  }
+  // Snap a fit within a hair of the identity.
+  double moved = 0;
+  for (const PosePair& p : pairs) {
+    const Eigen::Vector3d c = p.from.col(3).cast<double>();
+    moved = std::max(moved, (fit.transform.Apply(c) - c).norm());
+  }
+  r->identity = std::abs(fit.transform.scale - 1) <= o.identity_scale &&
+                fit.transform.RotationDegrees() <= o.identity_rotation_deg &&
+                moved <= o.identity_centre * r->place_extent;
+  r->transform = r->identity ? Similarity() : fit.transform;
+  r->status = absl::OkStatus();
+}
+
+}  // namespace
+
+absl::Status RegistrationOptions::Validate() const {
+  if (absl::Status s = localizer.Validate(); !s.ok()) return s;
+  if (absl::Status s = fit.Validate(); !s.ok()) return s;
+  if (max_references < 1) return absl::InvalidArgumentError("max_references must be >= 1");
+  if (max_frames < 2) return absl::InvalidArgumentError("max_frames must be >= 2");
+  if (min_frames < 2) return absl::InvalidArgumentError("min_frames must be >= 2");
+  if (!(min_frame_fraction >= 0 && min_frame_fraction <= 1)) {
+    return absl::InvalidArgumentError("min_frame_fraction must be in [0, 1]");
+  }
+  if (!(max_centre_residual > 0) || !(max_rotation_residual_deg > 0) || !(max_distance > 0)) {
+    return absl::InvalidArgumentError("registration residual limits must be > 0");
+  }
+  if (identity_scale < 0 || identity_rotation_deg < 0 || identity_centre < 0) {
+    return absl::InvalidArgumentError("identity tolerances must be >= 0");
+  }
+  return absl::OkStatus();
+}
+
+std::string RegistrationReport::Summary() const {
+  std::string s = absl::StrFormat(
+      "%d of %d frames localised against %d renders, %d agree; residual %.2f%% of the place, %.2f deg",
+      frames_localized, frames, references, frames_agreeing, 100 * median_centre_residual,
+      median_rotation_residual_deg);
+  if (status.ok()) {
+    absl::StrAppend(&s, identity ? "; already in the place's frame"
+                                 : absl::StrFormat("; moved by scale %.4f, rotation %.2f deg", transform.scale,
+                                                   transform.RotationDegrees()));
+  }
+  return s;
+}
+
+void RegistrationReport::AddMetrics(std::map<std::string, double>* m) const {
+  (*m)["registration_frames"] = frames;
+  (*m)["registration_frames_localized"] = frames_localized;
+  (*m)["registration_frames_agreeing"] = frames_agreeing;
+  (*m)["registration_pnp_inliers"] = double(pnp_inliers);
+  (*m)["registration_identity"] = identity ? 1 : 0;
+  (*m)["registration_scale"] = transform.scale;
+  (*m)["registration_rotation_deg"] = transform.RotationDegrees();
+  (*m)["registration_translation"] = transform.translation.norm();
+  (*m)["registration_centre_residual"] = median_centre_residual;
+  (*m)["registration_rotation_residual_deg"] = median_rotation_residual_deg;
+  (*m)["registration_seconds"] = render_seconds + localize_seconds + fit_seconds;
+}
+
+RegistrationReport RegisterScan(const Scene& scan, const PlaceMap& map, const std::vector<Camera>& place_cameras,
+                                double place_extent, const RegistrationOptions& options,
+                                const RegistrationProgressFn& progress, const std::atomic<bool>* cancel) {
+  RegistrationReport r;
+  r.place_extent = place_extent;
+  if (absl::Status s = options.Validate(); !s.ok()) return r.status = s, r;
+  if (!(place_extent > 0) || place_cameras.empty()) {
+    r.status = absl::FailedPreconditionError("the place has no cameras to register against");
+    return r;
+  }
+  auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<std::vector<MapView>> renders = RenderReferences(map, place_cameras, options, cancel);
+  if (!renders.ok()) return r.status = renders.status(), r;
+  r.references = int(renders->size());
+  absl::StatusOr<std::unique_ptr<FeatureLocalizer>> loc = FeatureLocalizer::Build(*renders, options.localizer);
+  if (!loc.ok()) return r.status = loc.status(), r;
+  r.map_points = (*loc)->num_points();
+  r.render_seconds = SecondsSince(t0);
+
+  t0 = std::chrono::steady_clock::now();
+  std::vector<Camera> scan_cams;
+  for (const View& v : scan.train) scan_cams.push_back(v.camera);
+  std::vector<const View*> frames;
+  for (int i : SpreadCameras(scan_cams, options.max_frames)) {
+    if (!scan.train[i].image.empty()) frames.push_back(&scan.train[i]);
+  }
+  r.frames = int(frames.size());
+  std::vector<FrameLocalization> found = LocalizeFrames(**loc, frames, progress, cancel);
+  if (Cancelled(cancel)) return r.status = absl::CancelledError("registration cancelled"), r;
+  r.localize_seconds = SecondsSince(t0);
+
+  t0 = std::chrono::steady_clock::now();
+  std::vector<PosePair> pairs;
+  std::vector<int> pnp;
+  for (size_t i = 0; i < found.size(); ++i) {
+    if (!found[i].placed) continue;
+    pairs.push_back({frames[i]->camera.c2w, found[i].c2w});
+    pnp.push_back(found[i].inliers);
+  }
+  r.frames_localized = int(pairs.size());
+  absl::StatusOr<RobustSimilarity> fit = FitSimilarityRobust(pairs, place_extent, options.fit);
+  r.fit_seconds = SecondsSince(t0);
+  if (!fit.ok()) {
+    r.status = absl::FailedPreconditionError(
+        absl::StrCat("the scan does not match the place: ", fit.status().message()));
+  } else {
+    for (int i : fit->inliers) r.pnp_inliers += pnp[i];
+    Accept(*fit, pairs, place_cameras, options, &r);
+  }
+  if (!r.status.ok()) r.status = absl::Status(r.status.code(), absl::StrCat(r.status.message(), " (", r.Summary(), ")"));
+  return r;
+}
+
+void ApplySimilarity(const Similarity& s, Scene* scene) {
+  for (std::vector<View>* split : {&scene->train, &scene->val, &scene->test}) {
+    for (View& v : *split) {
+      v.camera.c2w = s.ApplyToPose(v.camera.c2w);
+      for (DepthPoint& d : v.depth) d.world = s.Apply(d.world);
+    }
+  }
+  for (Eigen::Vector3f& p : scene->sparse_points) p = s.Apply(p);
+  for (Eigen::Vector3f& p : scene->content_points) p = s.Apply(p);
+}
+
+}  // namespace clnerf

@@ -1,0 +1,104 @@
+// Registration: places a new scan, posed in its own frame (its own SfM run,
+// an AR session's origin, or COLMAP run by the server on an unposed upload),
+// into its place's frame before it trains, using the place's model as the map
+// (old images are never kept):
+//
+//   1. render the map at up to max_references of the place's stored cameras,
+//      spread over the place (PlaceMap, SpreadCameras);
+//   2. localise up to max_frames of the scan's frames against those renders
+//      (FeatureLocalizer: SIFT, ratio test, PnP + RANSAC on rendered depth);
+//   3. fit one similarity from the scan's frame to the place's over all
+//      localised frames, robustly (FitSimilarityRobust), so frames of parts
+//      that changed, or localised wrongly, do not drag it;
+//   4. accept it only if enough frames agree, the residuals are small and the
+//      scan lands inside the place; a fit within a hair of the identity is
+//      snapped to it (a scan already in the place's frame is left as it is).
+//
+// A scan that cannot be placed (another place, too little overlap, an
+// implausible scale) gets FAILED_PRECONDITION with the diagnostics in its
+// message and in the report. Thread-safety: RegisterScan is a pure function
+// of its arguments (the map is only rendered); it uses the calling context's
+// OpenMP threads.
+#ifndef CLNERF_CORE_POSE_REGISTRATION_H_
+#define CLNERF_CORE_POSE_REGISTRATION_H_
+
+#include <atomic>
+#include <functional>
+#include <map>
+#include <string>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "core/data/scene.h"
+#include "core/pose/feature_localizer.h"
+#include "core/pose/place_map.h"
+#include "core/pose/similarity.h"
+
+namespace clnerf {
+
+struct RegistrationOptions {
+  LocalizerOptions localizer;
+  // Inlier tolerances of the similarity fit (centre as a fraction of the
+  // place's extent, PlaceExtent).
+  RobustSimilarityOptions fit = {/*iterations=*/1000, /*centre_tolerance=*/0.05, /*rotation_tolerance_deg=*/5.0,
+                                 /*seed=*/1};
+  int max_references = 16;  // Renders of the place.
+  int max_frames = 60;      // Scan frames localised (spread over the scan).
+  // The fit must be agreed by at least min_frames frames and by
+  // min_frame_fraction of the frames localised.
+  int min_frames = 3;
+  double min_frame_fraction = 0.3;
+  // Median residuals over the agreeing frames, at most.
+  double max_centre_residual = 0.02;  // Fraction of the place's extent.
+  double max_rotation_residual_deg = 2.0;
+  // The placed scan's camera centres must lie within this many place extents
+  // of the place's cameras' centre.
+  double max_distance = 2.0;
+  // A fit this close to the identity is taken as the identity (the scan is
+  // already in the place's frame): scale within identity_scale (relative),
+  // rotation within identity_rotation_deg, and every placed centre moved by
+  // less than identity_centre place extents.
+  double identity_scale = 0.005;
+  double identity_rotation_deg = 0.25;
+  double identity_centre = 0.005;
+  absl::Status Validate() const;
+};
+
+struct RegistrationReport {
+  absl::Status status;    // OK, or FAILED_PRECONDITION saying why.
+  Similarity transform;   // Scan frame -> place frame (identity when `identity`).
+  bool identity = false;  // Snapped: the scan was already in the place's frame.
+  int references = 0;     // Renders made.
+  int map_points = 0;     // 3-D points over the renders.
+  int frames = 0;         // Scan frames tried.
+  int frames_localized = 0;
+  int frames_agreeing = 0;  // Inliers of the similarity fit.
+  long long pnp_inliers = 0;  // Over the agreeing frames.
+  double place_extent = 0;    // World units of the place.
+  double median_centre_residual = 0;  // Fraction of place_extent.
+  double median_rotation_residual_deg = 0;
+  double render_seconds = 0, localize_seconds = 0, fit_seconds = 0;
+  // One line for logs and job errors.
+  std::string Summary() const;
+  // "registration_*" gauges for a version's metrics.
+  void AddMetrics(std::map<std::string, double>* metrics) const;
+};
+
+// (done, total) frames localised so far.
+using RegistrationProgressFn = std::function<void(int done, int total)>;
+
+// Registers `scan` (its train views, with images) against `map`, rendered at
+// `place_cameras` (the cameras of the place's earlier scans, in its frame).
+// `place_extent`: PlaceExtent(place_cameras, model normalisation). Returns
+// the report; report.status is CANCELLED when `cancel` was set.
+RegistrationReport RegisterScan(const Scene& scan, const PlaceMap& map, const std::vector<Camera>& place_cameras,
+                                double place_extent, const RegistrationOptions& options,
+                                const RegistrationProgressFn& progress = {}, const std::atomic<bool>* cancel = nullptr);
+
+// Moves every view (train, val, test), sparse and content point and depth
+// target of `scene` by `s` (scan frame -> place frame).
+void ApplySimilarity(const Similarity& s, Scene* scene);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_POSE_REGISTRATION_H_

@@ -1,0 +1,246 @@
+#include "core/pose/similarity.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include "absl/strings/str_cat.h"
+#include "Eigen/Geometry"
+#include "Eigen/LU"
+
+namespace clnerf {
+
+namespace {
+
+Eigen::Vector3d Centre(const Pose& p) { return p.col(3).cast<double>(); }
+Eigen::Matrix3d Rot(const Pose& p) { return p.leftCols<3>().cast<double>(); }
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  const size_t mid = v.size() / 2;
+  std::nth_element(v.begin(), v.begin() + mid, v.end());
+  return v[mid];
+}
+
+// The nearest proper rotation to `m` (SVD projection).
+Eigen::Matrix3d Orthonormalize(const Eigen::Matrix3d& m) {
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(m, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d r = svd.matrixU() * svd.matrixV().transpose();
+  if (r.determinant() < 0) {
+    Eigen::Matrix3d u = svd.matrixU();
+    u.col(2) *= -1;
+    r = u * svd.matrixV().transpose();
+  }
+  return r;
+}
+
+struct Errors {
+  double centre = 0, rotation_deg = 0;
+};
+
+Errors PairErrors(const Similarity& s, const PosePair& p) {
+  const Pose mapped = s.ApplyToPose(p.from);
+  return {(Centre(mapped) - Centre(p.to)).norm(), RotationAngleDegrees(Rot(mapped), Rot(p.to))};
+}
+
+struct Scored {
+  std::vector<int> inliers;
+  double cost = 0;  // MSAC: sum of min(normalised squared error, 1).
+};
+
+Scored Score(const Similarity& s, const std::vector<PosePair>& pairs, double centre_tol, double rot_tol) {
+  Scored out;
+  for (int i = 0; i < int(pairs.size()); ++i) {
+    const Errors e = PairErrors(s, pairs[i]);
+    const double q = std::pow(e.centre / centre_tol, 2) + std::pow(e.rotation_deg / rot_tol, 2);
+    if (e.centre <= centre_tol && e.rotation_deg <= rot_tol) out.inliers.push_back(i);
+    out.cost += std::min(q, 1.0);
+  }
+  return out;
+}
+
+bool Better(const Scored& a, const Scored& b) {
+  if (a.inliers.size() != b.inliers.size()) return a.inliers.size() > b.inliers.size();
+  return a.cost < b.cost;
+}
+
+// The hypothesis of frames i and j: rotation from frame i, scale from the
+// distance between the two centres, translation through their midpoint.
+bool Hypothesis(const PosePair& a, const PosePair& b, Similarity* s) {
+  const Eigen::Vector3d d_from = Centre(b.from) - Centre(a.from);
+  const Eigen::Vector3d d_to = Centre(b.to) - Centre(a.to);
+  if (d_from.norm() <= 1e-12 || d_to.norm() <= 1e-12) return false;
+  s->rotation = Orthonormalize(Rot(a.to) * Rot(a.from).transpose());
+  s->scale = d_to.norm() / d_from.norm();
+  const Eigen::Vector3d mid_from = 0.5 * (Centre(a.from) + Centre(b.from));
+  const Eigen::Vector3d mid_to = 0.5 * (Centre(a.to) + Centre(b.to));
+  s->translation = mid_to - s->scale * (s->rotation * mid_from);
+  return true;
+}
+
+// Least squares over the inliers' centres and points along their axes
+// (length `axis` in source units, `axis * scale` in target units), so the
+// rotation is fixed even when the centres are collinear.
+absl::StatusOr<Similarity> Refine(const Similarity& start, const std::vector<PosePair>& pairs,
+                                  const std::vector<int>& inliers) {
+  std::vector<Eigen::Vector3d> cs;
+  for (int i : inliers) cs.push_back(Centre(pairs[i].from));
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const auto& c : cs) mean += c;
+  mean /= double(cs.size());
+  double spread = 0;
+  for (const auto& c : cs) spread = std::max(spread, (c - mean).norm());
+  if (spread <= 0) return absl::FailedPreconditionError("the scan's cameras do not move");
+  const double axis = 0.25 * spread;
+  Similarity s = start;
+  for (int round = 0; round < 3; ++round) {
+    std::vector<Eigen::Vector3d> from, to;
+    for (int i : inliers) {
+      from.push_back(Centre(pairs[i].from));
+      to.push_back(Centre(pairs[i].to));
+      for (int a = 0; a < 3; ++a) {
+        from.push_back(Centre(pairs[i].from) + axis * Rot(pairs[i].from).col(a));
+        to.push_back(Centre(pairs[i].to) + axis * s.scale * Rot(pairs[i].to).col(a));
+      }
+    }
+    absl::StatusOr<Similarity> fit = FitSimilarity(from, to);
+    if (!fit.ok()) return fit.status();
+    s = *fit;
+  }
+  return s;
+}
+
+}  // namespace
+
+Pose Similarity::ApplyToPose(const Pose& c2w) const {
+  Pose out;
+  out.leftCols<3>() = (rotation * c2w.leftCols<3>().cast<double>()).cast<float>();
+  out.col(3) = Apply(Eigen::Vector3d(c2w.col(3).cast<double>())).cast<float>();
+  return out;
+}
+
+Similarity Similarity::Inverse() const {
+  Similarity inv;
+  inv.scale = 1.0 / scale;
+  inv.rotation = rotation.transpose();
+  inv.translation = -(inv.rotation * translation) / scale;
+  return inv;
+}
+
+Similarity Similarity::Compose(const Similarity& other) const {
+  Similarity out;
+  out.scale = scale * other.scale;
+  out.rotation = rotation * other.rotation;
+  out.translation = scale * (rotation * other.translation) + translation;
+  return out;
+}
+
+double Similarity::RotationDegrees() const { return RotationAngleDegrees(rotation, Eigen::Matrix3d::Identity()); }
+
+double RotationAngleDegrees(const Eigen::Matrix3d& a, const Eigen::Matrix3d& b) {
+  // atan2 of the rotation's sine and cosine: precise near 0 and 180 degrees.
+  const Eigen::Matrix3d r = a.transpose() * b;
+  const Eigen::Vector3d v(r(2, 1) - r(1, 2), r(0, 2) - r(2, 0), r(1, 0) - r(0, 1));
+  return std::atan2(v.norm(), r.trace() - 1.0) * 180.0 / M_PI;
+}
+
+absl::StatusOr<Similarity> FitSimilarity(const std::vector<Eigen::Vector3d>& from,
+                                         const std::vector<Eigen::Vector3d>& to) {
+  if (from.size() != to.size()) return absl::InvalidArgumentError("FitSimilarity: point counts differ");
+  if (from.size() < 3) return absl::InvalidArgumentError("FitSimilarity: needs at least 3 point pairs");
+  const int n = int(from.size());
+  Eigen::Matrix3Xd a(3, n), b(3, n);
+  for (int i = 0; i < n; ++i) {
+    if (!from[i].allFinite() || !to[i].allFinite()) return absl::InvalidArgumentError("FitSimilarity: non-finite point");
+    a.col(i) = from[i];
+    b.col(i) = to[i];
+  }
+  // Degenerate when the source points span less than a plane.
+  const Eigen::Vector3d mean = a.rowwise().mean();
+  Eigen::JacobiSVD<Eigen::Matrix3Xd> svd(a.colwise() - mean);
+  const Eigen::Vector3d sv = svd.singularValues();
+  if (!(sv(1) > 1e-9 * std::max(sv(0), 1e-300))) {
+    return absl::FailedPreconditionError("FitSimilarity: the points are collinear");
+  }
+  const Eigen::Matrix4d m = Eigen::umeyama(a, b, true);
+  Similarity s;
+  const Eigen::Matrix3d sr = m.topLeftCorner<3, 3>();
+  s.scale = std::cbrt(sr.determinant());
+  if (!(s.scale > 0) || !std::isfinite(s.scale)) return absl::FailedPreconditionError("FitSimilarity: no positive scale");
+  s.rotation = Orthonormalize(sr / s.scale);
+  s.translation = m.topRightCorner<3, 1>();
+  return s;
+}
+
+absl::Status RobustSimilarityOptions::Validate() const {
+  if (iterations < 1) return absl::InvalidArgumentError("iterations must be >= 1");
+  if (!(centre_tolerance > 0)) return absl::InvalidArgumentError("centre_tolerance must be > 0");
+  if (!(rotation_tolerance_deg > 0)) return absl::InvalidArgumentError("rotation_tolerance_deg must be > 0");
+  return absl::OkStatus();
+}
+
+absl::StatusOr<RobustSimilarity> FitSimilarityRobust(const std::vector<PosePair>& pairs, double target_extent,
+                                                     const RobustSimilarityOptions& options) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  if (!(target_extent > 0)) return absl::InvalidArgumentError("target_extent must be > 0");
+  const int n = int(pairs.size());
+  if (n < 2) return absl::FailedPreconditionError(absl::StrCat("needs at least 2 placed frames, got ", n));
+  const double centre_tol = options.centre_tolerance * target_extent;
+  const double rot_tol = options.rotation_tolerance_deg;
+  std::vector<std::pair<int, int>> tries;
+  if (int64_t(n) * (n - 1) <= options.iterations) {
+    for (int i = 0; i < n; ++i)
+      for (int j = 0; j < n; ++j)
+        if (i != j) tries.emplace_back(i, j);
+  } else {
+    std::mt19937_64 rng(options.seed);
+    std::uniform_int_distribution<int> pick(0, n - 1);
+    for (int k = 0; k < options.iterations; ++k) {
+      const int i = pick(rng);
+      int j = pick(rng);
+      if (j == i) j = (j + 1) % n;
+      tries.emplace_back(i, j);
+    }
+  }
+  Similarity best;
+  Scored best_score;
+  bool any = false;
+  for (const auto& [i, j] : tries) {
+    Similarity h;
+    if (!Hypothesis(pairs[i], pairs[j], &h)) continue;
+    Scored sc = Score(h, pairs, centre_tol, rot_tol);
+    if (!any || Better(sc, best_score)) {
+      best = h;
+      best_score = std::move(sc);
+      any = true;
+    }
+  }
+  if (!any || best_score.inliers.size() < 2) {
+    return absl::FailedPreconditionError(
+        absl::StrCat("no similarity agrees with 2 or more of the ", n, " placed frames"));
+  }
+  RobustSimilarity out;
+  out.transform = best;
+  out.inliers = best_score.inliers;
+  // Refine on the inliers, then take the refined transform's inliers (twice,
+  // as the set settles) while it keeps at least as many.
+  for (int round = 0; round < 2; ++round) {
+    absl::StatusOr<Similarity> refined = Refine(out.transform, pairs, out.inliers);
+    if (!refined.ok()) break;
+    Scored sc = Score(*refined, pairs, centre_tol, rot_tol);
+    if (sc.inliers.size() < out.inliers.size()) break;
+    out.transform = *refined;
+    out.inliers = std::move(sc.inliers);
+  }
+  std::vector<double> ce, re;
+  for (int i : out.inliers) {
+    const Errors e = PairErrors(out.transform, pairs[i]);
+    ce.push_back(e.centre);
+    re.push_back(e.rotation_deg);
+  }
+  out.median_centre_error = Median(ce);
+  out.median_rotation_error_deg = Median(re);
+  return out;
+}
+
+}  // namespace clnerf

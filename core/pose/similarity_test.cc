@@ -1,0 +1,120 @@
+#include "core/pose/similarity.h"
+
+#include <random>
+
+#include "Eigen/Geometry"
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+Similarity RandomSimilarity(std::mt19937_64* rng) {
+  std::uniform_real_distribution<double> u(-1, 1);
+  Similarity s;
+  s.rotation = Eigen::AngleAxisd(M_PI * u(*rng), Eigen::Vector3d(u(*rng), u(*rng), u(*rng)).normalized())
+                   .toRotationMatrix();
+  s.scale = std::exp(1.5 * u(*rng));
+  s.translation = Eigen::Vector3d(u(*rng), u(*rng), u(*rng)) * 5;
+  return s;
+}
+
+Pose RandomPose(std::mt19937_64* rng) {
+  std::uniform_real_distribution<double> u(-1, 1);
+  Pose p;
+  p.leftCols<3>() = Eigen::AngleAxisf(float(M_PI * u(*rng)), Eigen::Vector3f(u(*rng), u(*rng), u(*rng)).normalized())
+                        .toRotationMatrix();
+  p.col(3) = Eigen::Vector3f(u(*rng), u(*rng), u(*rng)) * 2;
+  return p;
+}
+
+TEST(SimilarityTest, InverseAndComposeUndoEachOther) {
+  std::mt19937_64 rng(3);
+  const Similarity s = RandomSimilarity(&rng);
+  const Similarity id = s.Compose(s.Inverse());
+  EXPECT_NEAR(id.scale, 1.0, 1e-12);
+  EXPECT_LT(id.RotationDegrees(), 1e-6);
+  EXPECT_LT(id.translation.norm(), 1e-9);
+  const Eigen::Vector3d x(0.3, -2, 1);
+  EXPECT_LT((s.Inverse().Apply(s.Apply(x)) - x).norm(), 1e-9);
+  // A mapped pose keeps orthonormal axes.
+  const Pose p = s.ApplyToPose(RandomPose(&rng));
+  EXPECT_LT((p.leftCols<3>().transpose() * p.leftCols<3>() - Eigen::Matrix3f::Identity()).norm(), 1e-5f);
+}
+
+TEST(SimilarityTest, FitRecoversAnExactSimilarity) {
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(-1, 1);
+  const Similarity truth = RandomSimilarity(&rng);
+  std::vector<Eigen::Vector3d> a, b;
+  for (int i = 0; i < 10; ++i) {
+    a.emplace_back(u(rng), u(rng), u(rng));
+    b.push_back(truth.Apply(a.back()));
+  }
+  absl::StatusOr<Similarity> fit = FitSimilarity(a, b);
+  ASSERT_TRUE(fit.ok()) << fit.status();
+  EXPECT_NEAR(fit->scale, truth.scale, 1e-9 * truth.scale);
+  EXPECT_LT(RotationAngleDegrees(fit->rotation, truth.rotation), 1e-6);
+  EXPECT_LT((fit->translation - truth.translation).norm(), 1e-8);
+}
+
+TEST(SimilarityTest, FitRefusesCollinearAndMismatchedPoints) {
+  std::vector<Eigen::Vector3d> line = {{0, 0, 0}, {1, 1, 1}, {2, 2, 2}, {3, 3, 3}};
+  EXPECT_TRUE(absl::IsFailedPrecondition(FitSimilarity(line, line).status()));
+  EXPECT_TRUE(absl::IsInvalidArgument(FitSimilarity(line, {{0, 0, 0}}).status()));
+}
+
+// Frames known in both frames, 30% of them localised wrongly (as frames of a
+// part of the place that changed can be): the robust fit ignores them.
+TEST(SimilarityTest, RobustFitIgnoresWronglyPlacedFrames) {
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> u(-1, 1);
+  const Similarity truth = RandomSimilarity(&rng);
+  std::vector<PosePair> pairs;
+  std::vector<bool> bad;
+  for (int i = 0; i < 20; ++i) {
+    PosePair p;
+    p.from = RandomPose(&rng);
+    p.to = truth.ApplyToPose(p.from);
+    const bool wrong = i % 10 < 3;
+    if (wrong) p.to = RandomPose(&rng);
+    pairs.push_back(p);
+    bad.push_back(wrong);
+  }
+  absl::StatusOr<RobustSimilarity> fit = FitSimilarityRobust(pairs, 4.0 * truth.scale, RobustSimilarityOptions());
+  ASSERT_TRUE(fit.ok()) << fit.status();
+  EXPECT_EQ(fit->inliers.size(), 14u);
+  for (int i : fit->inliers) EXPECT_FALSE(bad[i]) << i;
+  EXPECT_NEAR(fit->transform.scale, truth.scale, 1e-4 * truth.scale);
+  EXPECT_LT(RotationAngleDegrees(fit->transform.rotation, truth.rotation), 1e-3);
+}
+
+// A straight walk: every centre on one line, which fixes no rotation about
+// it; the cameras' own axes do.
+TEST(SimilarityTest, RobustFitHoldsForCollinearCentres) {
+  std::mt19937_64 rng(13);
+  const Similarity truth = RandomSimilarity(&rng);
+  std::vector<PosePair> pairs;
+  for (int i = 0; i < 8; ++i) {
+    PosePair p;
+    p.from = RandomPose(&rng);
+    p.from.col(3) = Eigen::Vector3f(0.25f * i, 0, 1);
+    p.to = truth.ApplyToPose(p.from);
+    pairs.push_back(p);
+  }
+  absl::StatusOr<RobustSimilarity> fit = FitSimilarityRobust(pairs, 2.0 * truth.scale, RobustSimilarityOptions());
+  ASSERT_TRUE(fit.ok()) << fit.status();
+  EXPECT_EQ(fit->inliers.size(), 8u);
+  EXPECT_LT(RotationAngleDegrees(fit->transform.rotation, truth.rotation), 1e-3);
+  EXPECT_NEAR(fit->transform.scale, truth.scale, 1e-4 * truth.scale);
+}
+
+TEST(SimilarityTest, RobustFitNeedsTwoAgreeingFrames) {
+  std::mt19937_64 rng(17);
+  std::vector<PosePair> pairs;
+  for (int i = 0; i < 3; ++i) pairs.push_back({RandomPose(&rng), RandomPose(&rng)});
+  EXPECT_TRUE(absl::IsFailedPrecondition(FitSimilarityRobust(pairs, 1.0, RobustSimilarityOptions()).status()));
+  EXPECT_TRUE(absl::IsFailedPrecondition(FitSimilarityRobust({pairs[0]}, 1.0, RobustSimilarityOptions()).status()));
+}
+
+}  // namespace
+}  // namespace clnerf
