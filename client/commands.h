@@ -18,6 +18,7 @@
 #include "core/continual/stability.h"
 #include "core/data/dataset_options.h"
 #include "core/data/procedural_scene.h"
+#include "core/pose/registration.h"
 #include "core/render/evaluate.h"
 #include "core/train/fit.h"
 #include "nlohmann/json_fwd.hpp"
@@ -129,6 +130,20 @@ struct BenchStabilityArgs {
   std::string markdown;  // Also write the table here.
 };
 
+// `clnerf bench register`: a capture split into two visits; the second is
+// registered into the first's model (core/pose/registration.h), in the
+// place's frame and in its own.
+struct BenchRegisterArgs {
+  std::string data;               // Dataset folder, or "procedural".
+  FitOptions fit;                 // θ_A (the verb sets 1000 iterations).
+  RegistrationOptions registration;
+  DatasetOptions dataset;
+  double rotation_deg = 40, scale = 1.7;  // The second visit's own frame.
+  uint64_t seed = 1;              // Axis and shift of that frame.
+  int threads = 0;
+  std::string json;
+};
+
 // Prints "clnerf: error: <message>" to stderr and returns exit code 1.
 int Fail(const absl::Status& status);
 // Sets the OpenMP thread count (0 = leave the default: all cores).
@@ -152,6 +167,7 @@ CLI::App* BindBenchRender(CLI::App* parent, BenchRenderArgs* args);
 CLI::App* BindBenchScenes(CLI::App* parent, BenchScenesArgs* args);
 CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* args);
 CLI::App* BindBenchStability(CLI::App* parent, BenchStabilityArgs* args);
+CLI::App* BindBenchRegister(CLI::App* parent, BenchRegisterArgs* args);
 
 int RunTrain(const TrainArgs& args);
 int RunBenchRender(const BenchRenderArgs& args);
@@ -163,6 +179,7 @@ int RunScans(const ScansArgs& args);
 int RunBenchContinual(const BenchContinualArgs& args);
 int RunBenchScenes(const BenchScenesArgs& args);
 int RunBenchStability(const BenchStabilityArgs& args);
+int RunBenchRegister(const BenchRegisterArgs& args);
 
 }  // namespace clnerf
 

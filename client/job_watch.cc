@@ -53,12 +53,18 @@ WatchOutcome FollowJob(RemoteClient& client, const std::string& job_id, const st
     if (phase_changed) {
       if (bar) {
         if (job.phase() == clnerf::v1::JOB_PHASE_FAILED || job.phase() == clnerf::v1::JOB_PHASE_CANCELLED) bar->Abort();
+        else if (out.job.phase() == clnerf::v1::JOB_PHASE_REGISTERING) bar->Finish("frames localised");
         else bar->Finish(TrainMetrics(out.job));
         bar.reset();
       }
       LogPhase(job);
     }
     out.job = job;
+    if (job.phase() == clnerf::v1::JOB_PHASE_REGISTERING && job.total_iterations() > 0) {
+      if (!bar) bar = std::make_unique<ProgressBar>("register", job.total_iterations());
+      bar->SetTiming(job.elapsed_seconds(), job.eta_seconds());
+      bar->Update(job.iteration(), "frames localised against the place's model");
+    }
     if (job.phase() == clnerf::v1::JOB_PHASE_TRAINING && job.total_iterations() > 0) {
       if (!bar) bar = std::make_unique<ProgressBar>("train", job.total_iterations());
       bar->SetTiming(job.elapsed_seconds(), job.eta_seconds());

@@ -43,6 +43,9 @@ struct UploadArgs {
   std::string name;                 // Scan name; default: the folder's name.
   std::string test_split = "test";  // test|val|none (test falls back to val).
   bool watch = false;               // Then follow the job like `watch`.
+  // own: the poses are in the capture's own frame (registered into the
+  // place's by the server); place: already in the place's frame.
+  std::string pose_frame = "own";
 };
 
 struct JobArgs {  // watch, cancel.

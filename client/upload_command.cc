@@ -37,6 +37,11 @@ CLI::App* BindUpload(CLI::App* parent, UploadArgs* a) {
   c->add_option("--test-split", a->test_split, "Held-out frames: test (falls back to val), val or none")
       ->capture_default_str();
   c->add_flag("--watch", a->watch, "Then follow the update job until it ends");
+  c->add_option("--pose-frame", a->pose_frame,
+                "own: the poses are in this capture's own frame (its own COLMAP run or AR session; the server "
+                "registers the scan into the place's frame); place: already in the place's frame")
+      ->check(CLI::IsMember({"own", "place"}))
+      ->capture_default_str();
   BindRemoteFlags(c, &a->remote);
   return c;
 }
@@ -57,6 +62,7 @@ int RunUpload(const UploadArgs& a) {
   absl::StatusOr<EncodedScan> scan = EncodeScan(name, scene->kind, scene->train, *test, scene->sparse_points);
   if (!scan.ok()) return FailRemote(kUploadVerb, scan.status());
   scan->header.mutable_header()->set_place(a.remote.place);
+  scan->header.mutable_header()->set_pose_frame(a.pose_frame);
   scene->train.clear();  // Only the encoded copy is needed from here on.
   test->clear();
   const clnerf::v1::ScanHeader* header = &scan->header.header();

@@ -30,6 +30,7 @@ void RegisterVerbs(VerbSet* verbs) {
   verbs->Add(BindBenchContinual, RunBenchContinual, bench);
   verbs->Add(BindBenchScenes, RunBenchScenes, bench);
   verbs->Add(BindBenchStability, RunBenchStability, bench);
+  verbs->Add(BindBenchRegister, RunBenchRegister, bench);
 }
 
 }  // namespace clnerf

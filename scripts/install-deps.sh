@@ -13,6 +13,9 @@ PKGS=(
   clang libclang-rt-dev libomp-dev
   libcpp-httplib-dev prometheus-cpp-dev
   etcd-server
+  # Posing and registration of scans (core/pose): OpenCV's SIFT and PnP, COLMAP
+  # for unposed uploads, ffmpeg for video frames.
+  libopencv-dev colmap ffmpeg
 )
 # The web viewer's end-to-end test drives a real headless Chromium
 # (CLNERF_NO_BROWSER=1 skips these, e.g. for an image that builds no tests).

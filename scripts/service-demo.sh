@@ -37,7 +37,7 @@ $BIN info
 
 echo "== 3. upload and train, scan by scan"
 for t in 0 1 2; do
-  $BIN upload "$OUT/scans/scan_00$t" --name "visit-$t" --watch
+  $BIN upload "$OUT/scans/scan_00$t" --name "visit-$t" --pose-frame place --watch
 done
 $BIN versions
 

@@ -20,6 +20,7 @@ const char* JobPhaseName(JobPhase p) {
     case JobPhase::kDone: return "done";
     case JobPhase::kFailed: return "failed";
     case JobPhase::kCancelled: return "cancelled";
+    case JobPhase::kRegistering: return "registering";
   }
   return "unknown";
 }

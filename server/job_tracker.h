@@ -30,7 +30,11 @@
 
 namespace clnerf {
 
-enum class JobPhase { kQueued, kPreparingReplay, kTraining, kValidating, kPublishing, kDone, kFailed, kCancelled };
+// (The order matches the wire enum's, less one; kRegistering runs before
+// kPreparingReplay.)
+enum class JobPhase {
+  kQueued, kPreparingReplay, kTraining, kValidating, kPublishing, kDone, kFailed, kCancelled, kRegistering
+};
 const char* JobPhaseName(JobPhase p);
 inline bool IsFinal(JobPhase p) { return p == JobPhase::kDone || p == JobPhase::kFailed || p == JobPhase::kCancelled; }
 

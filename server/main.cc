@@ -30,6 +30,10 @@ int main(int argc, char** argv) {
   app.add_option("--tls-cert", o.tls_cert, "PEM certificate chain (enables TLS with --tls-key)");
   app.add_option("--tls-key", o.tls_key, "PEM private key");
   app.add_option("--iters", iters, "Training iterations per update (default 300)");
+  int first_iters = -1;
+  app.add_option("--first-scan-iters", first_iters,
+                 "Training iterations of a place's first scan (default 2000, what `clnerf train` gives a capture; "
+                 "0 = as --iters)");
   app.add_option("--max-queue", o.max_queue, "Scans that may wait for training")->capture_default_str();
   app.add_option("--keep-versions", o.keep_versions, "Model versions kept on disk, oldest pruned first (0 = all)")
       ->capture_default_str();
@@ -70,6 +74,7 @@ int main(int argc, char** argv) {
     CLI11_PARSE(app, argc, argv);
   }
   if (iters > 0) o.update.train.iterations = iters;
+  if (first_iters >= 0) o.first_scan_iterations = first_iters;
   if (o.token.empty()) {
     if (const char* env = std::getenv("CLNERF_TOKEN")) o.token = env;
   }

@@ -11,6 +11,10 @@ absl::StatusOr<ScanHeaderDecl> HeaderFromProto(const v1::ScanHeader& h) {
   decl.name = h.name();
   decl.scene_kind = h.scene_kind();
   decl.mask_nonzero_is_exclude = h.mask_nonzero_is_exclude();
+  decl.pose_frame = h.pose_frame();
+  if (!decl.pose_frame.empty() && decl.pose_frame != "own" && decl.pose_frame != "place") {
+    return absl::InvalidArgumentError("scan header: pose_frame must be \"own\" or \"place\"");
+  }
   if (h.points_size() % 3 != 0) {
     return absl::InvalidArgumentError(absl::StrCat("scan header: points holds ", h.points_size(),
                                                    " numbers, not x y z triples"));

@@ -80,6 +80,7 @@ absl::Status ScanAssembler::Begin(ScanHeaderDecl header) {
   upload_.name = std::move(header.name);
   upload_.scene_kind = std::move(header.scene_kind);
   upload_.mask_nonzero_is_exclude = header.mask_nonzero_is_exclude;
+  upload_.pose_frame = std::move(header.pose_frame);
   upload_.points = std::move(header.points);
   for (DeclaredFrame& f : header.frames) {
     want_image_.push_back(f.image_bytes);

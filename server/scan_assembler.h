@@ -48,6 +48,7 @@ struct ScanHeaderDecl {
   std::string name;
   std::string scene_kind;
   bool mask_nonzero_is_exclude = false;
+  std::string pose_frame;  // "" / "own" or "place" (ScanUpload::pose_frame).
   std::vector<DeclaredFrame> frames;  // Training frames first, then test frames.
   std::vector<Eigen::Vector3f> points;  // Optional sparse point cloud.
 };

@@ -142,6 +142,7 @@ absl::Status ScanStore::Save(const ScanRecord& record, const ScanUpload& scan) {
                             {"name", record.name},
                             {"scene_kind", record.scene_kind},
                             {"mask_nonzero_is_exclude", record.mask_nonzero_is_exclude},
+                            {"pose_frame", record.pose_frame},
                             {"created_unix_ms", record.created_unix_ms},
                             {"num_frames", record.num_frames},
                             {"num_test_frames", record.num_test_frames},
@@ -187,6 +188,7 @@ absl::StatusOr<std::vector<ScanRecord>> ScanStore::List() const {
       r.name = j->at("name");
       r.scene_kind = j->at("scene_kind");
       r.mask_nonzero_is_exclude = j->at("mask_nonzero_is_exclude");
+      r.pose_frame = j->value("pose_frame", std::string("place"));
       r.created_unix_ms = j->at("created_unix_ms");
       r.num_frames = j->at("num_frames");
       r.num_test_frames = j->at("num_test_frames");

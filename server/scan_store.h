@@ -40,6 +40,10 @@ struct ScanUpload {
   std::string name;
   std::string scene_kind;  // "bounded", "unbounded" or "" (inherit / bounded).
   bool mask_nonzero_is_exclude = false;
+  // "" / "own": the poses are in the scan's own frame and must be registered
+  // into the place's; "place": already in the place's frame (checked when
+  // possible). See ScanHeader.pose_frame.
+  std::string pose_frame;
   std::vector<ScanFrame> frames;
   // Optional sparse point cloud (world frame); the training views get
   // sparse-depth targets from it when the scan is loaded.
@@ -60,6 +64,8 @@ struct ScanRecord {
   std::string name;
   std::string scene_kind;
   bool mask_nonzero_is_exclude = false;
+  // As ScanUpload::pose_frame; scans stored before it existed read "place".
+  std::string pose_frame;
   int64_t created_unix_ms = 0;
   int num_frames = 0, num_test_frames = 0;
   int64_t num_bytes = 0;

@@ -80,6 +80,8 @@ absl::Status ServerOptions::Validate() const {
     return absl::InvalidArgumentError("method ewc is benchmark-only; the server supports nt, er, meil, clnerf, clnerf-noer");
   }
   if (absl::Status s = update.Validate(); !s.ok()) return s;
+  if (absl::Status s = registration.Validate(); !s.ok()) return s;
+  if (first_scan_iterations < 0) return absl::InvalidArgumentError("first_scan_iterations must be >= 0");
   return gate.Validate();
 }
 
@@ -104,7 +106,24 @@ absl::Status ApplyGate(const nlohmann::json& g, GateOptions* o) {
     else if (k == "max_replay_drop_db") s = Get(*it, "gate.max_replay_drop_db", &o->max_replay_drop_db);
     else if (k == "min_replay_consistency_psnr") s = Get(*it, "gate.min_replay_consistency_psnr", &o->min_replay_consistency_psnr);
     else if (k == "validation_views") s = Get(*it, "gate.validation_views", &o->validation_views);
+    else if (k == "max_new_psnr_drop_db") s = Get(*it, "gate.max_new_psnr_drop_db", &o->max_new_psnr_drop_db);
     else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'gate.", k, "'"));
+    if (!s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ApplyRegistration(const nlohmann::json& g, RegistrationOptions* o) {
+  if (!g.is_object()) return absl::InvalidArgumentError("config key 'registration' must be an object");
+  for (auto it = g.begin(); it != g.end(); ++it) {
+    const std::string& k = it.key();
+    absl::Status s;
+    if (k == "max_references") s = Get(*it, "registration.max_references", &o->max_references);
+    else if (k == "max_frames") s = Get(*it, "registration.max_frames", &o->max_frames);
+    else if (k == "max_side") s = Get(*it, "registration.max_side", &o->localizer.max_side);
+    else if (k == "min_inliers") s = Get(*it, "registration.min_inliers", &o->localizer.min_inliers);
+    else if (k == "min_frames") s = Get(*it, "registration.min_frames", &o->min_frames);
+    else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'registration.", k, "'"));
     if (!s.ok()) return s;
   }
   return absl::OkStatus();
@@ -154,6 +173,7 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "keep_versions") s = Get(*it, "keep_versions", &o->keep_versions);
     else if (k == "shutdown_grace_seconds") s = Get(*it, "shutdown_grace_seconds", &o->shutdown_grace_seconds);
     else if (k == "iterations_per_update") s = Get(*it, k.c_str(), &o->update.train.iterations);
+    else if (k == "first_scan_iterations") s = Get(*it, k.c_str(), &o->first_scan_iterations);
     else if (k == "buffer_size") s = Get(*it, k.c_str(), &o->update.buffer_size);
     else if (k == "seed") s = Get(*it, k.c_str(), &o->update.train.seed);
     else if (k == "learning_rate") s = Get(*it, k.c_str(), &o->update.train.learning_rate);
@@ -201,6 +221,8 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
       if (s.ok()) s = ParseSamplerKind(str, &o->update.model.sampler);
     } else if (k == "gate") {
       s = ApplyGate(*it, &o->gate);
+    } else if (k == "registration") {
+      s = ApplyRegistration(*it, &o->registration);
     } else {
       return absl::InvalidArgumentError(absl::StrCat("unknown config key '", k, "'"));
     }

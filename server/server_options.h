@@ -21,6 +21,7 @@
 #include "absl/status/statusor.h"
 #include "core/continual/continual_update.h"
 #include "core/continual/deployment_gate.h"
+#include "core/pose/registration.h"
 #include "server/scan_assembler.h"
 
 namespace clnerf {
@@ -93,7 +94,14 @@ struct ServerOptions {
   double replica_poll_seconds = 1;
 
   UpdateOptions update = DefaultUpdateOptions();
+  // A place's first scan has no earlier model to start from: it trains this
+  // many iterations (what `clnerf train` gives a capture) instead of
+  // update.train.iterations. 0 = the same as every update.
+  int first_scan_iterations = 2000;
   GateOptions gate;  // The deployment gate (core/continual/deployment_gate.h).
+  // Registration of every later scan into its place's frame before it
+  // trains (core/pose/registration.h); config object "registration".
+  RegistrationOptions registration;
 
   // CLNeRF with warm start, offline replay, 300 iterations per update
   // (a lego_100 task in ~35 s on 2 cores; see README).

@@ -47,6 +47,7 @@ inline ScanUpload UploadOf(const Scene& scene, int t) {
   ScanUpload up;
   up.name = absl::StrCat("scan_t", t);
   up.scene_kind = "bounded";
+  up.pose_frame = "place";  // Procedural scans share the scene's frame.
   for (int split = 0; split < 2; ++split) {
     for (const View& v : split == 0 ? scene.train : scene.test) {
       if (v.camera.time_step != t) continue;
@@ -91,6 +92,7 @@ inline ServerOptions TinyServerOptions(const std::string& store, int iterations 
   // default (10) is covered by thread_priority_test and the browser test.
   o.train_nice = 0;
   o.update.train.iterations = iterations;
+  o.first_scan_iterations = 0;  // As every update: tests stay fast.
   o.update.train.target_samples = kThreadSanitizerBuild ? 0 : 1 << 13;  // 0: a fixed batch.
   o.update.train.batch_rays = kThreadSanitizerBuild ? 128 : 512;
   o.update.model.grid.levels = 8;
@@ -114,6 +116,7 @@ inline std::vector<v1::UploadScanRequest> UploadMessages(const ScanUpload& up, s
   v1::ScanHeader* h = msgs[0].mutable_header();
   h->set_name(up.name);
   h->set_scene_kind(up.scene_kind);
+  h->set_pose_frame(up.pose_frame);
   for (const Eigen::Vector3f& p : up.points) {
     for (int c = 0; c < 3; ++c) h->add_points(p[c]);
   }

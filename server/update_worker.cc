@@ -5,6 +5,8 @@
 #include "absl/strings/str_cat.h"
 #include "core/continual/continual_update.h"
 #include "core/continual/deployment_gate.h"
+#include "core/pose/place_map.h"
+#include "core/pose/registration.h"
 #include "core/data/stopwatch.h"
 #include "server/crash_point.h"
 #include "server/log_util.h"
@@ -24,6 +26,25 @@ JobPhase ToJobPhase(UpdatePhase p) {
     case UpdatePhase::kFinalizing: return JobPhase::kTraining;
   }
   return JobPhase::kTraining;
+}
+
+// The frame the scan's poses are in, as its upload declared it ("own" when
+// it cannot be read: registration then decides).
+std::string PoseFrameOf(const ScanStore& scans, const std::string& scan_id) {
+  absl::StatusOr<std::vector<ScanRecord>> all = scans.List();
+  if (all.ok()) {
+    for (const ScanRecord& r : *all) {
+      if (r.scan_id == scan_id) return r.pose_frame == "place" ? "place" : "own";
+    }
+  }
+  return "own";
+}
+
+// The previous version's PSNR on its own new scan, measured as this gate
+// will measure the new one (0 = unknown).
+double PlacePsnr(const VersionInfo& prev, bool held_out) {
+  auto it = prev.metrics.find(held_out ? "new_psnr" : "new_train_psnr");
+  return it == prev.metrics.end() ? 0.0 : it->second;
 }
 
 }  // namespace
@@ -150,6 +171,62 @@ void UpdateWorker::Finish(const std::string& job_id, const std::string& scan_id,
   if (phase == JobPhase::kCancelled) spdlog::warn("job {} cancelled: {}", job_id, EscapeForLog(error));
 }
 
+bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,
+                                     Scene* scene, std::map<std::string, double>* metrics) {
+  const std::string frame = PoseFrameOf(*scans_, scan_id);
+  jobs_->Update(job_id, [&](JobStatus* j) {
+    j->phase = JobPhase::kRegistering;
+    j->iteration = 0;
+    j->total_iterations = 0;
+  });
+  std::vector<Camera> place;
+  for (uint32_t i = 0; i < prev.memory().num_cameras(); ++i) place.push_back(prev.memory().GetCamera(i));
+  RenderOptions ro;
+  ro.threads = options_.train_threads;
+  ModelPlaceMap map(prev.model(), ro);
+  const auto t0 = std::chrono::steady_clock::now();
+  RegistrationReport r = RegisterScan(
+      *scene, map, place, PlaceExtent(place, prev.model().normalization()), options_.registration,
+      [&](int done, int total) {
+        jobs_->Update(job_id, [&](JobStatus* j) {
+          j->iteration = done;
+          j->total_iterations = total;
+          j->elapsed_seconds = SecondsSince(t0);
+          j->eta_seconds = done > 0 ? j->elapsed_seconds * (total - done) / done : 0;
+        });
+      },
+      &cancel_);
+  if (absl::IsCancelled(r.status)) {
+    if (stopping_) {
+      Finish(job_id, scan_id, JobPhase::kCancelled, "server shut down; the scan is kept and retrained after restart",
+             false);
+    } else {
+      Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled by request", true);
+    }
+    return false;
+  }
+  r.AddMetrics(metrics);
+  if (r.status.ok()) {
+    ApplySimilarity(r.transform, scene);
+    spdlog::info("job {}: registered into the place's frame: {}", job_id, r.Summary());
+    return true;
+  }
+  if (frame == "place") {  // Declared in the place's frame: train as uploaded.
+    (*metrics)["registration_unverified"] = 1;
+    spdlog::warn("job {}: could not verify the scan's place frame ({}); training it as uploaded", job_id,
+                 std::string(r.status.message()));
+    return true;
+  }
+  const std::string why = absl::StrCat("FAILED_PRECONDITION: the scan could not be placed in the place's frame: ",
+                                       r.status.message());
+  jobs_->Update(job_id, [&](JobStatus* j) { j->metrics = *metrics; });
+  if (absl::Status s = scans_->Park(scan_id, why); !s.ok()) spdlog::warn("job {}: {}", job_id, s.ToString());
+  Finish(job_id, scan_id, JobPhase::kFailed,
+         absl::StrCat(why, "; nothing was trained, the scan is kept in ", scans_->parked_dir(), "/", scan_id),
+         false, "refused");
+  return false;
+}
+
 void UpdateWorker::RunJob(const std::string& job_id) {
   cancel_ = false;
   job_started_ = std::chrono::steady_clock::now();
@@ -209,18 +286,22 @@ void UpdateWorker::RunJob(const std::string& job_id) {
                   false);
   }
   if (prev) scene->kind = prev->model().kind();
+  std::map<std::string, double> registration_metrics;
+  if (prev && !RegisterIntoPlace(job_id, scan_id, *prev, &*scene, &registration_metrics)) return;
   std::vector<View> test = std::move(scene->test);
   scene->test.clear();
   jobs_->Update(job_id, [&](JobStatus* j) {
     j->phase = JobPhase::kPreparingReplay;
     j->time_step = t;
-    j->total_iterations = options_.update.train.iterations;
+    j->total_iterations = !prev && options_.first_scan_iterations > 0 ? options_.first_scan_iterations
+                                                                      : options_.update.train.iterations;
   });
   spdlog::info("job {}: training scan {} as time step {} on version {}", job_id, scan_id, t,
                prev ? prev->info.version : 0);
 
   // 2. Train.
   UpdateOptions uo = options_.update;
+  if (!prev && options_.first_scan_iterations > 0) uo.train.iterations = options_.first_scan_iterations;
   uo.train.threads = options_.train_threads;
   uo.train.seed = options_.update.train.seed + uint64_t(t);
   auto last_report = std::chrono::steady_clock::now() - std::chrono::seconds(1);
@@ -272,11 +353,14 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   jobs_->Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kValidating; });
   scene->test = std::move(test);
   GateReport gate = RunDeploymentGate(*next->model, *scene, prev ? &prev->model() : nullptr,
-                                      prev ? &prev->memory() : nullptr, options_.gate, options_.train_threads);
+                                      prev ? &prev->memory() : nullptr, options_.gate, options_.train_threads,
+                                      prev ? PlacePsnr(prev->info, !scene->test.empty()) : 0.0);
+  gate.metrics.insert(registration_metrics.begin(), registration_metrics.end());
   gate.metrics["train_seconds"] = report.train_seconds;
   gate.metrics["replay_prepare_seconds"] = report.replay_prepare_seconds;
   if (report.depth_pixels > 0) gate.metrics["depth_pixels"] = double(report.depth_pixels);
   gate.metrics["update_seconds"] = SecondsSince(t0);
+  if (!prev) gate.metrics["time_to_first_view_seconds"] = double(NowUnixMs() - job->created_unix_ms) / 1000.0;
   jobs_->Update(job_id, [&](JobStatus* j) { j->metrics = gate.metrics; });
   if (!gate.status.ok()) {
     return Finish(job_id, scan_id, JobPhase::kFailed, std::string(gate.status.message()), true, "refused");

@@ -29,6 +29,7 @@
 
 #include "server/coordinator.h"
 #include "server/job_tracker.h"
+#include "server/model_registry.h"
 #include "server/publisher.h"
 #include "server/scan_store.h"
 #include "server/server_options.h"
@@ -91,6 +92,13 @@ class UpdateWorker {
   // derived from the phase.
   void Finish(const std::string& job_id, const std::string& scan_id, JobPhase phase, const std::string& error,
               bool remove_scan, const char* outcome = nullptr);
+  // Registers `scene` (the scan, with its test views) into the frame of
+  // `prev` and moves it there (core/pose/registration.h), with the job in
+  // phase REGISTERING. A scan that cannot be placed is parked and its job
+  // ends FAILED ("place" scans train as uploaded instead). Returns false
+  // when the job has ended; adds the registration's metrics to `metrics`.
+  bool RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,
+                         Scene* scene, std::map<std::string, double>* metrics);
 
   const ServerOptions options_;
   ScanStore* const scans_;

@@ -14,6 +14,7 @@ absl::Status GateOptions::Validate() const {
     return absl::InvalidArgumentError("gate.min_replay_consistency_psnr must be in [0, 100)");
   }
   if (validation_views < 1) return absl::InvalidArgumentError("gate.validation_views must be >= 1");
+  if (!(max_new_psnr_drop_db >= 0)) return absl::InvalidArgumentError("gate.max_new_psnr_drop_db must be >= 0");
   return absl::OkStatus();
 }
 
@@ -38,7 +39,8 @@ absl::StatusOr<double> MeanPsnr(const NgpModel& model, const std::vector<View>& 
 }  // namespace
 
 GateReport RunDeploymentGate(const NgpModel& next, const Scene& scan, const NgpModel* prev,
-                             const ReplayMemory* prev_memory, const GateOptions& o, int threads) {
+                             const ReplayMemory* prev_memory, const GateOptions& o, int threads,
+                             double place_psnr) {
   GateReport rep;
   auto fail = [&](std::string why) {
     rep.status = absl::FailedPreconditionError(std::move(why));
@@ -61,6 +63,12 @@ GateReport RunDeploymentGate(const NgpModel& next, const Scene& scan, const NgpM
   if (*new_psnr < o.min_new_psnr) {
     return fail(absl::StrFormat("deployment gate: PSNR %.2f dB on the new scan's %s views is below the floor %.2f dB",
                                 *new_psnr, held_out ? "held-out" : "training", o.min_new_psnr));
+  }
+  if (place_psnr > 0 && o.max_new_psnr_drop_db > 0 && *new_psnr < place_psnr - o.max_new_psnr_drop_db) {
+    return fail(absl::StrFormat(
+        "deployment gate: PSNR %.2f dB on the new scan's %s views is %.2f dB below the place's %.2f dB (at most %.2f "
+        "allowed); was the scan placed in the place's frame?",
+        *new_psnr, held_out ? "held-out" : "training", place_psnr - *new_psnr, place_psnr, o.max_new_psnr_drop_db));
   }
   if (prev == nullptr || prev_memory == nullptr) return rep;
 

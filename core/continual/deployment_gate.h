@@ -7,7 +7,9 @@
 // as they were computed):
 //  1. every parameter of θ_t is finite;
 //  2. PSNR on the new scan's held-out test frames (or, without any, on an
-//     evenly spaced subset of its training frames) >= min_new_psnr;
+//     evenly spaced subset of its training frames) >= min_new_psnr, and, when
+//     the place's own quality is known (the same PSNR of the version it
+//     updates), at most max_new_psnr_drop_db below it;
 //  3. on the real images buffered from earlier scans, θ_t's PSNR is at most
 //     max_replay_drop_db below θ_{t-1}'s;
 //  4. on other past views (cameras only), θ_t's render matches θ_{t-1}'s to
@@ -36,6 +38,11 @@ struct GateOptions {
   // Minimum PSNR (dB) of θ_t on the new scan's held-out test frames (on up to
   // `validation_views` of its training frames when the upload has none).
   float min_new_psnr = 15.0f;
+  // Relative to the place: the largest drop (dB) of that PSNR below the
+  // previous version's (a scan trained in the wrong frame scores far below
+  // what the place reached: 20.2 against 28.0 dB on a room; the fixed floor
+  // alone let it through). 0 = off.
+  float max_new_psnr_drop_db = 5.0f;
   // Past views: the largest PSNR drop (dB) of θ_t against θ_{t-1} allowed on
   // the buffered real images of earlier scans.
   float max_replay_drop_db = 2.0f;
@@ -53,9 +60,12 @@ struct GateReport {
 };
 
 // `scan` holds the new scan (time steps already assigned). `prev` and
-// `prev_memory` are null for the first version.
+// `prev_memory` are null for the first version. `place_psnr`: the previous
+// version's PSNR on its own new scan, measured the same way (held-out, or
+// training frames); 0 = unknown.
 GateReport RunDeploymentGate(const NgpModel& next, const Scene& scan, const NgpModel* prev,
-                             const ReplayMemory* prev_memory, const GateOptions& options, int threads);
+                             const ReplayMemory* prev_memory, const GateOptions& options, int threads,
+                             double place_psnr = 0);
 
 }  // namespace clnerf
 

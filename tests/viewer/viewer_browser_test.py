@@ -58,7 +58,7 @@ def main():
     driver = None
     try:
         for t in (0, 1):
-            run_client(args.client, ["upload", f"{work}/scans/scan_00{t}", "--watch"], env, f"upload of scan {t}")
+            run_client(args.client, ["upload", f"{work}/scans/scan_00{t}", "--pose-frame", "place", "--watch"], env, f"upload of scan {t}")
         print(f"two versions trained in {time.time() - t_start:.1f} s", flush=True)
 
         driver = start_chromium()
@@ -155,7 +155,7 @@ def main():
         time.sleep(0.3)
 
         # 6. The jobs panel shows a running update's progress.
-        run_client(args.client, ["upload", f"{work}/scans/scan_002"], env, "upload of scan 2", timeout=60)
+        run_client(args.client, ["upload", f"{work}/scans/scan_002", "--pose-frame", "place"], env, "upload of scan 2", timeout=60)
         text = wait_for("the jobs panel to show training progress",
                         lambda: (lambda t: t if re.search(r"step \d+ / \d+", t) else None)(
                             driver.find_element(By.ID, "jobs").text), timeout=60)
@@ -167,7 +167,7 @@ def main():
         # 7. Places: a second place, picked in the page, shows its own model (one
         # scan, version 1) while "default" has three; the place is in the URL.
         run_client(args.client, ["places", "create", "lab"], env, "places create")
-        run_client(args.client, ["upload", f"{work}/scans/scan_000", "--place", "lab", "--watch"], env,
+        run_client(args.client, ["upload", f"{work}/scans/scan_000", "--place", "lab", "--pose-frame", "place", "--watch"], env,
                    "upload to place lab")
         Select(driver.find_element(By.ID, "place")).select_by_value("lab")
         wait_for("the page to reload on place lab",

@@ -1,0 +1,154 @@
+// `clnerf bench register`: how well a later visit is placed into a place's
+// frame by its model. A capture's training views are split into two visits
+// (alternate frames, so both cover the place); visit A trains θ_A (the
+// place's model), then visit B is registered against θ_A's renders twice:
+// as it is (already in the place's frame: the fit must be the identity) and
+// moved into a frame of its own by a similarity (a rotation, a scale and a
+// shift, as a separate SfM run gives). Reports, per case, the frames placed
+// and the error of every frame's pose against the known one (centre as % of
+// the place's extent, rotation in degrees) and the time of each stage, as
+// JSON plus one human line per case.
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <random>
+
+#include "absl/strings/str_format.h"
+#include "client/commands.h"
+#include "client/core_flags.h"
+#include "core/data/dataset.h"
+#include "core/data/stopwatch.h"
+#include "core/pose/place_map.h"
+#include "Eigen/Geometry"
+#include "nlohmann/json.hpp"
+
+namespace clnerf {
+
+namespace {
+
+Similarity OwnFrame(const BenchRegisterArgs& a, double extent) {
+  std::mt19937_64 rng(a.seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  Similarity s;
+  s.rotation = Eigen::AngleAxisd(a.rotation_deg * M_PI / 180, Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized())
+                   .toRotationMatrix();
+  s.scale = a.scale;
+  s.translation = Eigen::Vector3d(u(rng), u(rng), u(rng)) * extent;
+  return s;
+}
+
+struct Errors {
+  double centre_median = 0, centre_max = 0, rotation_median = 0, rotation_max = 0;
+};
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+// Every frame of `placed` against the same frame of `truth`.
+Errors FrameErrors(const std::vector<View>& placed, const std::vector<View>& truth, double extent) {
+  std::vector<double> c, r;
+  for (size_t i = 0; i < truth.size(); ++i) {
+    const Pose& a = placed[i].camera.c2w;
+    const Pose& b = truth[i].camera.c2w;
+    c.push_back(100.0 * (a.col(3) - b.col(3)).norm() / extent);
+    r.push_back(RotationAngleDegrees(a.leftCols<3>().cast<double>(), b.leftCols<3>().cast<double>()));
+  }
+  Errors e;
+  e.centre_median = Median(c);
+  e.rotation_median = Median(r);
+  if (!c.empty()) e.centre_max = *std::max_element(c.begin(), c.end());
+  if (!r.empty()) e.rotation_max = *std::max_element(r.begin(), r.end());
+  return e;
+}
+
+absl::StatusOr<Scene> LoadBenchScene(const BenchRegisterArgs& a) {
+  if (a.data != "procedural") return LoadScene(a.data, a.dataset);
+  ProceduralSceneOptions po;
+  po.backdrop = true;
+  po.width = 240;
+  po.height = 180;
+  po.num_train_views = 32;
+  po.num_test_views = 4;
+  po.change_lighting = false;
+  po.change_geometry = false;
+  return GenerateProceduralScene(po);
+}
+
+}  // namespace
+
+CLI::App* BindBenchRegister(CLI::App* parent, BenchRegisterArgs* a) {
+  CLI::App* c = parent->add_subcommand(
+      "register", "A capture split into two visits: the second registered into the first's model, in the place's "
+                  "frame and in its own");
+  a->fit.train.iterations = 1000;
+  c->add_option("--data", a->data, "Dataset folder, or 'procedural'")->required();
+  c->add_option("--iters", a->fit.train.iterations, "Training steps of the first visit's model")
+      ->capture_default_str();
+  c->add_option("--rotation", a->rotation_deg, "The second visit's own frame: rotation (degrees)")
+      ->capture_default_str();
+  c->add_option("--scale", a->scale, "... and scale")->capture_default_str();
+  c->add_option("--seed", a->seed, "Seed of its axis and shift")->capture_default_str();
+  c->add_option("--references", a->registration.max_references, "Renders of the place")->capture_default_str();
+  c->add_option("--max-side", a->registration.localizer.max_side, "Matching size (long side, pixels)")
+      ->capture_default_str();
+  BindDatasetFlags(c, &a->dataset);
+  BindThreadsFlag(c, &a->threads);
+  c->add_option("--json", a->json, "Write JSON here ('-' = stdout)");
+  return c;
+}
+
+int RunBenchRegister(const BenchRegisterArgs& a) {
+  SetThreads(a.threads);
+  absl::StatusOr<Scene> all = LoadBenchScene(a);
+  if (!all.ok()) return Fail(all.status());
+  Scene visit_a = *all, visit_b = *all;
+  visit_a.train.clear();
+  visit_b.train.clear();
+  visit_b.test.clear();
+  for (size_t i = 0; i < all->train.size(); ++i) (i % 2 == 0 ? visit_a : visit_b).train.push_back(all->train[i]);
+  std::fprintf(stderr, "bench register: %s, visit A %zu frames (trains θ_A, %d iterations), visit B %zu frames\n",
+               a.data.c_str(), visit_a.train.size(), a.fit.train.iterations, visit_b.train.size());
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<FitResult> fit = FitScene(visit_a, a.fit, {});
+  if (!fit.ok()) return Fail(fit.status());
+  const double train_seconds = SecondsSince(t0);
+  std::vector<Camera> place;
+  for (const View& v : visit_a.train) place.push_back(v.camera);
+  const double extent = PlaceExtent(place, fit->model->normalization());
+  RenderOptions ro;
+  ModelPlaceMap map(*fit->model, ro);
+
+  nlohmann::json out = {{"data", a.data}, {"frames_a", visit_a.train.size()}, {"frames_b", visit_b.train.size()},
+                        {"train_a_seconds", train_seconds}, {"place_extent", extent}, {"cases", nlohmann::json::array()}};
+  for (const char* which : {"place", "own"}) {
+    Scene scan = visit_b;
+    const bool own = std::string(which) == "own";
+    if (own) ApplySimilarity(OwnFrame(a, extent), &scan);
+    RegistrationReport r = RegisterScan(scan, map, place, extent, a.registration);
+    if (r.status.ok()) ApplySimilarity(r.transform, &scan);
+    const Errors e = FrameErrors(scan.train, visit_b.train, extent);
+    const double seconds = r.render_seconds + r.localize_seconds + r.fit_seconds;
+    out["cases"].push_back({{"frame", which}, {"placed", r.status.ok()}, {"status", r.status.ToString()},
+                            {"identity", r.identity}, {"frames", r.frames}, {"frames_localized", r.frames_localized},
+                            {"frames_agreeing", r.frames_agreeing}, {"references", r.references},
+                            {"centre_error_pct_median", e.centre_median}, {"centre_error_pct_max", e.centre_max},
+                            {"rotation_error_deg_median", e.rotation_median}, {"rotation_error_deg_max", e.rotation_max},
+                            {"render_seconds", r.render_seconds}, {"localize_seconds", r.localize_seconds},
+                            {"fit_seconds", r.fit_seconds}, {"seconds", seconds}});
+    std::printf("register %s, visit B in %s frame: %s, %d/%d frames localised, %d agree%s | centre error median %.2f%% "
+                "max %.2f%% of the place | rotation median %.2f max %.2f deg | %.1f s (render %.1f, match %.1f)\n",
+                a.data.c_str(), own ? "its own" : "the place's", r.status.ok() ? "placed" : "REFUSED",
+                r.frames_localized, r.frames, r.frames_agreeing, r.identity ? " (identity)" : "", e.centre_median,
+                e.centre_max, e.rotation_median, e.rotation_max, seconds, r.render_seconds, r.localize_seconds);
+    if (!r.status.ok()) std::printf("  why: %s\n", std::string(r.status.message()).c_str());
+  }
+  if (!a.json.empty()) {
+    if (absl::Status s = WriteJson(a.json, out); !s.ok()) return Fail(s);
+  }
+  return 0;
+}
+
+}  // namespace clnerf
