@@ -141,6 +141,7 @@ struct BenchRegisterArgs {
   double rotation_deg = 40, scale = 1.7;  // The second visit's own frame.
   uint64_t seed = 1;              // Axis and shift of that frame.
   int threads = 0;
+  bool verbose = false;           // Per-frame PnP figures.
   std::string json;
 };
 

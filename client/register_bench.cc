@@ -67,10 +67,11 @@ Errors FrameErrors(const std::vector<View>& placed, const std::vector<View>& tru
 absl::StatusOr<Scene> LoadBenchScene(const BenchRegisterArgs& a) {
   if (a.data != "procedural") return LoadScene(a.data, a.dataset);
   ProceduralSceneOptions po;
-  po.backdrop = true;
+  po.layout = ProceduralLayout::kForwardFacing;
+  po.textured = true;
   po.width = 240;
   po.height = 180;
-  po.num_train_views = 32;
+  po.num_train_views = 48;
   po.num_test_views = 4;
   po.change_lighting = false;
   po.change_geometry = false;
@@ -96,6 +97,7 @@ CLI::App* BindBenchRegister(CLI::App* parent, BenchRegisterArgs* a) {
       ->capture_default_str();
   BindDatasetFlags(c, &a->dataset);
   BindThreadsFlag(c, &a->threads);
+  c->add_flag("--verbose", a->verbose, "Print each frame's PnP inliers and matches");
   c->add_option("--json", a->json, "Write JSON here ('-' = stdout)");
   return c;
 }
@@ -144,6 +146,10 @@ int RunBenchRegister(const BenchRegisterArgs& a) {
                 r.frames_localized, r.frames, r.frames_agreeing, r.identity ? " (identity)" : "", e.centre_median,
                 e.centre_max, e.rotation_median, e.rotation_max, seconds, r.render_seconds, r.localize_seconds);
     if (!r.status.ok()) std::printf("  why: %s\n", std::string(r.status.message()).c_str());
+    if (a.verbose) {
+      for (const FrameLocalization& f : r.localized) std::printf(" %d/%d%s", f.inliers, f.matches, f.placed ? "*" : "");
+      std::printf("  (PnP inliers/matches per frame; * = placed)\n");
+    }
   }
   if (!a.json.empty()) {
     if (absl::Status s = WriteJson(a.json, out); !s.ok()) return Fail(s);

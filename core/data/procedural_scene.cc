@@ -317,6 +317,30 @@ Eigen::Vector3f GroundAlbedo(const ProceduralWorld& world, const Eigen::Vector3f
   return Lerp(Lerp(grass, sand, m), haze, fade);
 }
 
+// Value noise at `p`: hashed lattice values in [0, 1], trilinear.
+float ValueNoise(uint64_t seed, const Eigen::Vector3f& p) {
+  const Eigen::Vector3f f = p.array().floor();
+  const Eigen::Vector3f t = p - f;
+  const int64_t x = int64_t(f.x()), y = int64_t(f.y()), z = int64_t(f.z());
+  auto at = [&](int64_t i, int64_t j, int64_t k) {
+    return HashToUnit(Mix(seed, uint64_t(i) * 73856093ull ^ uint64_t(j) * 19349663ull ^ uint64_t(k) * 83492791ull));
+  };
+  float v = 0;
+  for (int c = 0; c < 8; ++c) {
+    const int dx = c & 1, dy = (c >> 1) & 1, dz = c >> 2;
+    const float w = (dx ? t.x() : 1 - t.x()) * (dy ? t.y() : 1 - t.y()) * (dz ? t.z() : 1 - t.z());
+    v += w * at(x + dx, y + dy, z + dz);
+  }
+  return v;
+}
+
+// The albedo factor of ProceduralSceneOptions::textured at `p`.
+float TextureAt(const ProceduralWorld& world, const Eigen::Vector3f& p) {
+  const float n = 0.5f * ValueNoise(world.texture_seed, 3.0f * p) + 0.3f * ValueNoise(world.texture_seed + 1, 7.0f * p) +
+                  0.2f * ValueNoise(world.texture_seed + 2, 17.0f * p);
+  return 0.4f + 1.2f * n;
+}
+
 bool InRect(const Eigen::Vector4f& r, float u, float v) { return u >= r[0] && u <= r[2] && v >= r[1] && v <= r[3]; }
 
 // Albedo of the room shell at `p` on the face with (inward or outward) normal
@@ -509,6 +533,7 @@ bool CastRay(const ProceduralWorld& world, const Eigen::Vector3f& o, const Eigen
   } else {
     hit->albedo = best_obj->color;
   }
+  if (world.textured) hit->albedo = (hit->albedo * TextureAt(world, o + best * d)).cwiseMin(1.0f);
   return true;
 }
 
@@ -647,6 +672,8 @@ ProceduralWorld ProceduralWorldAt(const ProceduralSceneOptions& options, int tim
   }
   world.light = LightAt(options.seed, 0);
   if (options.thin_structures) AddThinStructures(options.seed, &world);
+  world.textured = options.textured;
+  world.texture_seed = Mix(options.seed, 0x7E47ull);
   if (options.layout == ProceduralLayout::kRoom) {
     AddRoom(options, &world);
   } else if (options.backdrop || options.layout == ProceduralLayout::kForwardFacing) {

@@ -125,6 +125,11 @@ struct ProceduralSceneOptions {
   // one arch (two posts and a lintel). Placed from the seed and the objects
   // at time step 0, and the same at every time step.
   bool thin_structures = false;
+  // Every surface but the sky carries a fine, non-repeating texture (value
+  // noise of the world position, three octaves, albedo x 0.4-1.6), as real
+  // floors, walls and objects do; without it the flat colours and repeating
+  // checkers give feature matching (core/pose) little to hold on to.
+  bool textured = false;
   // Camera rig and surroundings (see ProceduralLayout). kForwardFacing and
   // kRoom scenes are kUnbounded with a black background and no hints.
   ProceduralLayout layout = ProceduralLayout::kOrbit;
@@ -183,6 +188,8 @@ struct ProceduralWorld {
   Eigen::Vector4f door = Eigen::Vector4f::Zero();
   Eigen::Vector4f picture = Eigen::Vector4f::Zero();
   float room_phase = 0.0f;  // Seeded offset of the plank pattern.
+  bool textured = false;    // ProceduralSceneOptions::textured.
+  uint64_t texture_seed = 0;
 
   // True if world point `p` is inside an object, a rod, a pillar, the floor
   // slab or (with a backdrop) below the ground plane inside the backdrop

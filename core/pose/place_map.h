@@ -40,11 +40,15 @@ class PlaceMap {
 class ModelPlaceMap : public PlaceMap {
  public:
   // `model` must outlive the map. `options.time_step` picks the embeddings
-  // (-1: the latest).
-  ModelPlaceMap(const NgpModel& model, RenderOptions options) : model_(model), options_(std::move(options)) {}
+  // (-1: the latest). Depth is the median one (RenderOptions::median_depth).
+  ModelPlaceMap(const NgpModel& model, RenderOptions options) : model_(model), options_(WithMedianDepth(options)) {}
   absl::StatusOr<MapView> Render(const Camera& camera) const override;
 
  private:
+  static RenderOptions WithMedianDepth(RenderOptions o) {
+    o.median_depth = true;
+    return o;
+  }
   const NgpModel& model_;
   const RenderOptions options_;
 };

@@ -59,7 +59,8 @@ void Accept(const RobustSimilarity& fit, const std::vector<PosePair>& pairs, con
   r->frames_agreeing = int(fit.inliers.size());
   r->median_centre_residual = fit.median_centre_error / r->place_extent;
   r->median_rotation_residual_deg = fit.median_rotation_error_deg;
-  const int need = std::max(o.min_frames, int(std::ceil(o.min_frame_fraction * r->frames_localized)));
+  const int need = std::max({o.min_frames, int(std::ceil(o.min_frame_fraction * r->frames_localized)),
+                             int(std::ceil(o.min_tried_fraction * r->frames))});
   if (r->frames_agreeing < need) {
     r->status = absl::FailedPreconditionError(
         absl::StrCat("only ", r->frames_agreeing, " frames agree on where the scan is (", need, " needed)"));
@@ -101,8 +102,8 @@ absl::Status RegistrationOptions::Validate() const {
   if (max_references < 1) return absl::InvalidArgumentError("max_references must be >= 1");
   if (max_frames < 2) return absl::InvalidArgumentError("max_frames must be >= 2");
   if (min_frames < 2) return absl::InvalidArgumentError("min_frames must be >= 2");
-  if (!(min_frame_fraction >= 0 && min_frame_fraction <= 1)) {
-    return absl::InvalidArgumentError("min_frame_fraction must be in [0, 1]");
+  if (!(min_frame_fraction >= 0 && min_frame_fraction <= 1) || !(min_tried_fraction >= 0 && min_tried_fraction <= 1)) {
+    return absl::InvalidArgumentError("min_frame_fraction and min_tried_fraction must be in [0, 1]");
   }
   if (!(max_centre_residual > 0) || !(max_rotation_residual_deg > 0) || !(max_distance > 0)) {
     return absl::InvalidArgumentError("registration residual limits must be > 0");
@@ -170,6 +171,7 @@ RegistrationReport RegisterScan(const Scene& scan, const PlaceMap& map, const st
   std::vector<FrameLocalization> found = LocalizeFrames(**loc, frames, progress, cancel);
   if (Cancelled(cancel)) return r.status = absl::CancelledError("registration cancelled"), r;
   r.localize_seconds = SecondsSince(t0);
+  r.localized = found;
 
   t0 = std::chrono::steady_clock::now();
   std::vector<PosePair> pairs;

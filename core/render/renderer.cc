@@ -33,6 +33,7 @@ struct RayState {
   int samples;  // Marched so far (at most kMaxMarchSamples).
   float rgb[3];
   float depth;
+  float median;  // Where T first fell to 1/2 (< 0: not yet).
   float coloured, skipped;  // Weight of the samples that got / skipped the colour MLP.
   bool alive;
 };
@@ -54,6 +55,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
     s.T = 1.0f;
     s.rgb[0] = s.rgb[1] = s.rgb[2] = 0.0f;
     s.depth = 0.0f;
+    s.median = -1.0f;
     s.coloured = s.skipped = 0.0f;
     s.samples = 0;
     s.alive = model.RayInterval(o, d, &s.t, &s.t_end);
@@ -145,6 +147,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
       for (int j = seg[k]; j < seg[k + 1]; ++j) {
         const float alpha = 1.0f - std::exp(-fc.sigma[j] * samples[j].dt);
         w[j] = T * alpha;
+        if (s.median < 0 && T * (1.0f - alpha) <= 0.5f) s.median = samples[j].t;
         T *= 1.0f - alpha;
         s.depth += w[j] * samples[j].t;  // Proposal samples: t is the interval midpoint.
         if (w[j] >= options.min_weight || s.skipped + w[j] > options.max_skipped_weight) {
@@ -192,7 +195,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
     }
     for (int c = 0; c < 3; ++c) rgb_out[3 * r + c] = s.rgb[c] + s.T * bg[c];
     if (opacity_out) opacity_out[r] = 1.0f - s.T;
-    if (depth_out) depth_out[r] = s.depth;
+    if (depth_out) depth_out[r] = !options.median_depth ? s.depth : s.median >= 0 ? s.median : s.t_end;
   }
   return evaluated;
 }

@@ -44,6 +44,11 @@ struct RenderOptions {
   // whose caller went away or whose deadline passed, and for cancelled
   // updates.
   std::function<bool()> should_stop;
+  // depth outputs: the expected distance (the weights' mean, default) or the
+  // median one (where the transmittance first falls to 1/2; the ray's end
+  // when it never does), which a few faint floaters or a hazy tail do not
+  // pull (registration lifts features to 3-D with it).
+  bool median_depth = false;
   absl::Status Validate() const;
 };
 
