@@ -65,6 +65,7 @@ bool SolidDepth(const MapView& v, const cv::Point2f& p, const LocalizerOptions& 
 
 absl::Status LocalizerOptions::Validate() const {
   if (max_side < 32) return absl::InvalidArgumentError("localizer max_side must be >= 32");
+  if (min_side < 1 || min_side > max_side) return absl::InvalidArgumentError("localizer min_side must be in [1, max_side]");
   if (max_features < 50) return absl::InvalidArgumentError("localizer max_features must be >= 50");
   if (!(ratio > 0 && ratio <= 1)) return absl::InvalidArgumentError("localizer ratio must be in (0, 1]");
   if (!(min_opacity >= 0 && min_opacity <= 1)) return absl::InvalidArgumentError("min_opacity must be in [0, 1]");
@@ -131,12 +132,14 @@ absl::StatusOr<std::unique_ptr<FeatureLocalizer>> FeatureLocalizer::Build(const 
 FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& camera) const {
   const LocalizerOptions& o = impl_->options;
   FrameLocalization out;
-  const Camera cam = CameraAtMostSide(camera, o.max_side);
+  const Camera cam = CameraWithSideIn(camera, o.min_side, o.max_side);
   cv::Mat gray = ToGray(image);
   if (gray.cols != cam.intrinsics.width || gray.rows != cam.intrinsics.height) {
-    cv::Mat small;
-    cv::resize(gray, small, cv::Size(cam.intrinsics.width, cam.intrinsics.height), 0, 0, cv::INTER_AREA);
-    gray = small;
+    cv::Mat resized;
+    const bool up = cam.intrinsics.width > gray.cols;
+    cv::resize(gray, resized, cv::Size(cam.intrinsics.width, cam.intrinsics.height), 0, 0,
+               up ? cv::INTER_CUBIC : cv::INTER_AREA);
+    gray = resized;
   }
   const Features q = Detect(gray, o.max_features);
   if (q.descriptors.empty()) return out;

@@ -54,11 +54,11 @@ std::vector<int> SpreadCameras(const std::vector<Camera>& cameras, int max_views
   return picked;
 }
 
-Camera CameraAtMostSide(const Camera& camera, int max_side) {
+Camera CameraWithSideIn(const Camera& camera, int min_side, int max_side) {
   const Intrinsics& in = camera.intrinsics;
   const int side = std::max(in.width, in.height);
-  if (max_side <= 0 || side <= max_side) return camera;
-  const double f = double(max_side) / side;
+  if (side <= 0 || (side >= min_side && side <= max_side)) return camera;
+  const double f = double(side < min_side ? min_side : max_side) / side;
   Camera out = camera;
   out.intrinsics = in.Scaled(std::max(1, int(std::lround(in.width * f))), std::max(1, int(std::lround(in.height * f))));
   return out;

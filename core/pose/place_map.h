@@ -58,9 +58,10 @@ class ModelPlaceMap : public PlaceMap {
 // the renders cover what the cameras saw. Returns indices into `cameras`.
 std::vector<int> SpreadCameras(const std::vector<Camera>& cameras, int max_views);
 
-// The same camera with its image no larger than `max_side` pixels on its long
-// side (intrinsics scaled; unchanged when already small enough).
-Camera CameraAtMostSide(const Camera& camera, int max_side);
+// The same camera with its long side brought into [min_side, max_side]
+// (scaled up when smaller: a model renders any size, and small photos give
+// SIFT too few keypoints).
+Camera CameraWithSideIn(const Camera& camera, int min_side, int max_side);
 
 // The place's size in world units: the diagonal of the box around the
 // cameras' centres, or, when the cameras barely move (a forward-facing rig),

@@ -27,7 +27,7 @@ absl::StatusOr<std::vector<MapView>> RenderReferences(const PlaceMap& map, const
   std::vector<MapView> out;
   for (int i : SpreadCameras(cameras, o.max_references)) {
     if (Cancelled(cancel)) return absl::CancelledError("registration cancelled");
-    absl::StatusOr<MapView> v = map.Render(CameraAtMostSide(cameras[i], o.localizer.max_side));
+    absl::StatusOr<MapView> v = map.Render(CameraWithSideIn(cameras[i], o.localizer.min_side, o.localizer.max_side));
     if (!v.ok()) return v.status();
     out.push_back(*std::move(v));
   }

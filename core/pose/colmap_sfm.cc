@@ -1,0 +1,169 @@
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "core/data/colmap_loader.h"
+#include "core/data/stopwatch.h"
+#include "core/pose/process.h"
+#include "core/pose/sfm.h"
+
+namespace clnerf {
+
+namespace fs = std::filesystem;
+
+absl::Status SfmOptions::Validate() const {
+  if (workspace.empty()) return absl::InvalidArgumentError("SfmOptions::workspace is empty");
+  if (threads < 1) return absl::InvalidArgumentError("SfmOptions::threads must be >= 1");
+  if (!(min_registered_fraction >= 0 && min_registered_fraction <= 1)) {
+    return absl::InvalidArgumentError("min_registered_fraction must be in [0, 1]");
+  }
+  if (!(max_reprojection_px > 0)) return absl::InvalidArgumentError("max_reprojection_px must be > 0");
+  return absl::OkStatus();
+}
+
+namespace {
+
+// Removes the workspace on every way out unless asked to keep it.
+struct WorkspaceGuard {
+  const SfmOptions& o;
+  ~WorkspaceGuard() {
+    std::error_code ec;
+    if (!o.keep_workspace) fs::remove_all(o.workspace, ec);
+  }
+};
+
+// Copies the photos to <ws>/images/NNNN<ext>, so names are unique and say
+// which input each is.
+absl::Status StagePhotos(const std::vector<std::string>& photos, const fs::path& images) {
+  std::error_code ec;
+  fs::create_directories(images, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot create ", images.string(), ": ", ec.message()));
+  for (size_t i = 0; i < photos.size(); ++i) {
+    std::string ext = fs::path(photos[i]).extension().string();
+    if (ext.empty()) ext = ".png";
+    fs::copy_file(photos[i], images / absl::StrFormat("%04d%s", i, ext), ec);
+    if (ec) return absl::NotFoundError(absl::StrCat("cannot read photo ", photos[i], ": ", ec.message()));
+  }
+  return absl::OkStatus();
+}
+
+// The model folder under <ws>/sparse with the most registered images.
+absl::StatusOr<SfmResult> ReadLargestModel(const fs::path& ws, size_t num_photos, fs::path* model) {
+  SfmResult best;
+  best.cameras.assign(num_photos, std::nullopt);
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(ws / "sparse", ec)) {
+    if (!e.is_directory()) continue;
+    // LoadColmapScene looks for <dir>/sparse/: give it one holding only e.
+    const fs::path view = ws / ("model_" + e.path().filename().string());
+    fs::create_directories(view, ec);
+    fs::create_directory_symlink(e.path(), view / "sparse", ec);
+    DatasetOptions dopts;
+    dopts.load_images = false;
+    dopts.test_every = 0;
+    dopts.sparse_depth = false;
+    dopts.images_dir = (ws / "images").string();
+    absl::StatusOr<Scene> s = LoadColmapScene(view.string(), dopts);
+    if (!s.ok() || int(s->train.size()) <= best.registered) continue;
+    SfmResult r;
+    r.cameras.assign(num_photos, std::nullopt);
+    for (View& v : s->train) {
+      const int index = std::atoi(fs::path(v.name).stem().string().c_str());
+      if (index < 0 || size_t(index) >= num_photos) continue;
+      v.camera.time_step = 0;
+      r.cameras[index] = v.camera;
+      ++r.registered;
+    }
+    r.points = s->content_points;
+    best = std::move(r);
+    *model = e.path();
+  }
+  if (best.registered == 0) return absl::FailedPreconditionError("COLMAP posed none of the photos");
+  return best;
+}
+
+// "Mean reprojection error: 0.61px" from model_analyzer's log.
+double MeanReprojection(const std::string& log) {
+  std::ifstream in(log);
+  std::string line;
+  double v = -1;
+  const std::regex re("Mean reprojection error:\\s*([0-9.eE+-]+)");
+  std::smatch m;
+  while (std::getline(in, line)) {
+    if (std::regex_search(line, m, re)) v = std::stod(m[1]);
+  }
+  return v;
+}
+
+}  // namespace
+
+absl::StatusOr<SfmResult> ColmapSfm::Run(const std::vector<std::string>& photos, const SfmOptions& o,
+                                         const SfmProgressFn& progress, const std::atomic<bool>* cancel) const {
+  if (absl::Status s = o.Validate(); !s.ok()) return s;
+  if (photos.size() < 2) return absl::InvalidArgumentError("structure from motion needs at least 2 photos");
+  const fs::path ws = o.workspace;
+  if (fs::exists(ws)) return absl::AlreadyExistsError(absl::StrCat("SfM workspace ", ws.string(), " exists"));
+  WorkspaceGuard guard{o};
+  if (absl::Status s = StagePhotos(photos, ws / "images"); !s.ok()) return s;
+  fs::create_directories(ws / "sparse");
+  const std::string db = (ws / "database.db").string(), log = (ws / "colmap.log").string();
+  const std::string threads = std::to_string(o.threads);
+  auto stage = [&](const char* name, std::vector<std::string> args, double* seconds) -> absl::Status {
+    if (progress) progress(name);
+    const auto t0 = std::chrono::steady_clock::now();
+    args.insert(args.begin(), binary_);
+    absl::Status s = RunProcess(args, log, cancel);
+    *seconds += SecondsSince(t0);
+    return s;
+  };
+  SfmResult timing;
+  absl::Status s = stage("features",
+                         {"feature_extractor", "--database_path", db, "--image_path", (ws / "images").string(),
+                          "--ImageReader.single_camera", "1", "--ImageReader.camera_model", "SIMPLE_RADIAL",
+                          "--SiftExtraction.use_gpu", "0", "--SiftExtraction.num_threads", threads},
+                         &timing.features_seconds);
+  if (!s.ok()) return s;
+  s = stage("matching",
+            {o.sequential ? "sequential_matcher" : "exhaustive_matcher", "--database_path", db,
+             "--SiftMatching.use_gpu", "0", "--SiftMatching.num_threads", threads},
+            &timing.matching_seconds);
+  if (!s.ok()) return s;
+  s = stage("mapping",
+            {"mapper", "--database_path", db, "--image_path", (ws / "images").string(), "--output_path",
+             (ws / "sparse").string(), "--Mapper.num_threads", threads, "--Mapper.min_model_size", "3"},
+            &timing.mapping_seconds);
+  if (!s.ok() && !absl::IsCancelled(s) && !absl::IsNotFound(s) && fs::is_empty(ws / "sparse")) {
+    return absl::FailedPreconditionError(absl::StrCat(
+        "COLMAP could not start a model (no image pair with enough matches): too little overlap or texture (",
+        s.message(), ")"));
+  }
+  if (!s.ok()) return s;
+  fs::path model;
+  absl::StatusOr<SfmResult> r = ReadLargestModel(ws, photos.size(), &model);
+  if (!r.ok()) return r.status();
+  const std::string analyzer_log = (ws / "analyzer.log").string();
+  s = RunProcess({binary_, "model_analyzer", "--path", model.string()}, analyzer_log, cancel);
+  if (!s.ok()) return s;
+  r->mean_reprojection_px = MeanReprojection(analyzer_log);
+  r->features_seconds = timing.features_seconds;
+  r->matching_seconds = timing.matching_seconds;
+  r->mapping_seconds = timing.mapping_seconds;
+  const double need = o.min_registered_fraction * double(photos.size());
+  if (r->registered < need) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "COLMAP posed only %d of %zu photos (%.0f%% needed): too little overlap or texture", r->registered,
+        photos.size(), 100 * o.min_registered_fraction));
+  }
+  if (!(r->mean_reprojection_px >= 0) || r->mean_reprojection_px > o.max_reprojection_px) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "COLMAP's model has a mean reprojection error of %.2f px (at most %.2f allowed)", r->mean_reprojection_px,
+        o.max_reprojection_px));
+  }
+  return r;
+}
+
+}  // namespace clnerf

@@ -1,0 +1,110 @@
+// COLMAP (Debian's colmap, run for real) poses an unposed procedural scan;
+// after one similarity fit its poses match the known ones.
+#include <cstdlib>
+#include <filesystem>
+#include <iostream>
+#include <random>
+
+#include "core/data/image.h"
+#include "core/data/procedural_scene.h"
+#include "core/pose/place_map.h"
+#include "core/pose/process.h"
+#include "core/pose/sfm.h"
+#include "core/pose/similarity.h"
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+namespace fs = std::filesystem;
+
+bool ColmapInstalled() { return std::system("command -v colmap > /dev/null 2>&1") == 0; }
+
+std::string TempDir(const std::string& name) {
+  const std::string dir = ::testing::TempDir() + "/clnerf_" + name + "_" + std::to_string(std::random_device{}());
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  return dir;
+}
+
+TEST(ProcessTest, ReportsMissingProgramsAndFailures) {
+  const std::string dir = TempDir("process");
+  EXPECT_TRUE(absl::IsNotFound(RunProcess({"clnerf-no-such-program"}, dir + "/log")));
+  EXPECT_TRUE(RunProcess({"true"}, dir + "/log").ok());
+  absl::Status s = RunProcess({"sh", "-c", "echo boom; exit 3"}, dir + "/log");
+  EXPECT_TRUE(absl::IsInternal(s));
+  EXPECT_NE(s.message().find("exit status 3"), std::string::npos) << s;
+  EXPECT_NE(s.message().find("boom"), std::string::npos) << s;
+  std::atomic<bool> cancel{true};
+  EXPECT_TRUE(absl::IsCancelled(RunProcess({"sleep", "30"}, dir + "/log", &cancel)));
+}
+
+TEST(ColmapSfmTest, PosesAnUnposedScanUpToASimilarity) {
+  if (!ColmapInstalled()) GTEST_SKIP() << "colmap is not installed (scripts/install-deps.sh installs it)";
+  ProceduralSceneOptions po;
+  po.backdrop = true;  // An orbit of a textured object scene.
+  po.textured = true;
+  po.width = 400;
+  po.height = 300;
+  po.num_train_views = 32;
+  po.num_test_views = 1;
+  absl::StatusOr<Scene> scene = GenerateProceduralScene(po);
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  const std::string dir = TempDir("colmap_sfm");
+  std::vector<std::string> photos;
+  std::vector<Camera> truth;
+  for (size_t i = 0; i < scene->train.size(); ++i) {
+    photos.push_back(dir + "/photo_" + std::to_string(i) + ".png");
+    ASSERT_TRUE(WriteImage(photos.back(), scene->train[i].image).ok());
+    truth.push_back(scene->train[i].camera);
+  }
+  SfmOptions o;
+  o.workspace = dir + "/ws";
+  absl::StatusOr<SfmResult> r = ColmapSfm().Run(photos, o);
+  ASSERT_TRUE(r.ok()) << r.status() << " " << o.workspace;
+  std::cout << "COLMAP posed " << r->registered << " of " << photos.size() << " photos, mean reprojection "
+            << r->mean_reprojection_px << " px; features " << r->features_seconds << " s, matching "
+            << r->matching_seconds << " s, mapping " << r->mapping_seconds << " s\n";
+  EXPECT_GE(r->registered, int(photos.size()) * 9 / 10);
+  EXPECT_FALSE(fs::exists(o.workspace));  // Removed afterwards.
+  std::vector<PosePair> pairs;
+  std::vector<int> index;
+  for (size_t i = 0; i < photos.size(); ++i) {
+    if (!r->cameras[i]) continue;
+    pairs.push_back({r->cameras[i]->c2w, truth[i].c2w});
+    index.push_back(int(i));
+    EXPECT_NEAR(r->cameras[i]->intrinsics.fx, truth[i].intrinsics.fx, 0.02 * truth[i].intrinsics.fx);
+  }
+  const double extent = PlaceExtent(truth, Normalization());
+  absl::StatusOr<RobustSimilarity> fit = FitSimilarityRobust(pairs, extent, RobustSimilarityOptions());
+  ASSERT_TRUE(fit.ok()) << fit.status();
+  EXPECT_EQ(fit->inliers.size(), pairs.size());
+  for (size_t k = 0; k < pairs.size(); ++k) {
+    const Pose placed = fit->transform.ApplyToPose(pairs[k].from);
+    EXPECT_LT((placed.col(3) - pairs[k].to.col(3)).norm() / extent, 0.01) << "photo " << index[k];
+    EXPECT_LT(RotationAngleDegrees(placed.leftCols<3>().cast<double>(), pairs[k].to.leftCols<3>().cast<double>()),
+              0.5)
+        << "photo " << index[k];
+  }
+}
+
+TEST(ColmapSfmTest, PhotosWithNothingInCommonAreRefused) {
+  if (!ColmapInstalled()) GTEST_SKIP() << "colmap is not installed";
+  const std::string dir = TempDir("colmap_noise");
+  std::vector<std::string> photos;
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<float> u(0, 1);
+  for (int i = 0; i < 4; ++i) {
+    Image im(96, 96);
+    for (float& v : im.rgb) v = u(rng);
+    photos.push_back(dir + "/noise_" + std::to_string(i) + ".png");
+    ASSERT_TRUE(WriteImage(photos.back(), im).ok());
+  }
+  SfmOptions o;
+  o.workspace = dir + "/ws";
+  absl::StatusOr<SfmResult> r = ColmapSfm().Run(photos, o);
+  EXPECT_TRUE(absl::IsFailedPrecondition(r.status())) << r.status();
+}
+
+}  // namespace
+}  // namespace clnerf
