@@ -91,7 +91,7 @@ absl::StatusOr<Similarity> Refine(const Similarity& start, const std::vector<Pos
   double spread = 0;
   for (const auto& c : cs) spread = std::max(spread, (c - mean).norm());
   if (spread <= 0) return absl::FailedPreconditionError("the scan's cameras do not move");
-  const double axis = 0.05 * spread;
+  const double axis = 0.25 * spread;
   Similarity s = start;
   for (int round = 0; round < 3; ++round) {
     std::vector<Eigen::Vector3d> from, to;
