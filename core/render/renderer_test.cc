@@ -153,6 +153,25 @@ TEST(RendererTest, HazeOfFaintSamplesKeepsItsColour) {
   EXPECT_GT(MaxAbsDiff(dark->rgb.rgb, ref->rgb.rgb), 2.0f * capped.max_skipped_weight);
 }
 
+// Uniform density sigma from the box's near face on: the transmittance
+// falls to 1/2 at ln 2 / sigma past it, where the median depth must be; a
+// haze too thin to get there gives the ray's end (the far face), where the
+// expected depth stays near the camera.
+TEST(RendererTest, MedianDepthIsWhereHalfTheLightIsGone) {
+  RenderOptions median;
+  median.median_depth = true;
+  const size_t centre = size_t(11) * 37 + 18;
+  const float near_face = 1.3f - 0.5f, far_face = 1.3f + 0.5f;  // On the axis.
+  absl::StatusOr<RenderedView> dense = RenderView(HazeModel(3.0f), FrontCamera(), median);
+  ASSERT_TRUE(dense.ok());
+  EXPECT_NEAR(dense->depth[centre], near_face + std::log(2.0f) / 3.0f, 0.02f);
+  absl::StatusOr<RenderedView> thin = RenderView(HazeModel(0.3f), FrontCamera(), median);
+  absl::StatusOr<RenderedView> thin_mean = RenderView(HazeModel(0.3f), FrontCamera(), RenderOptions());
+  ASSERT_TRUE(thin.ok() && thin_mean.ok());
+  EXPECT_NEAR(thin->depth[centre], far_face, 0.02f);
+  EXPECT_LT(thin_mean->depth[centre], 0.5f);
+}
+
 TEST(RendererTest, OptionsOutOfRangeAreRefused) {
   RenderOptions o;
   EXPECT_TRUE(o.Validate().ok());
