@@ -63,8 +63,8 @@ absl::StatusOr<std::vector<clnerf::v1::Place>> ListPlaces(RemoteClient& c) {
 absl::StatusOr<std::pair<std::string, Clock::time_point>> UploadTo(RemoteClient& c, const std::string& place,
                                                                    const Scene& scan, const std::string& name) {
   absl::StatusOr<EncodedScan> enc = EncodeScan(name, scan.kind, scan.train, scan.test);
-  if (enc.ok()) enc->header.mutable_header()->set_pose_frame("place");  // Procedural scans share one frame.
   if (!enc.ok()) return enc.status();
+  enc->header.mutable_header()->set_pose_frame("place");  // Procedural scans share one frame.
   enc->header.mutable_header()->set_place(place);
   SendResult r = SendScan(c, *enc, nullptr);
   if (!r.status.ok()) return RpcError(absl::StrCat("upload to ", place), r.status);

@@ -122,8 +122,8 @@ struct UploadFigures {
 
 absl::StatusOr<UploadFigures> Upload(RemoteClient& client, const Scene& scan, const std::string& name) {
   absl::StatusOr<EncodedScan> enc = EncodeScan(name, scan.kind, scan.train, scan.test);
-  if (enc.ok()) enc->header.mutable_header()->set_pose_frame("place");  // Procedural scans share one frame.
   if (!enc.ok()) return enc.status();
+  enc->header.mutable_header()->set_pose_frame("place");  // Procedural scans share one frame.
   SendResult r = SendScan(client, *enc, nullptr);
   if (!r.status.ok()) {
     return absl::UnavailableError(absl::StrCat("upload: ", StatusCodeName(r.status.error_code()), ": ",

@@ -171,7 +171,36 @@ absl::StatusOr<nlohmann::json> ReadScanJson(const fs::path& dir) {
   }
 }
 
+// The record of the scan in `dir`, from its scan.json.
+absl::StatusOr<ScanRecord> ReadScanRecord(const fs::path& dir) {
+  absl::StatusOr<nlohmann::json> j = ReadScanJson(dir);
+  if (!j.ok()) return j.status();
+  try {
+    ScanRecord r;
+    r.scan_id = j->at("scan_id");
+    r.job_id = j->at("job_id");
+    r.name = j->at("name");
+    r.scene_kind = j->at("scene_kind");
+    r.mask_nonzero_is_exclude = j->at("mask_nonzero_is_exclude");
+    r.pose_frame = j->value("pose_frame", std::string("place"));
+    r.created_unix_ms = j->at("created_unix_ms");
+    r.num_frames = j->at("num_frames");
+    r.num_test_frames = j->at("num_test_frames");
+    r.num_bytes = j->at("num_bytes");
+    return r;
+  } catch (const std::exception& ex) {
+    return absl::DataLossError(absl::StrCat("corrupt scan manifest in ", dir.string(), ": ", ex.what()));
+  }
+}
+
 }  // namespace
+
+absl::StatusOr<ScanRecord> ScanStore::Record(const std::string& scan_id) const {
+  const fs::path dir = fs::path(dir_) / scan_id;
+  std::error_code ec;
+  if (!fs::is_directory(dir, ec)) return absl::NotFoundError(absl::StrCat("scan ", scan_id, " is not stored"));
+  return ReadScanRecord(dir);
+}
 
 absl::StatusOr<std::vector<ScanRecord>> ScanStore::List() const {
   std::vector<ScanRecord> out;
@@ -179,24 +208,9 @@ absl::StatusOr<std::vector<ScanRecord>> ScanStore::List() const {
   for (const auto& e : fs::directory_iterator(dir_, ec)) {
     const std::string name = e.path().filename().string();
     if (!e.is_directory() || name.rfind(kTmpPrefix, 0) == 0) continue;
-    absl::StatusOr<nlohmann::json> j = ReadScanJson(e.path());
-    if (!j.ok()) return j.status();
-    try {
-      ScanRecord r;
-      r.scan_id = j->at("scan_id");
-      r.job_id = j->at("job_id");
-      r.name = j->at("name");
-      r.scene_kind = j->at("scene_kind");
-      r.mask_nonzero_is_exclude = j->at("mask_nonzero_is_exclude");
-      r.pose_frame = j->value("pose_frame", std::string("place"));
-      r.created_unix_ms = j->at("created_unix_ms");
-      r.num_frames = j->at("num_frames");
-      r.num_test_frames = j->at("num_test_frames");
-      r.num_bytes = j->at("num_bytes");
-      out.push_back(std::move(r));
-    } catch (const std::exception& ex) {
-      return absl::DataLossError(absl::StrCat("corrupt scan manifest in ", e.path().string(), ": ", ex.what()));
-    }
+    absl::StatusOr<ScanRecord> r = ReadScanRecord(e.path());
+    if (!r.ok()) return r.status();
+    out.push_back(*std::move(r));
   }
   if (ec) return absl::InternalError(absl::StrCat("cannot list '", dir_, "': ", ec.message()));
   std::sort(out.begin(), out.end(), [](const ScanRecord& a, const ScanRecord& b) { return a.scan_id < b.scan_id; });

@@ -83,6 +83,8 @@ class ScanStore {
   absl::Status Save(const ScanRecord& record, const ScanUpload& scan);
   // Every stored scan, in scan-id (upload) order.
   absl::StatusOr<std::vector<ScanRecord>> List() const;
+  // One stored scan's record (NOT_FOUND when it is not stored).
+  absl::StatusOr<ScanRecord> Record(const std::string& scan_id) const;
   // Decodes the scan into views with time step `time_step`, compositing onto
   // `background` (unset: the scan's scene kind's, white for bounded, black
   // for unbounded): train frames into scene.train, test frames into

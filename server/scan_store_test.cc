@@ -55,6 +55,23 @@ TEST(ScanStoreTest, SaveListLoadRemove) {
   EXPECT_EQ((*store)->List()->size(), 1u);
 }
 
+// One scan's record, its declared pose frame included, without listing the
+// rest.
+TEST(ScanStoreTest, RecordReadsOneScan) {
+  const Scene scene = TinyScans(1, 16, 4, 2);
+  const ScanUpload up = UploadOf(scene, 0);
+  auto store = ScanStore::Open(TempDir("scanstore_record"));
+  ASSERT_TRUE(store.ok()) << store.status();
+  ScanRecord rec = Record("scan-000001", up);
+  rec.pose_frame = "place";
+  ASSERT_TRUE((*store)->Save(rec, up).ok());
+  absl::StatusOr<ScanRecord> r = (*store)->Record("scan-000001");
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->job_id, "job-scan-000001");
+  EXPECT_EQ(r->pose_frame, "place");
+  EXPECT_TRUE(absl::IsNotFound((*store)->Record("scan-000009").status()));
+}
+
 // A scan's point cloud is stored beside its frames and, when the scan is
 // loaded, becomes sparse-depth targets of its training views; a damaged
 // points file is DATA_LOSS, not a silently different prior.

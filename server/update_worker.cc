@@ -28,16 +28,14 @@ JobPhase ToJobPhase(UpdatePhase p) {
   return JobPhase::kTraining;
 }
 
+// Why a job stopped by shutdown ended: its scan stays for the next start.
+constexpr const char* kKeptForRestart = "server shut down; the scan is kept and retrained after restart";
+
 // The frame the scan's poses are in, as its upload declared it ("own" when
 // it cannot be read: registration then decides).
 std::string PoseFrameOf(const ScanStore& scans, const std::string& scan_id) {
-  absl::StatusOr<std::vector<ScanRecord>> all = scans.List();
-  if (all.ok()) {
-    for (const ScanRecord& r : *all) {
-      if (r.scan_id == scan_id) return r.pose_frame == "place" ? "place" : "own";
-    }
-  }
-  return "own";
+  absl::StatusOr<ScanRecord> r = scans.Record(scan_id);
+  return r.ok() && r->pose_frame == "place" ? "place" : "own";
 }
 
 // The previous version's PSNR on its own new scan, measured as this gate
@@ -198,8 +196,7 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
       &cancel_);
   if (absl::IsCancelled(r.status)) {
     if (stopping_) {
-      Finish(job_id, scan_id, JobPhase::kCancelled, "server shut down; the scan is kept and retrained after restart",
-             false);
+      Finish(job_id, scan_id, JobPhase::kCancelled, kKeptForRestart, false);
     } else {
       Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled by request", true);
     }
@@ -241,7 +238,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
       return;
     }
   }
-  const std::string kept = "server shut down; the scan is kept and retrained after restart";
+  const std::string kept = kKeptForRestart;
   if (job->cancel_requested) return Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled", true);
   // A deployed version not loaded yet is checked first: if it cannot load,
   // the store turns read-only and the job waits like any write would.
