@@ -21,6 +21,7 @@ const char* JobPhaseName(JobPhase p) {
     case JobPhase::kFailed: return "failed";
     case JobPhase::kCancelled: return "cancelled";
     case JobPhase::kRegistering: return "registering";
+    case JobPhase::kPosing: return "posing";
   }
   return "unknown";
 }

@@ -30,10 +30,10 @@
 
 namespace clnerf {
 
-// (The order matches the wire enum's, less one; kRegistering runs before
-// kPreparingReplay.)
+// (The order matches the wire enum's, less one; kPosing then kRegistering
+// run before kPreparingReplay.)
 enum class JobPhase {
-  kQueued, kPreparingReplay, kTraining, kValidating, kPublishing, kDone, kFailed, kCancelled, kRegistering
+  kQueued, kPreparingReplay, kTraining, kValidating, kPublishing, kDone, kFailed, kCancelled, kRegistering, kPosing
 };
 const char* JobPhaseName(JobPhase p);
 inline bool IsFinal(JobPhase p) { return p == JobPhase::kDone || p == JobPhase::kFailed || p == JobPhase::kCancelled; }

@@ -224,6 +224,7 @@ absl::StatusOr<UploadAck> ModelHost::AcceptScanImpl(const ScanUpload& upload) {
   rec.scene_kind = upload.scene_kind;
   rec.mask_nonzero_is_exclude = upload.mask_nonzero_is_exclude;
   rec.pose_frame = upload.pose_frame;
+  rec.sequential = upload.sequential;
   rec.created_unix_ms = NowUnixMs();
   for (const ScanFrame& f : upload.frames) (f.test ? rec.num_test_frames : rec.num_frames)++;
   rec.num_bytes = upload.num_bytes();

@@ -26,16 +26,31 @@ absl::StatusOr<ScanHeaderDecl> HeaderFromProto(const v1::ScanHeader& h) {
     decl.points.push_back(p);
   }
   if (h.frames_size() == 0) return absl::InvalidArgumentError("scan header lists no training frames");
+  // Unposed: no frame has a camera (the server poses the scan).
+  const bool unposed = !h.frames(0).has_camera();
+  if (unposed && decl.pose_frame == "place") {
+    return absl::InvalidArgumentError("scan header: an unposed scan (frames without cameras) cannot be \"place\"");
+  }
+  if (unposed) decl.pose_frame = "unposed";
+  decl.sequential = h.sequential();
   const int n = h.frames_size() + h.test_frames_size();
   for (int i = 0; i < n; ++i) {
     const bool test = i >= h.frames_size();
     const v1::Frame& f = test ? h.test_frames(i - h.frames_size()) : h.frames(i);
     const std::string what = absl::StrCat(test ? "test frame " : "frame ", test ? i - h.frames_size() : i);
-    absl::StatusOr<Camera> cam = CameraFromProto(f.camera(), what);
-    if (!cam.ok()) return cam.status();
+    if (f.has_camera() == unposed) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          what, ": a scan's frames must be all posed or all unposed (", unposed ? "frame 0 has no camera" : "no camera",
+          ")"));
+    }
     DeclaredFrame df;
     df.frame.name = f.name().empty() ? absl::StrCat(test ? "test_" : "frame_", i) : f.name();
-    df.frame.camera = *cam;
+    df.frame.posed = !unposed;
+    if (!unposed) {
+      absl::StatusOr<Camera> cam = CameraFromProto(f.camera(), what);
+      if (!cam.ok()) return cam.status();
+      df.frame.camera = *cam;
+    }
     df.frame.test = test;
     df.image_bytes = f.image_bytes();
     df.mask_bytes = f.mask_bytes();

@@ -81,6 +81,7 @@ absl::Status ScanAssembler::Begin(ScanHeaderDecl header) {
   upload_.scene_kind = std::move(header.scene_kind);
   upload_.mask_nonzero_is_exclude = header.mask_nonzero_is_exclude;
   upload_.pose_frame = std::move(header.pose_frame);
+  upload_.sequential = header.sequential;
   upload_.points = std::move(header.points);
   for (DeclaredFrame& f : header.frames) {
     want_image_.push_back(f.image_bytes);

@@ -48,7 +48,8 @@ struct ScanHeaderDecl {
   std::string name;
   std::string scene_kind;
   bool mask_nonzero_is_exclude = false;
-  std::string pose_frame;  // "" / "own" or "place" (ScanUpload::pose_frame).
+  std::string pose_frame;  // "" / "own", "place" or "unposed" (ScanUpload::pose_frame).
+  bool sequential = false;
   std::vector<DeclaredFrame> frames;  // Training frames first, then test frames.
   std::vector<Eigen::Vector3f> points;  // Optional sparse point cloud.
 };

@@ -65,42 +65,74 @@ absl::Status FrameError(const ScanFrame& f, size_t i, const absl::Status& s) {
 
 }  // namespace
 
+namespace {
+
+// One frame: camera (when posed), image, its size, its pixels, its mask.
+// `size` is the image's width and height, for the caller's checks.
+absl::Status ValidateFrame(const ScanFrame& f, bool mask_nonzero_is_exclude, Eigen::Vector2i* size) {
+  if (f.posed) {
+    if (absl::Status s = ValidateCamera(f.camera); !s.ok()) return s;
+  }
+  const std::string ext = SniffImageExtension(f.image);
+  if (ext.empty()) return absl::InvalidArgumentError("image is not PNG, JPEG, EXR, TIFF or BMP");
+  absl::StatusOr<Image> img = DecodeImage(f.image, f.name + ext);
+  if (!img.ok()) return img.status();
+  *size = {img->width, img->height};
+  if (f.posed && (img->width != f.camera.intrinsics.width || img->height != f.camera.intrinsics.height)) {
+    return absl::InvalidArgumentError(absl::StrCat("image is ", img->width, "x", img->height,
+                                                   " but the intrinsics say ", f.camera.intrinsics.width, "x",
+                                                   f.camera.intrinsics.height));
+  }
+  for (float v : img->rgb) {
+    if (!std::isfinite(v)) return absl::InvalidArgumentError("image has non-finite pixels");
+  }
+  if (f.mask.empty()) return absl::OkStatus();
+  const std::string mext = SniffImageExtension(f.mask);
+  if (mext.empty()) return absl::InvalidArgumentError("mask is not a known image format");
+  absl::StatusOr<Mask> m = DecodeMask(f.mask, f.name + "_mask" + mext, mask_nonzero_is_exclude);
+  if (!m.ok()) return m.status();
+  if (m->width != img->width || m->height != img->height) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("mask is ", m->width, "x", m->height, " but the image is ", img->width, "x", img->height));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
 absl::Status ValidateScanUpload(const ScanUpload& scan) {
   if (scan.frames.empty()) return absl::InvalidArgumentError("scan has no frames");
   for (size_t i = 0; i < scan.points.size(); ++i) {
     if (!scan.points[i].allFinite()) return absl::InvalidArgumentError(absl::StrCat("point ", i, " is not finite"));
   }
+  const bool unposed = !scan.frames[0].posed;
+  if (unposed && !scan.points.empty()) {
+    return absl::InvalidArgumentError("an unposed scan cannot carry points (they would have no frame)");
+  }
+  if (unposed && int(scan.frames.size()) < kMinUnposedFrames) {
+    return absl::InvalidArgumentError(absl::StrCat("an unposed scan needs at least ", kMinUnposedFrames,
+                                                   " frames to be posed, not ", scan.frames.size()));
+  }
   int train = 0;
   std::set<std::string> names;
+  Eigen::Vector2i first_size(0, 0);
   for (size_t i = 0; i < scan.frames.size(); ++i) {
     const ScanFrame& f = scan.frames[i];
     if (!f.test) ++train;
     if (!names.insert(f.name).second) {
       return absl::InvalidArgumentError(absl::StrCat("frame name '", f.name, "' appears twice"));
     }
-    if (absl::Status s = ValidateCamera(f.camera); !s.ok()) return FrameError(f, i, s);
-    const std::string ext = SniffImageExtension(f.image);
-    if (ext.empty()) return FrameError(f, i, absl::InvalidArgumentError("image is not PNG, JPEG, EXR, TIFF or BMP"));
-    absl::StatusOr<Image> img = DecodeImage(f.image, f.name + ext);
-    if (!img.ok()) return FrameError(f, i, img.status());
-    if (img->width != f.camera.intrinsics.width || img->height != f.camera.intrinsics.height) {
+    if (f.posed == unposed) {
+      return FrameError(f, i, absl::InvalidArgumentError(
+                                  "a scan's frames must be all posed or all unposed (this one is not like frame 0)"));
+    }
+    Eigen::Vector2i size(0, 0);
+    if (absl::Status s = ValidateFrame(f, scan.mask_nonzero_is_exclude, &size); !s.ok()) return FrameError(f, i, s);
+    if (i == 0) first_size = size;
+    if (unposed && size != first_size) {
       return FrameError(f, i, absl::InvalidArgumentError(absl::StrCat(
-                                  "image is ", img->width, "x", img->height, " but the intrinsics say ",
-                                  f.camera.intrinsics.width, "x", f.camera.intrinsics.height)));
-    }
-    for (float v : img->rgb) {
-      if (!std::isfinite(v)) return FrameError(f, i, absl::InvalidArgumentError("image has non-finite pixels"));
-    }
-    if (!f.mask.empty()) {
-      const std::string mext = SniffImageExtension(f.mask);
-      if (mext.empty()) return FrameError(f, i, absl::InvalidArgumentError("mask is not a known image format"));
-      absl::StatusOr<Mask> m = DecodeMask(f.mask, f.name + "_mask" + mext, scan.mask_nonzero_is_exclude);
-      if (!m.ok()) return FrameError(f, i, m.status());
-      if (m->width != img->width || m->height != img->height) {
-        return FrameError(f, i, absl::InvalidArgumentError(absl::StrCat("mask is ", m->width, "x", m->height,
-                                                                        " but the image is ", img->width, "x",
-                                                                        img->height)));
-      }
+                                  "image is ", size.x(), "x", size.y(), " but frame 0 is ", first_size.x(), "x",
+                                  first_size.y(), " (an unposed scan is one camera: every image the same size)")));
     }
   }
   if (train == 0) return absl::InvalidArgumentError("scan has only test frames; at least one training frame is needed");
@@ -124,7 +156,8 @@ absl::Status ScanStore::Save(const ScanRecord& record, const ScanUpload& scan) {
   nlohmann::json frames = nlohmann::json::array();
   for (size_t i = 0; i < scan.frames.size(); ++i) {
     const ScanFrame& f = scan.frames[i];
-    nlohmann::json fj = {{"name", f.name}, {"test", f.test}, {"camera", CameraToJson(f.camera)}};
+    nlohmann::json fj = {{"name", f.name}, {"test", f.test}};
+    if (f.posed) fj["camera"] = CameraToJson(f.camera);
     fj["image"] = FrameFile(int(i), false, SniffImageExtension(f.image));
     files.emplace_back(fj["image"], f.image);
     if (!f.mask.empty()) {
@@ -143,6 +176,7 @@ absl::Status ScanStore::Save(const ScanRecord& record, const ScanUpload& scan) {
                             {"scene_kind", record.scene_kind},
                             {"mask_nonzero_is_exclude", record.mask_nonzero_is_exclude},
                             {"pose_frame", record.pose_frame},
+                            {"sequential", record.sequential},
                             {"created_unix_ms", record.created_unix_ms},
                             {"num_frames", record.num_frames},
                             {"num_test_frames", record.num_test_frames},
@@ -183,6 +217,7 @@ absl::StatusOr<ScanRecord> ReadScanRecord(const fs::path& dir) {
     r.scene_kind = j->at("scene_kind");
     r.mask_nonzero_is_exclude = j->at("mask_nonzero_is_exclude");
     r.pose_frame = j->value("pose_frame", std::string("place"));
+    r.sequential = j->value("sequential", false);
     r.created_unix_ms = j->at("created_unix_ms");
     r.num_frames = j->at("num_frames");
     r.num_test_frames = j->at("num_test_frames");
@@ -232,6 +267,9 @@ absl::StatusOr<Scene> ScanStore::Load(const std::string& scan_id, int time_step,
     for (const auto& fj : j->at("frames")) {
       View v;
       v.name = fj.at("name");
+      if (!fj.contains("camera")) {
+        return absl::FailedPreconditionError(absl::StrCat("scan ", scan_id, " is not posed yet"));
+      }
       v.camera = CameraFromJson(fj.at("camera"));
       v.camera.time_step = time_step;
       const std::string img_file = fj.at("image");
@@ -270,6 +308,62 @@ absl::StatusOr<Scene> ScanStore::Load(const std::string& scan_id, int time_step,
     return absl::DataLossError(absl::StrCat("corrupt scan ", scan_id, ": ", e.what()));
   }
   return scene;
+}
+
+absl::StatusOr<std::vector<std::string>> ScanStore::ImageFiles(const std::string& scan_id) const {
+  const fs::path dir = fs::path(dir_) / scan_id;
+  absl::StatusOr<nlohmann::json> j = ReadScanJson(dir);
+  if (!j.ok()) return j.status();
+  std::vector<std::string> out;
+  try {
+    for (const auto& fj : j->at("frames")) out.push_back((dir / fj.at("image").get<std::string>()).string());
+  } catch (const std::exception& e) {
+    return absl::DataLossError(absl::StrCat("corrupt scan ", scan_id, ": ", e.what()));
+  }
+  return out;
+}
+
+absl::Status ScanStore::SetPoses(const std::string& scan_id, const std::vector<std::optional<Camera>>& cameras,
+                                 const std::vector<Eigen::Vector3f>& points) {
+  const fs::path dir = fs::path(dir_) / scan_id;
+  absl::StatusOr<nlohmann::json> j = ReadScanJson(dir);
+  if (!j.ok()) return j.status();
+  try {
+    const nlohmann::json& in = j->at("frames");
+    if (in.size() != cameras.size()) {
+      return absl::InvalidArgumentError(absl::StrCat("scan ", scan_id, " has ", in.size(), " frames, not ",
+                                                     cameras.size()));
+    }
+    nlohmann::json kept = nlohmann::json::array();
+    int train = 0, test = 0;
+    for (size_t i = 0; i < in.size(); ++i) {
+      if (!cameras[i]) continue;
+      nlohmann::json fj = in[i];
+      fj["camera"] = CameraToJson(*cameras[i]);
+      (fj.at("test").get<bool>() ? test : train)++;
+      kept.push_back(std::move(fj));
+    }
+    if (train == 0) {
+      return absl::FailedPreconditionError(absl::StrCat("no training frame of scan ", scan_id, " was posed"));
+    }
+    (*j)["frames"] = std::move(kept);
+    (*j)["num_frames"] = train;
+    (*j)["num_test_frames"] = test;
+    (*j)["pose_frame"] = "own";
+    (*j)["posed_by_server"] = true;
+    if (j->at("scene_kind").get<std::string>().empty()) (*j)["scene_kind"] = "unbounded";
+    j->erase("points");
+    j->erase("num_points");
+    if (!points.empty()) {
+      const std::string_view bytes(reinterpret_cast<const char*>(points.data()), points.size() * sizeof(points[0]));
+      if (absl::Status s = WriteFileSynced((dir / "points.f32").string(), bytes); !s.ok()) return s;
+      (*j)["points"] = "points.f32";
+      (*j)["num_points"] = points.size();
+    }
+  } catch (const std::exception& e) {
+    return absl::DataLossError(absl::StrCat("corrupt scan ", scan_id, ": ", e.what()));
+  }
+  return AtomicWriteFile((dir / "scan.json").string(), j->dump(1));
 }
 
 absl::StatusOr<int> ScanStore::RecordAttempt(const std::string& scan_id) {

@@ -29,6 +29,9 @@ namespace clnerf {
 // One uploaded frame: camera (OpenCV convention) and encoded bytes.
 struct ScanFrame {
   std::string name;
+  // Unposed frames (an unposed scan) carry only the image's size here, and
+  // the server poses them (ScanStore::SetPoses) before they train.
+  bool posed = true;
   Camera camera;
   bool test = false;  // Held-out frame (deployment gate), not trained on.
   std::string image;  // Encoded image (PNG, JPEG, EXR, ...).
@@ -43,7 +46,10 @@ struct ScanUpload {
   // "" / "own": the poses are in the scan's own frame and must be registered
   // into the place's; "place": already in the place's frame (checked when
   // possible). See ScanHeader.pose_frame.
+  // "unposed" when no frame has a camera (set by the transport): the server
+  // poses the scan itself, then treats it as "own".
   std::string pose_frame;
+  bool sequential = false;  // Unposed: the frames are in capture order (video).
   std::vector<ScanFrame> frames;
   // Optional sparse point cloud (world frame); the training views get
   // sparse-depth targets from it when the scan is loaded.
@@ -65,7 +71,9 @@ struct ScanRecord {
   std::string scene_kind;
   bool mask_nonzero_is_exclude = false;
   // As ScanUpload::pose_frame; scans stored before it existed read "place".
+  // "unposed" until SetPoses, then "own".
   std::string pose_frame;
+  bool sequential = false;
   int64_t created_unix_ms = 0;
   int num_frames = 0, num_test_frames = 0;
   int64_t num_bytes = 0;
@@ -93,6 +101,18 @@ class ScanStore {
                              const std::optional<Eigen::Vector3f>& background) const;
   absl::Status Remove(const std::string& scan_id);
 
+  // Unposed scans. The stored image file of every frame, in upload order
+  // (frames, then test frames), for the pose estimator to read.
+  absl::StatusOr<std::vector<std::string>> ImageFiles(const std::string& scan_id) const;
+  // Records the poses found for an unposed scan, one per ImageFiles() entry
+  // (none: the frame could not be posed and is dropped), and the sparse
+  // points in the same frame. The manifest is replaced atomically (temp
+  // file, fsync, rename); the scan then reads as posed in its own frame
+  // ("own"), scene kind "unbounded" unless the upload named one.
+  // FAILED_PRECONDITION when no training frame keeps a pose.
+  absl::Status SetPoses(const std::string& scan_id, const std::vector<std::optional<Camera>>& cameras,
+                        const std::vector<Eigen::Vector3f>& points);
+
   // Poison-scan bookkeeping: the update worker records an attempt (durably)
   // before it trains a scan and clears the count when it stops the scan
   // cleanly (shutdown), so the count is the number of attempts that ended in
@@ -114,8 +134,11 @@ class ScanStore {
 
 // Decodes and checks one upload fully (images decode, sizes match the
 // intrinsics, masks match the images, cameras are rigid and finite, names are
-// unique). INVALID_ARGUMENT naming the first bad frame otherwise.
+// unique; an unposed scan: every frame unposed, one image size, at least
+// kMinUnposedFrames frames, no points). INVALID_ARGUMENT naming the first bad
+// frame otherwise.
 absl::Status ValidateScanUpload(const ScanUpload& scan);
+inline constexpr int kMinUnposedFrames = 3;
 
 }  // namespace clnerf
 

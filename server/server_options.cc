@@ -81,6 +81,10 @@ absl::Status ServerOptions::Validate() const {
   }
   if (absl::Status s = update.Validate(); !s.ok()) return s;
   if (absl::Status s = registration.Validate(); !s.ok()) return s;
+  SfmOptions sfm = posing;
+  if (sfm.workspace.empty()) sfm.workspace = "(per job)";
+  if (absl::Status s = sfm.Validate(); !s.ok()) return s;
+  if (colmap_binary.empty()) return absl::InvalidArgumentError("colmap_binary is empty");
   if (first_scan_iterations < 0) return absl::InvalidArgumentError("first_scan_iterations must be >= 0");
   return gate.Validate();
 }
@@ -108,6 +112,25 @@ absl::Status ApplyGate(const nlohmann::json& g, GateOptions* o) {
     else if (k == "validation_views") s = Get(*it, "gate.validation_views", &o->validation_views);
     else if (k == "max_new_psnr_drop_db") s = Get(*it, "gate.max_new_psnr_drop_db", &o->max_new_psnr_drop_db);
     else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'gate.", k, "'"));
+    if (!s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ApplyPosing(const nlohmann::json& g, ServerOptions* o) {
+  if (!g.is_object()) return absl::InvalidArgumentError("config key 'posing' must be an object");
+  for (auto it = g.begin(); it != g.end(); ++it) {
+    const std::string& k = it.key();
+    absl::Status s;
+    if (k == "min_registered_fraction") {
+      s = Get(*it, "posing.min_registered_fraction", &o->posing.min_registered_fraction);
+    } else if (k == "max_reprojection_px") {
+      s = Get(*it, "posing.max_reprojection_px", &o->posing.max_reprojection_px);
+    } else if (k == "colmap") {
+      s = Get(*it, "posing.colmap", &o->colmap_binary);
+    } else {
+      return absl::InvalidArgumentError(absl::StrCat("unknown config key 'posing.", k, "'"));
+    }
     if (!s.ok()) return s;
   }
   return absl::OkStatus();
@@ -223,6 +246,8 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
       s = ApplyGate(*it, &o->gate);
     } else if (k == "registration") {
       s = ApplyRegistration(*it, &o->registration);
+    } else if (k == "posing") {
+      s = ApplyPosing(*it, o);
     } else {
       return absl::InvalidArgumentError(absl::StrCat("unknown config key '", k, "'"));
     }

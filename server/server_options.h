@@ -22,6 +22,7 @@
 #include "core/continual/continual_update.h"
 #include "core/continual/deployment_gate.h"
 #include "core/pose/registration.h"
+#include "core/pose/sfm.h"
 #include "server/scan_assembler.h"
 
 namespace clnerf {
@@ -105,6 +106,12 @@ struct ServerOptions {
   // Registration of every later scan into its place's frame before it
   // trains (core/pose/registration.h); config object "registration".
   RegistrationOptions registration;
+  // Posing of unposed scans (photos, a video's frames) with structure from
+  // motion before they register or train (core/pose/sfm.h); config object
+  // "posing". The workspace is set per job (under the store), so it stays
+  // empty here.
+  SfmOptions posing;
+  std::string colmap_binary = "colmap";  // Looked up on PATH.
 
   // CLNeRF with warm start, offline replay, 300 iterations per update
   // (a lego_100 task in ~35 s on 2 cores; see README).

@@ -97,6 +97,12 @@ class UpdateWorker {
   // phase REGISTERING. A scan that cannot be placed is parked and its job
   // ends FAILED ("place" scans train as uploaded instead). Returns false
   // when the job has ended; adds the registration's metrics to `metrics`.
+  // Poses an unposed scan with structure from motion (ColmapSfm) in phase
+  // POSING and stores the poses with it (ScanStore::SetPoses): the scan then
+  // reads as posed in its own frame. A scan that cannot be posed ends its
+  // job FAILED and is removed (nothing else changes). Returns false when
+  // the job has ended; adds posing_* metrics to `metrics`.
+  bool PoseScan(const std::string& job_id, const ScanRecord& scan, std::map<std::string, double>* metrics);
   bool RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,
                          Scene* scene, std::map<std::string, double>* metrics);
 

@@ -1,0 +1,121 @@
+#include "core/pose/video_frames.h"
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "core/data/stopwatch.h"
+#include "core/pose/process.h"
+#include "opencv2/core.hpp"
+#include "opencv2/imgcodecs.hpp"
+#include "opencv2/imgproc.hpp"
+
+namespace clnerf {
+
+namespace fs = std::filesystem;
+
+absl::Status VideoFrameOptions::Validate() const {
+  if (frames < 1) return absl::InvalidArgumentError("VideoFrameOptions::frames must be >= 1");
+  if (window < 1) return absl::InvalidArgumentError("VideoFrameOptions::window must be >= 1");
+  if (max_side < 16) return absl::InvalidArgumentError("VideoFrameOptions::max_side must be >= 16");
+  return absl::OkStatus();
+}
+
+double Sharpness(const std::string& image_file) {
+  cv::Mat grey = cv::imread(image_file, cv::IMREAD_GRAYSCALE);
+  if (grey.empty()) return -1;
+  cv::Mat lap;
+  cv::Laplacian(grey, lap, CV_32F);
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(lap, mean, stddev);
+  return stddev[0] * stddev[0];
+}
+
+namespace {
+
+// "key=value" lines of ffprobe's default writer.
+absl::Status Probe(const std::string& video, const std::string& log, const VideoFrameOptions& o,
+                   const std::atomic<bool>* cancel, VideoFrames* out) {
+  absl::Status s = RunProcess({o.ffprobe, "-v", "error", "-select_streams", "v:0", "-show_entries",
+                               "format=duration:stream=width,height", "-of", "default=noprint_wrappers=1", video},
+                              log, cancel);
+  if (absl::IsNotFound(s) || absl::IsCancelled(s)) return s;
+  if (!s.ok()) return absl::InvalidArgumentError(absl::StrCat(video, " is not a video ffprobe can read: ",
+                                                              TailOfFile(log, 2)));
+  std::ifstream in(log);
+  std::string line;
+  while (std::getline(in, line)) {
+    const size_t eq = line.find('=');
+    if (eq == std::string::npos) continue;
+    const std::string key = line.substr(0, eq), value = line.substr(eq + 1);
+    if (key == "width") (void)absl::SimpleAtoi(value, &out->width);
+    if (key == "height") (void)absl::SimpleAtoi(value, &out->height);
+    if (key == "duration") (void)absl::SimpleAtod(value, &out->duration_seconds);
+  }
+  if (out->width <= 0 || out->height <= 0) {
+    return absl::InvalidArgumentError(absl::StrCat(video, " has no video stream"));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<VideoFrames> ExtractVideoFrames(const std::string& video, const std::string& out_dir,
+                                               const VideoFrameOptions& o, const std::atomic<bool>* cancel) {
+  if (absl::Status s = o.Validate(); !s.ok()) return s;
+  const auto t0 = std::chrono::steady_clock::now();
+  std::error_code ec;
+  if (!fs::is_regular_file(video, ec)) return absl::NotFoundError(absl::StrCat("no video file ", video));
+  fs::create_directories(out_dir, ec);
+  if (ec || !fs::is_empty(out_dir, ec)) {
+    return absl::InvalidArgumentError(absl::StrCat("cannot use ", out_dir, " for frames: not an empty folder"));
+  }
+  const fs::path cand = fs::path(out_dir) / "candidates";
+  fs::create_directories(cand, ec);
+  const std::string log = (fs::path(out_dir) / "ffmpeg.log").string();
+  VideoFrames out;
+  if (absl::Status s = Probe(video, (fs::path(out_dir) / "ffprobe.log").string(), o, cancel, &out); !s.ok()) {
+    return s;
+  }
+  // A steady rate that gives window candidates per wanted frame (the
+  // stream's own rate caps it: then every frame is a candidate).
+  const double rate = out.duration_seconds > 0 ? o.frames * o.window / out.duration_seconds : 2.0;
+  std::string filter = absl::StrFormat("fps=%.6f", rate);
+  if (std::max(out.width, out.height) > o.max_side) {
+    // Rotation-proof: the longer side, whichever it is after autorotation.
+    filter += absl::StrFormat(",scale=%d:%d:force_original_aspect_ratio=decrease:force_divisible_by=2", o.max_side,
+                              o.max_side);
+  }
+  absl::Status s = RunProcess({o.ffmpeg, "-nostdin", "-v", "error", "-i", video, "-vf", filter, "-vsync", "vfr",
+                               "-q:v", "2", (cand / "c_%05d.jpg").string()},
+                              log, cancel);
+  if (!s.ok()) return s;
+  std::vector<fs::path> files;
+  for (const auto& e : fs::directory_iterator(cand, ec)) files.push_back(e.path());
+  std::sort(files.begin(), files.end());
+  out.candidates = int(files.size());
+  if (files.empty()) return absl::InvalidArgumentError(absl::StrCat("ffmpeg decoded no frame of ", video));
+  const int window = std::max(1, int(std::ceil(double(files.size()) / o.frames)));
+  for (size_t begin = 0; begin < files.size(); begin += size_t(window)) {
+    const size_t end = std::min(files.size(), begin + size_t(window));
+    size_t best = begin;
+    double best_sharpness = -2;
+    for (size_t i = begin; i < end; ++i) {
+      const double v = Sharpness(files[i].string());
+      if (v > best_sharpness) best_sharpness = v, best = i;
+    }
+    const fs::path kept = fs::path(out_dir) / absl::StrFormat("frame_%04d.jpg", out.files.size());
+    fs::rename(files[best], kept, ec);
+    if (ec) return absl::InternalError(absl::StrCat("cannot keep ", files[best].string(), ": ", ec.message()));
+    out.files.push_back(kept.string());
+  }
+  fs::remove_all(cand, ec);
+  out.seconds = SecondsSince(t0);
+  return out;
+}
+
+}  // namespace clnerf
