@@ -1,5 +1,6 @@
 #include "client/job_watch.h"
 
+#include <algorithm>
 #include <cstdio>
 #include <memory>
 
@@ -54,12 +55,19 @@ WatchOutcome FollowJob(RemoteClient& client, const std::string& job_id, const st
       if (bar) {
         if (job.phase() == clnerf::v1::JOB_PHASE_FAILED || job.phase() == clnerf::v1::JOB_PHASE_CANCELLED) bar->Abort();
         else if (out.job.phase() == clnerf::v1::JOB_PHASE_REGISTERING) bar->Finish("frames localised");
+        else if (out.job.phase() == clnerf::v1::JOB_PHASE_POSING) bar->Finish("posed");
         else bar->Finish(TrainMetrics(out.job));
         bar.reset();
       }
       LogPhase(job);
     }
     out.job = job;
+    if (job.phase() == clnerf::v1::JOB_PHASE_POSING && job.total_iterations() > 0) {
+      static const char* kStages[] = {"finding features", "matching photos", "building the model"};
+      if (!bar) bar = std::make_unique<ProgressBar>("pose", job.total_iterations());
+      bar->SetTiming(job.elapsed_seconds(), job.eta_seconds());
+      bar->Update(job.iteration(), std::string("COLMAP: ") + kStages[std::clamp(job.iteration(), 0, 2)]);
+    }
     if (job.phase() == clnerf::v1::JOB_PHASE_REGISTERING && job.total_iterations() > 0) {
       if (!bar) bar = std::make_unique<ProgressBar>("register", job.total_iterations());
       bar->SetTiming(job.elapsed_seconds(), job.eta_seconds());

@@ -46,6 +46,12 @@ struct UploadArgs {
   // own: the poses are in the capture's own frame (registered into the
   // place's by the server); place: already in the place's frame.
   std::string pose_frame = "own";
+  // Unposed uploads (the server poses them): `dir` a folder of photos only,
+  // a video file, or any dataset with --unposed (its poses are not sent).
+  bool unposed = false;
+  bool sequential = false;  // Photos in capture order (always for a video).
+  int video_frames = 60;    // Frames kept from a video (sharpest per window).
+  int video_max_side = 640; // Longer side of the kept frames.
 };
 
 struct JobArgs {  // watch, cancel.

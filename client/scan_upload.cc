@@ -3,11 +3,14 @@
 
 #include <algorithm>
 #include <chrono>
+#include <filesystem>
 
+#include "absl/strings/ascii.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/remote_format.h"
 #include "core/data/image.h"
+#include "core/io/durable_file.h"
 
 namespace clnerf {
 
@@ -48,6 +51,47 @@ absl::StatusOr<EncodedScan> EncodeScan(const std::string& name, SceneKind kind, 
       out.files.emplace_back(std::move(*png), std::move(mask));
     }
   }
+  return out;
+}
+
+absl::StatusOr<EncodedScan> EncodeUnposedPhotos(const std::string& name, const std::vector<std::string>& files,
+                                                bool sequential) {
+  EncodedScan out;
+  clnerf::v1::ScanHeader* header = out.header.mutable_header();
+  header->set_name(name);
+  header->set_sequential(sequential);
+  for (const std::string& file : files) {
+    absl::StatusOr<std::string> bytes = ReadFileToString(file, "photo");
+    if (!bytes.ok()) return bytes.status();
+    clnerf::v1::Frame* frame = header->add_frames();
+    frame->set_name(std::filesystem::path(file).filename().string());
+    frame->set_image_bytes(int64_t(bytes->size()));
+    out.total_bytes += int64_t(bytes->size());
+    out.files.emplace_back(*std::move(bytes), std::string());
+  }
+  return out;
+}
+
+void DropPoses(EncodedScan* scan, bool sequential) {
+  clnerf::v1::ScanHeader* header = scan->header.mutable_header();
+  for (clnerf::v1::Frame& f : *header->mutable_frames()) f.clear_camera();
+  for (clnerf::v1::Frame& f : *header->mutable_test_frames()) f.clear_camera();
+  header->clear_points();
+  header->clear_pose_frame();
+  header->set_sequential(sequential);
+}
+
+std::vector<std::string> ListPhotos(const std::string& dir) {
+  std::vector<std::string> out;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(dir, ec)) {
+    if (!e.is_regular_file()) continue;
+    const std::string ext = absl::AsciiStrToLower(e.path().extension().string());
+    if (ext == ".jpg" || ext == ".jpeg" || ext == ".png" || ext == ".tif" || ext == ".tiff" || ext == ".bmp") {
+      out.push_back(e.path().string());
+    }
+  }
+  std::sort(out.begin(), out.end());
   return out;
 }
 

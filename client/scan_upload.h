@@ -34,6 +34,17 @@ absl::StatusOr<EncodedScan> EncodeScan(const std::string& name, SceneKind kind, 
                                        const std::vector<Eigen::Vector3f>& points = {});
 inline constexpr size_t kMaxUploadPoints = 250000;
 
+// Unposed scans (the server poses them with COLMAP): the photo files' own
+// bytes (JPEG, PNG, ... as taken) as frames without cameras, named by file.
+// `sequential`: the photos are in capture order (a video's frames).
+absl::StatusOr<EncodedScan> EncodeUnposedPhotos(const std::string& name, const std::vector<std::string>& files,
+                                                bool sequential);
+// Makes an encoded posed scan unposed: cameras and points dropped.
+void DropPoses(EncodedScan* scan, bool sequential);
+// The photos in a folder (.jpg .jpeg .png .tif .tiff .bmp, any case), by
+// name; not recursive.
+std::vector<std::string> ListPhotos(const std::string& dir);
+
 struct SendResult {
   grpc::Status status;
   clnerf::v1::UploadScanResponse response;

@@ -1,6 +1,7 @@
 // Remote verb `upload`: a dataset folder becomes one scan on the server.
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 
 #include "absl/strings/str_format.h"
@@ -13,6 +14,7 @@
 #include "client/remote_format.h"
 #include "client/scan_upload.h"
 #include "core/data/dataset.h"
+#include "core/pose/video_frames.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {
@@ -31,8 +33,10 @@ std::vector<View>* TestViews(Scene& scene, const std::string& split) {
 
 CLI::App* BindUpload(CLI::App* parent, UploadArgs* a) {
   CLI::App* c = parent->add_subcommand(
-      "upload", "Upload a scan folder (Blender, transforms.json, COLMAP or LLFF) to the server");
-  c->add_option("dir", a->dir, "Dataset directory")->required();
+      "upload",
+      "Upload a scan: a dataset folder (Blender, transforms.json, COLMAP or LLFF), a folder of photos, or a "
+      "video; photos and videos are posed by the server (COLMAP)");
+  c->add_option("dir", a->dir, "Dataset or photo folder, or a video file")->required();
   c->add_option("--name", a->name, "Scan name (default: the folder's name)");
   c->add_option("--test-split", a->test_split, "Held-out frames: test (falls back to val), val or none")
       ->capture_default_str();
@@ -42,9 +46,58 @@ CLI::App* BindUpload(CLI::App* parent, UploadArgs* a) {
                 "registers the scan into the place's frame); place: already in the place's frame")
       ->check(CLI::IsMember({"own", "place"}))
       ->capture_default_str();
+  c->add_flag("--unposed", a->unposed, "Send a dataset's photos without their poses (the server poses them)");
+  c->add_flag("--sequential", a->sequential,
+              "Unposed photos are in capture order: match neighbours (COLMAP's sequential matcher; a video always is)");
+  c->add_option("--frames", a->video_frames, "Video: frames to keep (the sharpest of each window)")
+      ->check(CLI::Range(3, 2000))
+      ->capture_default_str();
+  c->add_option("--max-side", a->video_max_side, "Video: longer side of the kept frames in pixels")
+      ->check(CLI::Range(64, 4096))
+      ->capture_default_str();
   BindRemoteFlags(c, &a->remote);
   return c;
 }
+
+namespace {
+
+// A scan's encoding from what `a.dir` holds: a video (frames extracted into
+// `scratch`), a dataset (posed unless --unposed) or a folder of photos only.
+absl::StatusOr<EncodedScan> EncodeUpload(const UploadArgs& a, const std::string& scratch) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (fs::is_regular_file(a.dir, ec)) {
+    VideoFrameOptions vo;
+    vo.frames = a.video_frames;
+    vo.max_side = a.video_max_side;
+    spdlog::info("extracting frames from {} with ffmpeg", a.dir);
+    absl::StatusOr<VideoFrames> v = ExtractVideoFrames(a.dir, scratch, vo);
+    if (!v.ok()) return v.status();
+    spdlog::info("kept {} of {} frames ({:.1f} s of {}x{} video, the sharpest of each window) in {:.1f} s",
+                 v->files.size(), v->candidates, v->duration_seconds, v->width, v->height, v->seconds);
+    return EncodeUnposedPhotos(a.name.empty() ? fs::path(a.dir).stem().string() : a.name, v->files, true);
+  }
+  absl::StatusOr<Scene> scene = LoadScene(a.dir);
+  if (!scene.ok()) {
+    const std::vector<std::string> photos = ListPhotos(a.dir);
+    if (!absl::IsNotFound(scene.status()) || photos.empty()) return scene.status();
+    spdlog::info("{} holds {} photos and no poses: uploading them unposed (the server poses them with COLMAP)",
+                 a.dir, photos.size());
+    std::string name = a.name.empty() ? fs::path(a.dir).filename().string() : a.name;
+    if (name.empty()) name = fs::path(a.dir).parent_path().filename().string();
+    return EncodeUnposedPhotos(name, photos, a.sequential);
+  }
+  if (scene->train.empty()) return absl::InvalidArgumentError(a.dir + " has no training views");
+  std::vector<View>* test = TestViews(*scene, a.test_split);
+  absl::StatusOr<EncodedScan> scan = EncodeScan(a.name.empty() ? scene->name : a.name, scene->kind, scene->train,
+                                                *test, scene->sparse_points);
+  if (!scan.ok()) return scan.status();
+  scan->header.mutable_header()->set_pose_frame(a.pose_frame);
+  if (a.unposed) DropPoses(&*scan, a.sequential);
+  return scan;
+}
+
+}  // namespace
 
 int RunUpload(const UploadArgs& a) {
   if (a.test_split != "test" && a.test_split != "val" && a.test_split != "none") {
@@ -53,22 +106,19 @@ int RunUpload(const UploadArgs& a) {
   }
   absl::StatusOr<std::unique_ptr<RemoteClient>> client = RemoteClient::Create(a.remote);
   if (!client.ok()) return FailRemote(kUploadVerb, client.status());
-  absl::StatusOr<Scene> scene = LoadScene(a.dir);
-  if (!scene.ok()) return FailRemote(kUploadVerb, scene.status());
-  if (scene->train.empty()) return FailRemote(kUploadVerb, absl::InvalidArgumentError(a.dir + " has no training views"));
-  std::vector<View>* test = TestViews(*scene, a.test_split);
-
-  const std::string name = a.name.empty() ? scene->name : a.name;
-  absl::StatusOr<EncodedScan> scan = EncodeScan(name, scene->kind, scene->train, *test, scene->sparse_points);
+  char scratch_template[] = "/tmp/clnerf-upload-XXXXXX";
+  const char* scratch = mkdtemp(scratch_template);
+  if (scratch == nullptr) return FailRemote(kUploadVerb, absl::InternalError("cannot create a scratch folder in /tmp"));
+  absl::StatusOr<EncodedScan> scan = EncodeUpload(a, std::string(scratch) + "/frames");
+  std::error_code ec;
+  std::filesystem::remove_all(scratch, ec);
   if (!scan.ok()) return FailRemote(kUploadVerb, scan.status());
   scan->header.mutable_header()->set_place(a.remote.place);
-  scan->header.mutable_header()->set_pose_frame(a.pose_frame);
-  scene->train.clear();  // Only the encoded copy is needed from here on.
-  test->clear();
   const clnerf::v1::ScanHeader* header = &scan->header.header();
-  spdlog::info("scan '{}' from {} ({} scene): {} frames + {} test frames, {} encoded", header->name(), a.dir,
-               header->scene_kind(), header->frames_size(), header->test_frames_size(),
-               FormatBytes(scan->total_bytes));
+  const bool unposed = header->frames_size() > 0 && !header->frames(0).has_camera();
+  spdlog::info("scan '{}' from {} ({}): {} frames + {} test frames, {} encoded", header->name(), a.dir,
+               unposed ? "unposed" : header->scene_kind() + " scene", header->frames_size(),
+               header->test_frames_size(), FormatBytes(scan->total_bytes));
 
   ProgressBar bar("upload", scan->total_bytes);
   const SendResult sent_scan = SendScan(**client, *scan, &bar);

@@ -13,20 +13,6 @@ namespace {
 
 bool Cancelled(const std::atomic<bool>* cancel) { return cancel != nullptr && cancel->load(); }
 
-// Step 1: renders of the place at spread-out stored cameras.
-absl::StatusOr<std::vector<MapView>> RenderReferences(const PlaceMap& map, const std::vector<Camera>& cameras,
-                                                      const RegistrationOptions& o,
-                                                      const std::atomic<bool>* cancel) {
-  std::vector<MapView> out;
-  for (int i : SpreadCameras(cameras, o.max_references)) {
-    if (Cancelled(cancel)) return absl::CancelledError("registration cancelled");
-    absl::StatusOr<MapView> v = map.Render(CameraWithSideIn(cameras[i], o.localizer.min_side, o.localizer.max_side));
-    if (!v.ok()) return v.status();
-    out.push_back(*std::move(v));
-  }
-  return out;
-}
-
 // Step 2: where each of the chosen frames is in the place's frame.
 std::vector<FrameLocalization> LocalizeFrames(const FeatureLocalizer& loc, const std::vector<const View*>& frames,
                                               const RegistrationProgressFn& progress,
@@ -89,6 +75,19 @@ void Accept(const RobustSimilarity& fit, const std::vector<PosePair>& pairs, con
 
 }  // namespace
 
+absl::StatusOr<std::vector<MapView>> RenderPlaceReferences(const PlaceMap& map, const std::vector<Camera>& cameras,
+                                                           const RegistrationOptions& o,
+                                                           const std::atomic<bool>* cancel) {
+  std::vector<MapView> out;
+  for (int i : SpreadCameras(cameras, o.max_references)) {
+    if (Cancelled(cancel)) return absl::CancelledError("registration cancelled");
+    absl::StatusOr<MapView> v = map.Render(CameraWithSideIn(cameras[i], o.localizer.min_side, o.localizer.max_side));
+    if (!v.ok()) return v.status();
+    out.push_back(*std::move(v));
+  }
+  return out;
+}
+
 absl::Status RegistrationOptions::Validate() const {
   if (absl::Status s = localizer.Validate(); !s.ok()) return s;
   if (absl::Status s = fit.Validate(); !s.ok()) return s;
@@ -145,7 +144,7 @@ RegistrationReport RegisterScan(const Scene& scan, const PlaceMap& map, const st
     return r;
   }
   auto t0 = std::chrono::steady_clock::now();
-  absl::StatusOr<std::vector<MapView>> renders = RenderReferences(map, place_cameras, options, cancel);
+  absl::StatusOr<std::vector<MapView>> renders = RenderPlaceReferences(map, place_cameras, options, cancel);
   if (!renders.ok()) return r.status = renders.status(), r;
   r.references = int(renders->size());
   absl::StatusOr<std::unique_ptr<FeatureLocalizer>> loc = FeatureLocalizer::Build(*renders, options.localizer);

@@ -102,6 +102,13 @@ RegistrationReport RegisterScan(const Scene& scan, const PlaceMap& map, const st
                                 double place_extent, const RegistrationOptions& options,
                                 const RegistrationProgressFn& progress = {}, const std::atomic<bool>* cancel = nullptr);
 
+// Step 1 of RegisterScan, also used to localise single photos: renders of
+// the place at up to options.max_references spread-out `cameras`, at the
+// localiser's matching size. CANCELLED on `cancel`.
+absl::StatusOr<std::vector<MapView>> RenderPlaceReferences(const PlaceMap& map, const std::vector<Camera>& cameras,
+                                                           const RegistrationOptions& options,
+                                                           const std::atomic<bool>* cancel = nullptr);
+
 // Moves every view (train, val, test), sparse and content point and depth
 // target of `scene` by `s` (scan frame -> place frame).
 void ApplySimilarity(const Similarity& s, Scene* scene);
