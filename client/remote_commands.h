@@ -63,6 +63,20 @@ struct ListArgs {  // jobs, versions, info.
   RemoteOptions remote;
 };
 
+struct CamerasArgs {
+  RemoteOptions remote;
+  int64_t version = 0;  // 0 = deployed.
+  int time_step = -1;   // -1 = every time step.
+};
+
+struct LocalizeArgs {
+  RemoteOptions remote;
+  int64_t version = 0;              // 0 = deployed.
+  std::vector<std::string> photos;  // Image files (or folders of them).
+  // Optional pinhole intrinsics for every photo (0 = guessed by the server).
+  float fx = 0, fy = 0, cx = -1, cy = -1;
+};
+
 struct RollbackArgs {
   RemoteOptions remote;
   int64_t version = 0;
@@ -108,6 +122,8 @@ CLI::App* BindVersions(CLI::App* parent, ListArgs* args);
 CLI::App* BindRollback(CLI::App* parent, RollbackArgs* args);
 CLI::App* BindInfo(CLI::App* parent, ListArgs* args);
 CLI::App* BindPlaces(CLI::App* parent, PlacesArgs* args);
+CLI::App* BindCameras(CLI::App* parent, CamerasArgs* args);
+CLI::App* BindLocalize(CLI::App* parent, LocalizeArgs* args);
 
 int RunUpload(const UploadArgs& args);
 int RunBenchServe(const BenchServeArgs& args);
@@ -119,6 +135,8 @@ int RunVersions(const ListArgs& args);
 int RunRollback(const RollbackArgs& args);
 int RunInfo(const ListArgs& args);
 int RunPlaces(const PlacesArgs& args);
+int RunCameras(const CamerasArgs& args);
+int RunLocalize(const LocalizeArgs& args);
 
 }  // namespace clnerf
 

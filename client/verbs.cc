@@ -21,6 +21,8 @@ void RegisterVerbs(VerbSet* verbs) {
   verbs->Add(BindRollback, RunRollback);
   verbs->Add(BindInfo, RunInfo);
   verbs->Add(BindPlaces, RunPlaces);
+  verbs->Add(BindCameras, RunCameras);
+  verbs->Add(BindLocalize, RunLocalize);
   // Benchmarks.
   CLI::App* bench = verbs->app()->add_subcommand("bench", "Benchmarks (print figures and JSON)");
   bench->require_subcommand(1);

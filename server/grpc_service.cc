@@ -269,6 +269,54 @@ grpc::Status ClnerfServiceImpl::RenderStream(grpc::ServerContext* ctx, const v1:
   return grpc::Status::OK;
 }
 
+grpc::Status ClnerfServiceImpl::ListCameras(grpc::ServerContext*, const v1::ListCamerasRequest* req,
+                                            v1::ListCamerasResponse* resp) {
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  if (req->has_time_step() && req->time_step() < 0) return Invalid("time_step must be >= 0");
+  absl::StatusOr<CameraList> list = (*place)->Cameras(req->version());
+  if (!list.ok()) return ToGrpcStatus(list.status());
+  if (req->has_time_step() && req->time_step() >= list->time_steps) {
+    return ToGrpcStatus(absl::NotFoundError(absl::StrCat("version ", list->version, " has ", list->time_steps,
+                                                         " time steps; there is no time step ", req->time_step())));
+  }
+  resp->set_version(list->version);
+  resp->set_time_steps(list->time_steps);
+  std::vector<int> index(size_t(list->time_steps) + 1, 0);
+  for (const Camera& c : list->cameras) {
+    const int t = std::clamp(c.time_step, 0, list->time_steps);
+    const int i = index[size_t(t)]++;
+    if (req->has_time_step() && c.time_step != req->time_step()) continue;
+    v1::TrainedCamera* out = resp->add_cameras();
+    out->set_time_step(c.time_step);
+    out->set_index(i);
+    *out->mutable_camera() = CameraToProto(c);
+  }
+  return grpc::Status::OK;
+}
+
+grpc::Status ClnerfServiceImpl::Localize(grpc::ServerContext* ctx, const v1::LocalizeRequest* req,
+                                         v1::LocalizeResponse* resp) {
+  absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
+  if (!place.ok()) return ToGrpcStatus(place.status());
+  if (req->photos_size() == 0) return Invalid("Localize needs at least one photo");
+  if (req->photos_size() > kMaxLocalizePhotos) {
+    return Invalid(absl::StrCat("Localize takes at most ", kMaxLocalizePhotos, " photos per request, not ",
+                                req->photos_size()));
+  }
+  std::vector<PhotoQuery> photos;
+  for (int i = 0; i < req->photos_size(); ++i) {
+    absl::StatusOr<PhotoQuery> q = PhotoFromProto(req->photos(i), i);
+    if (!q.ok()) return ToGrpcStatus(q.status());
+    photos.push_back(*std::move(q));
+  }
+  absl::StatusOr<LocalizeResult> r = (*place)->Localize(req->version(), photos, StopWhenAbandoned(ctx));
+  if (absl::IsCancelled(r.status())) return AbandonedStatus(ctx, r.status());
+  if (!r.ok()) return ToGrpcStatus(r.status());
+  *resp = ToProto(*r);
+  return grpc::Status::OK;
+}
+
 grpc::Status ClnerfServiceImpl::ListVersions(grpc::ServerContext*, const v1::ListVersionsRequest* req,
                                              v1::ListVersionsResponse* resp) {
   absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());

@@ -39,6 +39,9 @@ class ClnerfServiceImpl final : public v1::ClnerfService::Service {
   grpc::Status GetVersion(grpc::ServerContext* ctx, const v1::GetVersionRequest* req, v1::Version* resp) override;
   grpc::Status SetDeployedVersion(grpc::ServerContext* ctx, const v1::SetDeployedVersionRequest* req,
                                   v1::Version* resp) override;
+  grpc::Status ListCameras(grpc::ServerContext* ctx, const v1::ListCamerasRequest* req,
+                           v1::ListCamerasResponse* resp) override;
+  grpc::Status Localize(grpc::ServerContext* ctx, const v1::LocalizeRequest* req, v1::LocalizeResponse* resp) override;
   grpc::Status GetServerInfo(grpc::ServerContext* ctx, const v1::GetServerInfoRequest* req,
                              v1::ServerInfo* resp) override;
   grpc::Status ListPlaces(grpc::ServerContext* ctx, const v1::ListPlacesRequest* req,

@@ -6,6 +6,7 @@
 #include <set>
 
 #include "absl/strings/str_cat.h"
+#include "core/pose/place_map.h"
 #include "core/render/renderer.h"
 #include "core/data/stopwatch.h"
 #include "server/log_util.h"
@@ -326,6 +327,45 @@ absl::StatusOr<SceneSummary> ModelHost::Scene(int64_t version) const {
   absl::StatusOr<std::shared_ptr<const Servable>> snap = Snapshot(version);
   if (!snap.ok()) return snap.status();
   return Summarize(**snap);
+}
+
+absl::StatusOr<CameraList> ModelHost::Cameras(int64_t version) const {
+  absl::StatusOr<std::shared_ptr<const Servable>> snap = Snapshot(version);
+  if (!snap.ok()) return snap.status();
+  CameraList out;
+  out.version = (*snap)->info.version;
+  out.time_steps = (*snap)->model().num_time_steps();
+  const auto& memory = (*snap)->memory();
+  for (uint32_t i = 0; i < memory.num_cameras(); ++i) out.cameras.push_back(memory.GetCamera(i));
+  std::stable_sort(out.cameras.begin(), out.cameras.end(),
+                   [](const Camera& a, const Camera& b) { return a.time_step < b.time_step; });
+  return out;
+}
+
+absl::StatusOr<LocalizeResult> ModelHost::Localize(int64_t version, const std::vector<PhotoQuery>& photos,
+                                                   const std::function<bool()>& should_stop) const {
+  absl::StatusOr<std::shared_ptr<const Servable>> snap = Snapshot(version);
+  if (!snap.ok()) return snap.status();
+  const auto t0 = std::chrono::steady_clock::now();
+  const auto give_up = t0 + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                std::chrono::duration<double>(options_.render_wait_seconds));
+  while (!render_slots_->slots.try_acquire_for(std::chrono::milliseconds(50))) {
+    if (should_stop && should_stop()) return absl::CancelledError("localisation abandoned while waiting for a slot");
+    if (std::chrono::steady_clock::now() >= give_up) {
+      return absl::ResourceExhaustedError("all render slots stayed busy; retry later");
+    }
+  }
+  render_slots_->active.fetch_add(1);
+  std::vector<Camera> place;
+  for (uint32_t i = 0; i < (*snap)->memory().num_cameras(); ++i) place.push_back((*snap)->memory().GetCamera(i));
+  RenderOptions ro;
+  ro.threads = options_.render_threads > 0 ? options_.render_threads : cores_;
+  ModelPlaceMap map((*snap)->model(), ro);
+  absl::StatusOr<PhotoLocalizationReport> r = LocalizePhotos(photos, map, place, options_.registration);
+  render_slots_->active.fetch_sub(1);
+  render_slots_->slots.release();
+  if (!r.ok()) return r.status();
+  return LocalizeResult{(*snap)->info.version, *std::move(r), SecondsSince(t0)};
 }
 
 absl::StatusOr<JobStatus> ModelHost::CancelJob(const std::string& id) {

@@ -51,6 +51,7 @@
 #include "absl/status/statusor.h"
 #include "core/data/camera.h"
 #include "core/data/image.h"
+#include "core/pose/photo_localization.h"
 #include "server/coordinator.h"
 #include "server/job_tracker.h"
 #include "server/metrics.h"
@@ -75,6 +76,21 @@ struct RenderResult {
   int64_t version = 0;
   int time_step = 0;
   Image image;
+  double seconds = 0;
+};
+
+// The cameras a version was trained on (replay memory order: by time
+// step, then training order), in the place's frame.
+struct CameraList {
+  int64_t version = 0;
+  int time_steps = 0;
+  std::vector<Camera> cameras;  // camera.time_step says whose.
+};
+
+// Where photos were taken in the place's frame (core/pose/photo_localization.h).
+struct LocalizeResult {
+  int64_t version = 0;
+  PhotoLocalizationReport report;
   double seconds = 0;
 };
 
@@ -156,6 +172,12 @@ class ModelHost {
   // What a viewer needs to look around version `v` (0 = deployed): time
   // steps, the scans' cameras, up, a focus point. Errors as Render's.
   absl::StatusOr<SceneSummary> Scene(int64_t v) const;
+  // Every trained camera of version `v` (0 = deployed). Errors as Render's.
+  absl::StatusOr<CameraList> Cameras(int64_t v) const;
+  // Localises `photos` against renders of version `v` (0 = deployed), in a
+  // render slot (RESOURCE_EXHAUSTED when none frees up in time).
+  absl::StatusOr<LocalizeResult> Localize(int64_t v, const std::vector<PhotoQuery>& photos,
+                                          const std::function<bool()>& should_stop = {}) const;
   // Rollback / pin. NOT_FOUND for an unknown version.
   absl::StatusOr<VersionInfo> SetDeployedVersion(int64_t v);
   int64_t deployed_version() const { return publisher_->registry().deployed_version(); }

@@ -3,6 +3,7 @@
 #include <cmath>
 
 #include "absl/strings/str_cat.h"
+#include "core/data/image.h"
 
 namespace clnerf {
 
@@ -57,6 +58,52 @@ absl::StatusOr<ScanHeaderDecl> HeaderFromProto(const v1::ScanHeader& h) {
     decl.frames.push_back(std::move(df));
   }
   return decl;
+}
+
+absl::StatusOr<PhotoQuery> PhotoFromProto(const v1::Photo& photo, int index) {
+  PhotoQuery q;
+  q.name = photo.name().empty() ? absl::StrCat("photo_", index) : photo.name();
+  if (absl::Status s = ValidateName(q.name, absl::StrCat("photo ", index, " name")); !s.ok()) return s;
+  auto bad = [&](const std::string& why) {
+    return absl::InvalidArgumentError(absl::StrCat("photo ", index, " ('", q.name, "'): ", why));
+  };
+  const std::string ext = SniffImageExtension(photo.image());
+  if (ext.empty()) return bad("image is not PNG, JPEG, EXR, TIFF or BMP");
+  absl::StatusOr<Image> img = DecodeImage(photo.image(), q.name + ext);
+  if (!img.ok()) return bad(std::string(img.status().message()));
+  q.image = *std::move(img);
+  if (photo.has_intrinsics() && photo.intrinsics().width() > 0) {
+    const v1::Intrinsics& in = photo.intrinsics();
+    q.intrinsics = Intrinsics{in.width(), in.height(), in.fx(), in.fy(), in.cx(), in.cy(),
+                              in.k1(),    in.k2(),     in.p1(), in.p2()};
+    if (in.width() != q.image.width || in.height() != q.image.height) {
+      return bad(absl::StrCat("image is ", q.image.width, "x", q.image.height, " but the intrinsics say ",
+                              in.width(), "x", in.height()));
+    }
+    for (float v : {in.fx(), in.fy(), in.cx(), in.cy(), in.k1(), in.k2(), in.p1(), in.p2()}) {
+      if (!std::isfinite(v)) return bad("intrinsics are not finite");
+    }
+    if (!(in.fx() > 0 && in.fy() > 0)) return bad("focal lengths must be > 0");
+  }
+  return q;
+}
+
+v1::LocalizeResponse ToProto(const LocalizeResult& r) {
+  v1::LocalizeResponse p;
+  p.set_version(r.version);
+  p.set_references(r.report.references);
+  p.set_seconds(r.seconds);
+  for (const PhotoLocation& l : r.report.photos) {
+    v1::PhotoPose* out = p.add_photos();
+    out->set_name(l.name);
+    out->set_placed(l.found.placed);
+    if (l.found.placed) *out->mutable_camera() = CameraToProto(l.camera);
+    out->set_matches(l.found.matches);
+    out->set_inliers(l.found.inliers);
+    out->set_reprojection_px(l.found.reprojection_px);
+    out->set_intrinsics_guessed(l.intrinsics_guessed);
+  }
+  return p;
 }
 
 v1::Job ToProto(const JobStatus& j) {

@@ -27,7 +27,13 @@ namespace clnerf {
 // checked; the sizes and names are checked by ScanAssembler::Begin.
 absl::StatusOr<ScanHeaderDecl> HeaderFromProto(const v1::ScanHeader& header);
 
+// A photo to localise: decoded, its intrinsics checked when given (unset or
+// zero size = to be guessed). INVALID_ARGUMENT naming photo `index`.
+absl::StatusOr<PhotoQuery> PhotoFromProto(const v1::Photo& photo, int index);
+inline constexpr int kMaxLocalizePhotos = 32;
+
 v1::Job ToProto(const JobStatus& job);
+v1::LocalizeResponse ToProto(const LocalizeResult& result);
 v1::Version ToProto(const VersionInfo& info, int64_t deployed_version);
 
 }  // namespace clnerf
