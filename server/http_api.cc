@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <string>
 
 #include "absl/strings/numbers.h"
@@ -13,6 +14,7 @@
 #include "proto/wire/wire.h"
 #include "server/bearer_token.h"
 #include "server/http_render_request.h"
+#include "server/http_scan_upload.h"
 #include "server/log_util.h"
 #include "spdlog/spdlog.h"
 
@@ -129,6 +131,91 @@ absl::StatusOr<int64_t> IntParam(const httplib::Request& req, const char* name, 
         absl::StrCat("parameter '", name, "': '", EscapeForLog(v, 64), "' is not an integer in ", lo, "..", hi));
   }
   return x;
+}
+
+// The cameras of a list as JSON (only time step `t`, unless t < 0): pose
+// row-major 3x4 camera-to-world, OpenCV convention, the place's frame.
+json CamerasJson(const CameraList& list, int t) {
+  json cams = json::array();
+  std::vector<int> index(size_t(list.time_steps) + 1, 0);
+  for (const Camera& c : list.cameras) {
+    const int i = index[size_t(std::clamp(c.time_step, 0, list.time_steps))]++;
+    if (t >= 0 && c.time_step != t) continue;
+    json pose = json::array();
+    for (int r = 0; r < 3; ++r)
+      for (int k = 0; k < 4; ++k) pose.push_back(c.c2w(r, k));
+    const Intrinsics& in = c.intrinsics;
+    cams.push_back(json{{"time_step", c.time_step}, {"index", i}, {"c2w_opencv", pose},
+                        {"width", in.width}, {"height", in.height}, {"fx", in.fx}, {"fy", in.fy},
+                        {"cx", in.cx}, {"cy", in.cy}, {"k1", in.k1}, {"k2", in.k2}, {"p1", in.p1}, {"p2", in.p2}});
+  }
+  return json{{"version", list.version}, {"time_steps", list.time_steps}, {"convention", "opencv"},
+              {"cameras", cams}};
+}
+
+json LocalizeJson(const LocalizeResult& r) {
+  json photos = json::array();
+  for (const PhotoLocation& l : r.report.photos) {
+    json p{{"name", l.name}, {"placed", l.found.placed}, {"matches", l.found.matches},
+           {"inliers", l.found.inliers}, {"intrinsics_guessed", l.intrinsics_guessed}};
+    if (l.found.placed) {
+      json pose = json::array();
+      for (int i = 0; i < 3; ++i)
+        for (int k = 0; k < 4; ++k) pose.push_back(l.camera.c2w(i, k));
+      p["c2w_opencv"] = pose;
+      p["fx"] = l.camera.intrinsics.fx;
+      p["fy"] = l.camera.intrinsics.fy;
+      p["reprojection_px"] = l.found.reprojection_px;
+    }
+    photos.push_back(std::move(p));
+  }
+  return json{{"version", r.version}, {"photos", photos}, {"references", r.report.references},
+              {"seconds", r.seconds}};
+}
+
+// The photos of a multipart localisation request ('image' parts), with the
+// optional ?fx= (pinhole, centred principal point) for all of them.
+absl::StatusOr<std::vector<PhotoQuery>> PhotosOf(const httplib::Request& req) {
+  std::vector<PhotoQuery> out;
+  double fx = 0;
+  if (req.has_param("fx") && (!absl::SimpleAtod(req.get_param_value("fx"), &fx) || !(fx > 0 && fx < 1e6))) {
+    return absl::InvalidArgumentError("parameter 'fx' must be a focal length in pixels (> 0)");
+  }
+  for (const auto& [field, part] : req.files) {
+    if (field != "image") {
+      return absl::InvalidArgumentError(absl::StrCat("unknown form field '", EscapeForLog(field, 64), "' (image)"));
+    }
+    if (int(out.size()) >= 32) return absl::InvalidArgumentError("at most 32 photos per request");
+    PhotoQuery q;
+    q.name = part.filename.empty() ? absl::StrCat("photo_", out.size()) : EscapeForLog(part.filename, 128);
+    const std::string ext = SniffImageExtension(part.content);
+    if (ext.empty()) return absl::InvalidArgumentError(absl::StrCat("photo '", q.name, "' is not an image"));
+    absl::StatusOr<Image> img = DecodeImage(part.content, q.name + ext);
+    if (!img.ok()) return absl::InvalidArgumentError(absl::StrCat("photo '", q.name, "': ", img.status().message()));
+    q.image = *std::move(img);
+    if (fx > 0) {
+      q.intrinsics = Intrinsics{q.image.width, q.image.height, float(fx), float(fx), q.image.width / 2.0f,
+                                q.image.height / 2.0f};
+    }
+    out.push_back(std::move(q));
+  }
+  if (out.empty()) return absl::InvalidArgumentError("no photos: send them as multipart 'image' parts");
+  return out;
+}
+
+// Streams a multipart scan into a ScanUpload and hands it to the place.
+absl::StatusOr<UploadAck> AcceptMultipartScan(ModelHost& host, const httplib::ContentReader& content) {
+  if (absl::Status s = host.WritableStatus(); !s.ok()) return s;
+  char scratch[] = "/tmp/clnerf-http-upload-XXXXXX";
+  if (mkdtemp(scratch) == nullptr) return absl::InternalError("cannot create a scratch folder in /tmp");
+  MultipartScanReader reader(host.options().upload_limits(), scratch);
+  const bool read = content([&](const httplib::MultipartFormData& part) { return reader.BeginPart(part.name, part.filename); },
+                            [&](const char* data, size_t n) { return reader.AddBytes(data, n); });
+  if (!reader.status().ok()) return reader.status();
+  if (!read) return absl::InvalidArgumentError("the upload was cut short (truncated or malformed multipart body)");
+  absl::StatusOr<ScanUpload> upload = reader.Finish();
+  if (!upload.ok()) return upload.status();
+  return host.AcceptScan(*upload);
 }
 
 }  // namespace
@@ -321,6 +408,50 @@ void HttpApi::Register(httplib::Server* server) {
     absl::StatusOr<JobStatus> j = host->CancelJob(req.matches[1].str());
     if (!j.ok()) return SendError(res, j.status());
     SendJson(res, JobJson(*j));
+  });
+
+  server->Get("/api/cameras", [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    absl::StatusOr<int64_t> v = IntParam(req, "version", 0, 0, int64_t(1) << 62);
+    if (!v.ok()) return SendError(res, v.status());
+    absl::StatusOr<int64_t> t = IntParam(req, "time_step", -1, 0, 1 << 20);
+    if (!t.ok()) return SendError(res, t.status());
+    absl::StatusOr<CameraList> list = (*place)->Cameras(*v);
+    if (!list.ok()) return SendError(res, list.status());
+    if (*t >= list->time_steps) {
+      return SendError(res, absl::NotFoundError(absl::StrCat("version ", list->version, " has ", list->time_steps,
+                                                             " time steps; there is no time step ", *t)));
+    }
+    SendJson(res, CamerasJson(*list, int(*t)));
+  });
+
+  server->Post("/api/localize", [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    absl::StatusOr<int64_t> v = IntParam(req, "version", 0, 0, int64_t(1) << 62);
+    if (!v.ok()) return SendError(res, v.status());
+    absl::StatusOr<std::vector<PhotoQuery>> photos = PhotosOf(req);
+    if (!photos.ok()) return SendError(res, photos.status());
+    absl::StatusOr<LocalizeResult> r =
+        (*place)->Localize(*v, *photos, [this, &place] { return stopping_.load() || (*place)->shutting_down(); });
+    if (!r.ok()) return SendError(res, r.status());
+    SendJson(res, LocalizeJson(*r));
+  });
+
+  server->Post("/api/scans", [this, authorized](const httplib::Request& req, httplib::Response& res,
+                                                const httplib::ContentReader& content) {
+    if (!authorized(req, res)) return;
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    if (!req.is_multipart_form_data()) {
+      return SendError(res, absl::InvalidArgumentError(
+                                "send the scan as multipart/form-data: image=@photo.jpg (repeated) or video=@walk.mp4"));
+    }
+    absl::StatusOr<UploadAck> ack = AcceptMultipartScan(**place, content);
+    if (!ack.ok()) return SendError(res, ack.status());
+    SendJson(res, json{{"scan_id", ack->scan_id}, {"job_id", ack->job_id}, {"time_step", ack->time_step},
+                       {"bytes", ack->bytes}});
   });
 
   server->Post("/api/deploy", [this, authorized](const httplib::Request& req, httplib::Response& res) {

@@ -16,6 +16,12 @@
 //   GET  /api/jobs/ID                 one job
 //   POST /api/jobs/ID/cancel          cancel (needs the token, if one is set)
 //   POST /api/deploy?version=N        roll back / pin (needs the token)
+//   POST /api/scans                   upload an unposed scan, multipart:
+//                                     image=@a.jpg ... or video=@walk.mp4
+//                                     (needs the token; http_scan_upload.h)
+//   GET  /api/cameras[?version=&time_step=]  every trained camera, place frame
+//   POST /api/localize[?version=&fx=] where photos (multipart 'image'
+//                                     parts) were taken, place frame
 //   GET  /metrics                     Prometheus text format (metrics.h)
 //   GET  /healthz, /readyz            liveness; readiness (503 once shutting
 //                                     down)

@@ -15,7 +15,17 @@ namespace clnerf {
 
 namespace {
 
+// Request bodies: 64 KiB on every route but the two that carry images (the
+// scan upload is bounded by the upload limits as it streams).
 constexpr size_t kMaxBodyBytes = 64 << 10;
+constexpr size_t kMaxLocalizeBodyBytes = 16 << 20;
+constexpr size_t kMaxUploadBodyBytes = (size_t(1) << 30) + (16 << 20);
+
+size_t BodyLimitFor(const std::string& path) {
+  if (path == "/api/scans") return kMaxUploadBodyBytes;
+  if (path == "/api/localize") return kMaxLocalizeBodyBytes;
+  return kMaxBodyBytes;
+}
 
 void SendJsonError(httplib::Response& res, int status, const std::string& code, const std::string& msg) {
   res.status = status;
@@ -43,7 +53,25 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string&
   s->server_ = std::make_unique<httplib::Server>();
   s->api_ = std::make_unique<HttpApi>(places, token);
   httplib::Server& srv = *s->server_;
-  srv.set_payload_max_length(kMaxBodyBytes);
+  srv.set_payload_max_length(kMaxUploadBodyBytes);
+  // Each route's own body limit, checked on the headers before any body
+  // byte is read (cpp-httplib's payload limit is one for all routes).
+  srv.set_pre_routing_handler([](const httplib::Request& req, httplib::Response& res) {
+    const size_t limit = BodyLimitFor(req.path);
+    size_t length = 0;
+    const bool has_length = req.has_header("Content-Length");
+    if (has_length && (!absl::SimpleAtoi(req.get_header_value("Content-Length"), &length) || length > limit)) {
+      res.set_header("Connection", "close");
+      SendJsonError(res, 413, "INVALID_ARGUMENT", absl::StrCat("request body over ", limit, " bytes"));
+      return httplib::Server::HandlerResponse::Handled;
+    }
+    if (!has_length && req.has_header("Transfer-Encoding") && limit == kMaxBodyBytes) {
+      res.set_header("Connection", "close");
+      SendJsonError(res, 411, "INVALID_ARGUMENT", "this route needs a Content-Length (no chunked bodies)");
+      return httplib::Server::HandlerResponse::Handled;
+    }
+    return httplib::Server::HandlerResponse::Unhandled;
+  });
   srv.set_read_timeout(std::chrono::seconds(10));
   srv.set_write_timeout(std::chrono::seconds(30));
   // An idle keep-alive connection holds a worker for this long, and Stop()
@@ -67,7 +95,8 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string&
     if (res.status == 404) {
       SendJsonError(res, 404, "NOT_FOUND", absl::StrCat("no route for ", req.method, " ", EscapeForLog(req.path, 128)));
     } else if (res.status == 413) {
-      SendJsonError(res, 413, "INVALID_ARGUMENT", absl::StrCat("request body over ", kMaxBodyBytes, " bytes"));
+      SendJsonError(res, 413, "INVALID_ARGUMENT",
+                    absl::StrCat("request body over ", BodyLimitFor(req.path), " bytes"));
     } else {
       SendJsonError(res, res.status, res.status < 500 ? "INVALID_ARGUMENT" : "INTERNAL",
                     absl::StrCat("HTTP ", res.status, " for ", req.method, " ", EscapeForLog(req.path, 128)));
