@@ -52,10 +52,11 @@ int RunCameras(const CamerasArgs& a) {
     std::printf("%s\n", ProtoToJson(response).dump(2).c_str());
     return 0;
   }
-  TextTable table({"TIME STEP", "INDEX", "CENTRE (x y z)", "LOOKS ALONG", "SIZE", "FX"});
+  TextTable table({"TIME STEP", "INDEX", "FRAME", "CENTRE (x y z)", "LOOKS ALONG", "SIZE", "FX"});
   for (const clnerf::v1::TrainedCamera& t : response.cameras()) {
     const clnerf::v1::Intrinsics& in = t.camera().intrinsics();
-    table.AddRow({absl::StrCat(t.time_step()), absl::StrCat(t.index()), Centre(t.camera()), Looks(t.camera()),
+    table.AddRow({absl::StrCat(t.time_step()), absl::StrCat(t.index()), t.name().empty() ? "-" : t.name(),
+                  Centre(t.camera()), Looks(t.camera()),
                   absl::StrCat(in.width(), "x", in.height()), absl::StrFormat("%.1f", in.fx())});
   }
   table.Print();

@@ -339,6 +339,23 @@ absl::StatusOr<CameraList> ModelHost::Cameras(int64_t version) const {
   for (uint32_t i = 0; i < memory.num_cameras(); ++i) out.cameras.push_back(memory.GetCamera(i));
   std::stable_sort(out.cameras.begin(), out.cameras.end(),
                    [](const Camera& a, const Camera& b) { return a.time_step < b.time_step; });
+  // Names: each version of the lineage recorded its own scan's (its last
+  // time step), in camera order.
+  std::vector<std::vector<std::string>> names(size_t(out.time_steps));
+  VersionInfo info = (*snap)->info;
+  for (int guard = 0; guard <= out.time_steps && info.time_steps > 0; ++guard) {
+    names[size_t(info.time_steps - 1)] = info.frame_names;
+    if (info.parent == 0) break;
+    absl::StatusOr<VersionInfo> parent = publisher_->versions().Info(info.parent);
+    if (!parent.ok()) break;
+    info = *std::move(parent);
+  }
+  std::vector<size_t> seen(size_t(out.time_steps), 0);
+  for (const Camera& c : out.cameras) {
+    const size_t t = size_t(std::clamp(c.time_step, 0, std::max(0, out.time_steps - 1)));
+    const size_t i = seen[t]++;
+    out.names.push_back(t < names.size() && i < names[t].size() ? names[t][i] : std::string());
+  }
   return out;
 }
 

@@ -85,6 +85,9 @@ struct CameraList {
   int64_t version = 0;
   int time_steps = 0;
   std::vector<Camera> cameras;  // camera.time_step says whose.
+  // Per camera, its frame's name ("" where the version's lineage did not
+  // record names, e.g. stores from before they were).
+  std::vector<std::string> names;
 };
 
 // Where photos were taken in the place's frame (core/pose/photo_localization.h).

@@ -259,6 +259,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
   info.scan_id = origin.scan_id;
   info.scan_name = origin.scan_name;
   info.job_id = origin.job_id;
+  info.frame_names = origin.frame_names;
   info.metrics = metrics;
   if (replicated_) return PublishReplicatedLocked(state, info, *fence);
   absl::StatusOr<VersionInfo> written = versions_->Write(*state.model, state.memory, info, state.optimizer.get());

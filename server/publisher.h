@@ -85,6 +85,7 @@ class Publisher {
   // Where a version came from: the scan and the job that trained it.
   struct Origin {
     std::string scan_id, scan_name, job_id;
+    std::vector<std::string> frame_names;  // Its training frames, in camera order.
   };
   // Publishes θ_t and M_t trained from `parent` (0 = none) on `origin`'s scan.
   // Replicated: `fence` is the head read when the update started (SyncToHead);

@@ -116,7 +116,8 @@ inline std::vector<v1::UploadScanRequest> UploadMessages(const ScanUpload& up, s
   v1::ScanHeader* h = msgs[0].mutable_header();
   h->set_name(up.name);
   h->set_scene_kind(up.scene_kind);
-  h->set_pose_frame(up.pose_frame);
+  h->set_pose_frame(up.pose_frame == "unposed" ? "" : up.pose_frame);
+  h->set_sequential(up.sequential);
   for (const Eigen::Vector3f& p : up.points) {
     for (int c = 0; c < 3; ++c) h->add_points(p[c]);
   }
@@ -128,7 +129,7 @@ inline std::vector<v1::UploadScanRequest> UploadMessages(const ScanUpload& up, s
   for (const ScanFrame* f : order) {
     v1::Frame* pf = f->test ? h->add_test_frames() : h->add_frames();
     pf->set_name(f->name);
-    FillCamera(f->camera, pf->mutable_camera());
+    if (f->posed) FillCamera(f->camera, pf->mutable_camera());
     pf->set_image_bytes(int64_t(f->image.size()));
     pf->set_mask_bytes(int64_t(f->mask.size()));
   }

@@ -48,6 +48,14 @@ double PlacePsnr(const VersionInfo& prev, bool held_out) {
   return it == prev.metrics.end() ? 0.0 : it->second;
 }
 
+// The scan's training frames' names, in the order ContinualUpdate records
+// their cameras.
+std::vector<std::string> FrameNames(const Scene& scene) {
+  std::vector<std::string> names;
+  for (const View& v : scene.train) names.push_back(v.name);
+  return names;
+}
+
 // Rough seconds per SfM stage on 2 cores at about 480x270, from COLMAP 3.8
 // runs (64 frames: features 16 s, sequential matching 40 s, 2,016
 // exhaustive pairs 141 s, mapping 13 s): the first ETA, rescaled by how
@@ -448,8 +456,9 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   jobs_->Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kPublishing; });
   absl::StatusOr<VersionInfo> published;
   while (true) {
-    published = publisher_->Publish(*next, prev ? prev->info.version : 0, {scan_id, job->scan_name, job_id},
-                                    gate.metrics, coordinator_ != nullptr ? &head : nullptr);
+    published = publisher_->Publish(*next, prev ? prev->info.version : 0,
+                                    {scan_id, job->scan_name, job_id, FrameNames(*scene)}, gate.metrics,
+                                    coordinator_ != nullptr ? &head : nullptr);
     if (published.ok()) break;
     if (coordinator_ != nullptr && absl::IsAborted(published.status())) {
       // Fenced: this replica lost the place's lease (paused, cut off) or the

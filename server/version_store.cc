@@ -28,7 +28,7 @@ nlohmann::json InfoToJson(const VersionInfo& v) {
           {"file_bytes", v.size_bytes}, {"model_bytes", v.model_bytes}, {"memory_bytes", v.memory_bytes},
           {"created_unix_ms", v.created_unix_ms}, {"scan_id", v.scan_id},
           {"job_id", v.job_id},         {"scan_name", v.scan_name},
-          {"metrics", v.metrics}};
+          {"metrics", v.metrics},       {"frame_names", v.frame_names}};
 }
 
 absl::StatusOr<VersionInfo> InfoFromJson(const std::string& text, const std::string& source) {
@@ -46,6 +46,7 @@ absl::StatusOr<VersionInfo> InfoFromJson(const std::string& text, const std::str
     v.job_id = j.value("job_id", std::string());  // Absent in older stores.
     v.scan_name = j.value("scan_name", std::string());
     v.metrics = j.at("metrics").get<std::map<std::string, double>>();
+    v.frame_names = j.value("frame_names", std::vector<std::string>());
     return v;
   } catch (const std::exception& e) {
     return absl::DataLossError(absl::StrCat("corrupt ", source, ": ", e.what()));

@@ -46,6 +46,10 @@ struct VersionInfo {
   // DONE from here when a crash lost it (model_host.h).
   std::string job_id, scan_name;
   std::map<std::string, double> metrics;
+  // The names of its scan's training frames, in the order their cameras were
+  // recorded (the last time step's cameras in the replay memory); empty in
+  // stores written before they were recorded.
+  std::vector<std::string> frame_names;
   // Why this version cannot be used ("" = it can): its version.json is
   // missing or corrupt. List() reports such versions instead of failing, so
   // one bad version never stops the others from serving.

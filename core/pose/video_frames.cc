@@ -41,7 +41,7 @@ namespace {
 absl::Status Probe(const std::string& video, const std::string& log, const VideoFrameOptions& o,
                    const std::atomic<bool>* cancel, VideoFrames* out) {
   absl::Status s = RunProcess({o.ffprobe, "-v", "error", "-select_streams", "v:0", "-show_entries",
-                               "format=duration:stream=width,height", "-of", "default=noprint_wrappers=1", video},
+                               "format=duration:stream=width,height,avg_frame_rate", "-of", "default=noprint_wrappers=1", video},
                               log, cancel);
   if (absl::IsNotFound(s) || absl::IsCancelled(s)) return s;
   if (!s.ok()) return absl::InvalidArgumentError(absl::StrCat(video, " is not a video ffprobe can read: ",
@@ -55,6 +55,14 @@ absl::Status Probe(const std::string& video, const std::string& log, const Video
     if (key == "width") (void)absl::SimpleAtoi(value, &out->width);
     if (key == "height") (void)absl::SimpleAtoi(value, &out->height);
     if (key == "duration") (void)absl::SimpleAtod(value, &out->duration_seconds);
+    if (key == "avg_frame_rate") {  // "30000/1001"; "0/0" when unknown.
+      const size_t slash = value.find('/');
+      double num = 0, den = 1;
+      if (slash != std::string::npos && absl::SimpleAtod(value.substr(0, slash), &num) &&
+          absl::SimpleAtod(value.substr(slash + 1), &den) && num > 0 && den > 0) {
+        out->frame_rate = num / den;
+      }
+    }
   }
   if (out->width <= 0 || out->height <= 0) {
     return absl::InvalidArgumentError(absl::StrCat(video, " has no video stream"));
@@ -83,7 +91,8 @@ absl::StatusOr<VideoFrames> ExtractVideoFrames(const std::string& video, const s
   }
   // A steady rate that gives window candidates per wanted frame (the
   // stream's own rate caps it: then every frame is a candidate).
-  const double rate = out.duration_seconds > 0 ? o.frames * o.window / out.duration_seconds : 2.0;
+  double rate = out.duration_seconds > 0 ? o.frames * o.window / out.duration_seconds : 2.0;
+  if (out.frame_rate > 0) rate = std::min(rate, out.frame_rate);  // Never duplicate frames.
   std::string filter = absl::StrFormat("fps=%.6f", rate);
   if (std::max(out.width, out.height) > o.max_side) {
     // Rotation-proof: the longer side, whichever it is after autorotation.

@@ -33,6 +33,7 @@ struct VideoFrames {
   std::vector<std::string> files;  // JPEGs in `out_dir`, in video order.
   double duration_seconds = 0;
   int width = 0, height = 0;       // Of the video as stored (before rotation).
+  double frame_rate = 0;           // Frames per second (0 = unknown).
   int candidates = 0;              // Frames decoded.
   double seconds = 0;              // Wall time of the whole extraction.
 };

@@ -84,6 +84,7 @@ TEST(VideoFramesTest, KeepsTheSharpestFrameOfEachWindow) {
   EXPECT_EQ(v->height, 120);
   EXPECT_NEAR(v->duration_seconds, 3.0, 0.2);
   EXPECT_EQ(v->candidates, 30);
+  EXPECT_NEAR(v->frame_rate, 10.0, 1e-6);
   ASSERT_EQ(v->files.size(), 10u);
   absl::StatusOr<ImageSize> size = ReadImageSize(v->files[0]);
   ASSERT_TRUE(size.ok()) << size.status();
@@ -100,6 +101,14 @@ TEST(VideoFramesTest, KeepsTheSharpestFrameOfEachWindow) {
     all.max_side = 80;
     return all;
   }()).IgnoreError();
+  // Asking for more frames than the video has keeps each once (no
+  // duplicates, which would give structure from motion zero baselines).
+  VideoFrameOptions many;
+  many.frames = 60;
+  absl::StatusOr<VideoFrames> every = ExtractVideoFrames(video, dir + "/every", many);
+  ASSERT_TRUE(every.ok()) << every.status();
+  EXPECT_EQ(every->candidates, 30);
+  EXPECT_EQ(every->files.size(), 30u);
   for (int w = 0; w < 10; ++w) {
     const double sharp = Sharpness(dir + "/all/frame_" + std::string(w * 3 + 1 < 10 ? "000" : "00") +
                                    std::to_string(w * 3 + 1) + ".jpg");
