@@ -145,6 +145,20 @@ struct BenchRegisterArgs {
   std::string json;
 };
 
+struct BenchRescanArgs {
+  std::string data;               // Dataset folder, or "procedural".
+  int first_iterations = 1000;    // Visit A (the place's first scan).
+  UpdateOptions update;           // Visit B's update (the verb sets 1000 iterations).
+  RegistrationOptions registration;
+  DatasetOptions dataset;
+  double rotation_deg = 40, scale = 1.7;  // Visit B's own frame.
+  uint64_t seed = 1;
+  std::string cases = "place,own,unposed,unposed-first";
+  int eval_views = 0;             // Held-out views scored (0 = all).
+  int threads = 0;
+  std::string json;
+};
+
 // Prints "clnerf: error: <message>" to stderr and returns exit code 1.
 int Fail(const absl::Status& status);
 // Sets the OpenMP thread count (0 = leave the default: all cores).
@@ -169,6 +183,7 @@ CLI::App* BindBenchScenes(CLI::App* parent, BenchScenesArgs* args);
 CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* args);
 CLI::App* BindBenchStability(CLI::App* parent, BenchStabilityArgs* args);
 CLI::App* BindBenchRegister(CLI::App* parent, BenchRegisterArgs* args);
+CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* args);
 
 int RunTrain(const TrainArgs& args);
 int RunBenchRender(const BenchRenderArgs& args);
@@ -181,6 +196,7 @@ int RunBenchContinual(const BenchContinualArgs& args);
 int RunBenchScenes(const BenchScenesArgs& args);
 int RunBenchStability(const BenchStabilityArgs& args);
 int RunBenchRegister(const BenchRegisterArgs& args);
+int RunBenchRescan(const BenchRescanArgs& args);
 
 }  // namespace clnerf
 

@@ -15,6 +15,7 @@
 
 #include "absl/strings/str_format.h"
 #include "client/commands.h"
+#include "client/visit_split.h"
 #include "client/core_flags.h"
 #include "core/data/dataset.h"
 #include "core/data/stopwatch.h"
@@ -25,58 +26,6 @@
 namespace clnerf {
 
 namespace {
-
-Similarity OwnFrame(const BenchRegisterArgs& a, double extent) {
-  std::mt19937_64 rng(a.seed);
-  std::uniform_real_distribution<double> u(-1, 1);
-  Similarity s;
-  s.rotation = Eigen::AngleAxisd(a.rotation_deg * M_PI / 180, Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized())
-                   .toRotationMatrix();
-  s.scale = a.scale;
-  s.translation = Eigen::Vector3d(u(rng), u(rng), u(rng)) * extent;
-  return s;
-}
-
-struct Errors {
-  double centre_median = 0, centre_max = 0, rotation_median = 0, rotation_max = 0;
-};
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  return v[v.size() / 2];
-}
-
-// Every frame of `placed` against the same frame of `truth`.
-Errors FrameErrors(const std::vector<View>& placed, const std::vector<View>& truth, double extent) {
-  std::vector<double> c, r;
-  for (size_t i = 0; i < truth.size(); ++i) {
-    const Pose& a = placed[i].camera.c2w;
-    const Pose& b = truth[i].camera.c2w;
-    c.push_back(100.0 * (a.col(3) - b.col(3)).norm() / extent);
-    r.push_back(RotationAngleDegrees(a.leftCols<3>().cast<double>(), b.leftCols<3>().cast<double>()));
-  }
-  Errors e;
-  e.centre_median = Median(c);
-  e.rotation_median = Median(r);
-  if (!c.empty()) e.centre_max = *std::max_element(c.begin(), c.end());
-  if (!r.empty()) e.rotation_max = *std::max_element(r.begin(), r.end());
-  return e;
-}
-
-absl::StatusOr<Scene> LoadBenchScene(const BenchRegisterArgs& a) {
-  if (a.data != "procedural") return LoadScene(a.data, a.dataset);
-  ProceduralSceneOptions po;
-  po.layout = ProceduralLayout::kForwardFacing;
-  po.textured = true;
-  po.width = 240;
-  po.height = 180;
-  po.num_train_views = 48;
-  po.num_test_views = 4;
-  po.change_lighting = false;
-  po.change_geometry = false;
-  return GenerateProceduralScene(po);
-}
 
 }  // namespace
 
@@ -104,13 +53,10 @@ CLI::App* BindBenchRegister(CLI::App* parent, BenchRegisterArgs* a) {
 
 int RunBenchRegister(const BenchRegisterArgs& a) {
   SetThreads(a.threads);
-  absl::StatusOr<Scene> all = LoadBenchScene(a);
+  absl::StatusOr<Scene> all = LoadVisitScene(a.data, a.dataset);
   if (!all.ok()) return Fail(all.status());
-  Scene visit_a = *all, visit_b = *all;
-  visit_a.train.clear();
-  visit_b.train.clear();
-  visit_b.test.clear();
-  for (size_t i = 0; i < all->train.size(); ++i) (i % 2 == 0 ? visit_a : visit_b).train.push_back(all->train[i]);
+  Scene visit_a, visit_b;
+  SplitVisits(*all, &visit_a, &visit_b);
   std::fprintf(stderr, "bench register: %s, visit A %zu frames (trains θ_A, %d iterations), visit B %zu frames\n",
                a.data.c_str(), visit_a.train.size(), a.fit.train.iterations, visit_b.train.size());
   const auto t0 = std::chrono::steady_clock::now();
@@ -128,10 +74,10 @@ int RunBenchRegister(const BenchRegisterArgs& a) {
   for (const char* which : {"place", "own"}) {
     Scene scan = visit_b;
     const bool own = std::string(which) == "own";
-    if (own) ApplySimilarity(OwnFrame(a, extent), &scan);
+    if (own) ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, extent), &scan);
     RegistrationReport r = RegisterScan(scan, map, place, extent, a.registration);
     if (r.status.ok()) ApplySimilarity(r.transform, &scan);
-    const Errors e = FrameErrors(scan.train, visit_b.train, extent);
+    const PoseErrors e = FrameErrors(scan.train, visit_b.train, extent);
     const double seconds = r.render_seconds + r.localize_seconds + r.fit_seconds;
     out["cases"].push_back({{"frame", which}, {"placed", r.status.ok()}, {"status", r.status.ToString()},
                             {"identity", r.identity}, {"frames", r.frames}, {"frames_localized", r.frames_localized},

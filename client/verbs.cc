@@ -33,6 +33,7 @@ void RegisterVerbs(VerbSet* verbs) {
   verbs->Add(BindBenchScenes, RunBenchScenes, bench);
   verbs->Add(BindBenchStability, RunBenchStability, bench);
   verbs->Add(BindBenchRegister, RunBenchRegister, bench);
+  verbs->Add(BindBenchRescan, RunBenchRescan, bench);
 }
 
 }  // namespace clnerf

@@ -1,0 +1,234 @@
+// `clnerf bench rescan`: a capture split into two visits, the second
+// uploaded as people bring it, run through what the update worker does
+// (posing, registration, CLNeRF's update) in-process, and scored on the
+// capture's held-out views. Cases (--cases):
+//   place           visit B in the place's frame (registration must snap to
+//                   the identity);
+//   own             visit B moved into a frame of its own (a similarity);
+//   unposed         visit B's photos only, posed by COLMAP, then registered;
+//   unposed-first   visit A's photos only, posed by COLMAP, as the place's
+//                   first scan, against visit A posed (scored at matched
+//                   poses: the held-out cameras moved into COLMAP's frame by
+//                   the similarity that best maps A's known poses onto
+//                   COLMAP's, with COLMAP's self-calibrated intrinsics).
+// Per case: registration error against the known poses, seconds per stage
+// (posing, registering, training), held-out PSNR at the latest time and at
+// visit A's. JSON plus one human line per case.
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_split.h"
+#include "client/commands.h"
+#include "client/core_flags.h"
+#include "client/verb_set.h"
+#include "client/visit_split.h"
+#include "core/data/image.h"
+#include "core/data/stopwatch.h"
+#include "core/pose/place_map.h"
+#include "core/pose/sfm.h"
+#include "nlohmann/json.hpp"
+
+namespace clnerf {
+
+namespace {
+
+// Visit `scan` posed by COLMAP: the frames it posed keep their images and
+// get its cameras (time step kept); `posed` lists their indices in `scan`.
+absl::StatusOr<SfmResult> PoseWithColmap(Scene* scan, std::vector<int>* posed, int threads) {
+  char tmpl[] = "/tmp/clnerf-bench-rescan-XXXXXX";
+  if (mkdtemp(tmpl) == nullptr) return absl::InternalError("cannot create a scratch folder");
+  const std::string dir = tmpl;
+  std::vector<std::string> photos;
+  for (size_t i = 0; i < scan->train.size(); ++i) {
+    photos.push_back(absl::StrFormat("%s/%04d.png", dir, i));
+    if (absl::Status s = WriteImage(photos.back(), scan->train[i].image); !s.ok()) return s;
+  }
+  SfmOptions o;
+  o.workspace = dir + "/colmap";
+  o.threads = threads > 0 ? threads : 2;
+  absl::StatusOr<SfmResult> r = ColmapSfm().Run(photos, o);
+  std::error_code ec;
+  std::filesystem::remove_all(dir, ec);
+  if (!r.ok()) return r.status();
+  std::vector<View> kept;
+  for (size_t i = 0; i < scan->train.size(); ++i) {
+    if (!r->cameras[i]) continue;
+    View v = scan->train[i];
+    const int t = v.camera.time_step;
+    v.camera = *r->cameras[i];
+    v.camera.time_step = t;
+    v.depth.clear();
+    kept.push_back(std::move(v));
+    posed->push_back(int(i));
+  }
+  scan->train = std::move(kept);
+  scan->sparse_points = r->points;
+  scan->content_points.clear();
+  return r;
+}
+
+double HeldOutPsnr(const NgpModel& model, std::vector<View> test, int time_step, int max_views) {
+  for (View& v : test) v.camera.time_step = time_step;
+  EvalOptions eo;
+  eo.max_views = max_views;
+  absl::StatusOr<EvalResult> r = EvaluateViews(model, test, eo);
+  return r.ok() ? r->psnr : 0.0;
+}
+
+struct CaseRow {
+  nlohmann::json json;
+  std::string line;
+};
+
+}  // namespace
+
+CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
+  CLI::App* c = parent->add_subcommand(
+      "rescan", "A capture split into two visits; the second as people bring it (place frame, own frame, unposed) "
+                "posed, registered, trained and scored on held-out views");
+  a->update.train.iterations = 1000;
+  c->add_option("--data", a->data, "Dataset folder, or 'procedural'")->required();
+  c->add_option("--first-iters", a->first_iterations, "Training steps of visit A (the first scan)")
+      ->capture_default_str();
+  c->add_option("--iters", a->update.train.iterations, "Training steps of visit B's update")->capture_default_str();
+  c->add_option("--cases", a->cases, "Comma-separated: place, own, unposed, unposed-first")->capture_default_str();
+  c->add_option("--rotation", a->rotation_deg, "Visit B's own frame: rotation (degrees)")->capture_default_str();
+  c->add_option("--scale", a->scale, "... and scale")->capture_default_str();
+  c->add_option("--seed", a->seed, "Seed of its axis and shift")->capture_default_str();
+  c->add_option("--eval-views", a->eval_views, "Held-out views scored (0 = all)")->capture_default_str();
+  BindDatasetFlags(c, &a->dataset);
+  BindThreadsFlag(c, &a->threads);
+  c->add_option("--json", a->json, "Write JSON here ('-' = stdout)");
+  return c;
+}
+
+int RunBenchRescan(const BenchRescanArgs& a) {
+  SetThreads(a.threads);
+  absl::StatusOr<Scene> all = LoadVisitScene(a.data, a.dataset);
+  if (!all.ok()) return Fail(all.status());
+  Scene visit_a, visit_b;
+  SplitVisits(*all, &visit_a, &visit_b);
+  const std::vector<View> test = !all->test.empty() ? all->test : all->val;
+  if (test.empty()) return Fail(absl::InvalidArgumentError("the capture has no held-out (test or val) views"));
+  for (View& v : visit_b.train) v.camera.time_step = 1;
+  for (View& v : visit_a.train) v.camera.time_step = 0;
+  visit_a.test.clear();
+  visit_a.val.clear();
+  const std::vector<std::string> cases = absl::StrSplit(a.cases, ',', absl::SkipEmpty());
+  std::fprintf(stderr, "bench rescan: %s, visit A %zu frames (%d iterations), visit B %zu frames (%d), %zu held out\n",
+               a.data.c_str(), visit_a.train.size(), a.first_iterations, visit_b.train.size(),
+               a.update.train.iterations, test.size());
+  UpdateOptions first = a.update;
+  first.train.iterations = a.first_iterations;
+  auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<ContinualState> state_a = ContinualUpdate(visit_a, nullptr, first, {}, nullptr, nullptr);
+  if (!state_a.ok()) return Fail(state_a.status());
+  const double train_a = SecondsSince(t0);
+  const double psnr_a = HeldOutPsnr(*state_a->model, test, 0, a.eval_views);
+  std::printf("rescan %s: visit A trained in %.1f s, held-out PSNR %.2f dB\n", a.data.c_str(), train_a, psnr_a);
+  std::vector<Camera> place;
+  for (const View& v : visit_a.train) place.push_back(v.camera);
+  const double extent = PlaceExtent(place, state_a->model->normalization());
+  nlohmann::json out = {{"data", a.data}, {"frames_a", visit_a.train.size()}, {"frames_b", visit_b.train.size()},
+                        {"held_out", test.size()}, {"first_iterations", a.first_iterations},
+                        {"iterations", a.update.train.iterations}, {"train_a_seconds", train_a},
+                        {"psnr_a", psnr_a}, {"cases", nlohmann::json::array()}};
+  for (const std::string& which : cases) {
+    nlohmann::json row = {{"case", which}};
+    const bool first_scan = which == "unposed-first";
+    Scene scan = first_scan ? visit_a : visit_b;
+    const std::vector<View> truth = scan.train;
+    std::vector<int> posed;
+    double posing_seconds = 0;
+    if (which == "own") ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, extent), &scan);
+    if (which == "unposed" || first_scan) {
+      t0 = std::chrono::steady_clock::now();
+      absl::StatusOr<SfmResult> sfm = PoseWithColmap(&scan, &posed, a.threads);
+      posing_seconds = SecondsSince(t0);
+      row["posing_seconds"] = posing_seconds;
+      if (!sfm.ok()) {
+        row["status"] = sfm.status().ToString();
+        std::printf("rescan %s, %s: COLMAP could not pose it: %s\n", a.data.c_str(), which.c_str(),
+                    std::string(sfm.status().message()).c_str());
+        out["cases"].push_back(row);
+        continue;
+      }
+      row["posed"] = sfm->registered;
+      row["reprojection_px"] = sfm->mean_reprojection_px;
+    } else {
+      for (size_t i = 0; i < scan.train.size(); ++i) posed.push_back(int(i));
+    }
+    std::vector<View> posed_truth;
+    for (int i : posed) posed_truth.push_back(truth[size_t(i)]);
+    std::vector<View> scored = test;
+    double register_seconds = 0;
+    if (first_scan) {
+      // Matched poses: the held-out cameras into COLMAP's frame.
+      std::vector<PosePair> pairs;
+      for (size_t k = 0; k < posed.size(); ++k) pairs.push_back({posed_truth[k].camera.c2w, scan.train[k].camera.c2w});
+      absl::StatusOr<RobustSimilarity> fit = FitSimilarityRobust(pairs, extent, {});
+      if (!fit.ok()) return Fail(fit.status());
+      Scene moved;
+      moved.test = scored;
+      ApplySimilarity(fit->transform, &moved);
+      scored = moved.test;
+      // ... and seen through COLMAP's self-calibrated camera (its one shared
+      // intrinsics, scaled to each view), as the model was trained.
+      for (View& v : scored) {
+        v.camera.intrinsics =
+            scan.train[0].camera.intrinsics.Scaled(v.camera.intrinsics.width, v.camera.intrinsics.height);
+      }
+      Scene back = scan;
+      ApplySimilarity(fit->transform.Inverse(), &back);
+      const PoseErrors e = FrameErrors(back.train, posed_truth, extent);
+      row["centre_error_pct_median"] = e.centre_median;
+      row["rotation_error_deg_median"] = e.rotation_median;
+    } else {
+      t0 = std::chrono::steady_clock::now();
+      RegistrationReport r = RegisterScan(scan, ModelPlaceMap(*state_a->model, RenderOptions()), place, extent,
+                                          a.registration);
+      register_seconds = SecondsSince(t0);
+      row["registered"] = r.status.ok();
+      row["identity"] = r.identity;
+      row["status"] = r.status.ToString();
+      if (r.status.ok()) ApplySimilarity(r.transform, &scan);
+      const PoseErrors e = FrameErrors(scan.train, posed_truth, extent);
+      row["centre_error_pct_median"] = e.centre_median;
+      row["centre_error_pct_max"] = e.centre_max;
+      row["rotation_error_deg_median"] = e.rotation_median;
+      row["rotation_error_deg_max"] = e.rotation_max;
+      if (!r.status.ok() && which != "place") {
+        std::printf("rescan %s, %s: refused: %s\n", a.data.c_str(), which.c_str(),
+                    std::string(r.status.message()).c_str());
+        out["cases"].push_back(row);
+        continue;
+      }
+    }
+    row["register_seconds"] = register_seconds;
+    t0 = std::chrono::steady_clock::now();
+    absl::StatusOr<ContinualState> next =
+        ContinualUpdate(scan, first_scan ? nullptr : &*state_a, first_scan ? first : a.update, {}, nullptr, nullptr);
+    if (!next.ok()) return Fail(next.status());
+    const double train_seconds = SecondsSince(t0);
+    const double latest = HeldOutPsnr(*next->model, scored, first_scan ? 0 : 1, a.eval_views);
+    const double at_a = first_scan ? latest : HeldOutPsnr(*next->model, scored, 0, a.eval_views);
+    row["train_seconds"] = train_seconds;
+    row["psnr_latest"] = latest;
+    row["psnr_at_a"] = at_a;
+    std::printf("rescan %s, %-13s: %zu/%zu frames posed | pose error median %.2f%% / %.2f deg | pose %.1f s, "
+                "register %.1f s, train %.1f s | held-out PSNR latest %.2f dB, at visit A's time %.2f dB%s\n",
+                a.data.c_str(), which.c_str(), posed.size(), truth.size(), row.value("centre_error_pct_median", 0.0),
+                row.value("rotation_error_deg_median", 0.0), posing_seconds, register_seconds, train_seconds, latest,
+                at_a, first_scan ? absl::StrFormat(" (visit A posed: %.2f dB)", psnr_a).c_str() : "");
+    std::fflush(stdout);
+    out["cases"].push_back(row);
+  }
+  if (!a.json.empty()) {
+    if (absl::Status s = WriteJson(a.json, out); !s.ok()) return Fail(s);
+  }
+  return 0;
+}
+
+}  // namespace clnerf

@@ -1,0 +1,74 @@
+#include "client/visit_split.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+
+#include "core/data/dataset.h"
+#include "core/data/procedural_scene.h"
+#include "Eigen/Geometry"
+
+namespace clnerf {
+
+namespace {
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[v.size() / 2];
+}
+
+}  // namespace
+
+absl::StatusOr<Scene> LoadVisitScene(const std::string& data, const DatasetOptions& dataset) {
+  if (data != "procedural") return LoadScene(data, dataset);
+  ProceduralSceneOptions po;
+  po.layout = ProceduralLayout::kForwardFacing;
+  po.textured = true;
+  po.width = 240;
+  po.height = 180;
+  po.num_train_views = 48;
+  po.num_test_views = 4;
+  po.change_lighting = false;
+  po.change_geometry = false;
+  return GenerateProceduralScene(po);
+}
+
+void SplitVisits(const Scene& all, Scene* a, Scene* b) {
+  *a = all;
+  *b = all;
+  a->train.clear();
+  b->train.clear();
+  b->test.clear();
+  b->val.clear();
+  for (size_t i = 0; i < all.train.size(); ++i) (i % 2 == 0 ? a : b)->train.push_back(all.train[i]);
+}
+
+Similarity OwnFrame(double rotation_deg, double scale, uint64_t seed, double extent) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1, 1);
+  Similarity s;
+  s.rotation = Eigen::AngleAxisd(rotation_deg * M_PI / 180, Eigen::Vector3d(u(rng), u(rng), u(rng)).normalized())
+                   .toRotationMatrix();
+  s.scale = scale;
+  s.translation = Eigen::Vector3d(u(rng), u(rng), u(rng)) * extent;
+  return s;
+}
+
+PoseErrors FrameErrors(const std::vector<View>& placed, const std::vector<View>& truth, double extent) {
+  std::vector<double> c, r;
+  for (size_t i = 0; i < truth.size() && i < placed.size(); ++i) {
+    const Pose& a = placed[i].camera.c2w;
+    const Pose& b = truth[i].camera.c2w;
+    c.push_back(100.0 * (a.col(3) - b.col(3)).norm() / extent);
+    r.push_back(RotationAngleDegrees(a.leftCols<3>().cast<double>(), b.leftCols<3>().cast<double>()));
+  }
+  PoseErrors e;
+  e.centre_median = Median(c);
+  e.rotation_median = Median(r);
+  if (!c.empty()) e.centre_max = *std::max_element(c.begin(), c.end());
+  if (!r.empty()) e.rotation_max = *std::max_element(r.begin(), r.end());
+  return e;
+}
+
+}  // namespace clnerf

@@ -1,0 +1,40 @@
+// Visits cut from one capture, for the rescan benchmarks (`bench register`,
+// `bench rescan`): the capture (a dataset folder or a procedural
+// forward-facing scene), split into two visits by alternate frames; a
+// similarity that moves a visit into a frame of its own; and the error of
+// placed poses against the known ones.
+// Thread-safety: pure functions.
+#ifndef CLNERF_CLIENT_VISIT_SPLIT_H_
+#define CLNERF_CLIENT_VISIT_SPLIT_H_
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/data/dataset_options.h"
+#include "core/data/scene.h"
+#include "core/pose/similarity.h"
+
+namespace clnerf {
+
+// A dataset folder (LoadScene), or "procedural": a textured forward-facing
+// scene, 48 + 4 views at 240 x 180.
+absl::StatusOr<Scene> LoadVisitScene(const std::string& data, const DatasetOptions& dataset);
+// Even training frames into `a`, odd into `b` (time steps unchanged); `a`
+// keeps the capture's held-out views, `b` none.
+void SplitVisits(const Scene& all, Scene* a, Scene* b);
+// A rotation of `rotation_deg` about a random axis, `scale`, and a random
+// shift of up to `extent` per axis (seeded).
+Similarity OwnFrame(double rotation_deg, double scale, uint64_t seed, double extent);
+
+struct PoseErrors {
+  double centre_median = 0, centre_max = 0;  // % of the extent.
+  double rotation_median = 0, rotation_max = 0;  // Degrees.
+};
+// Frame i of `placed` against frame i of `truth`.
+PoseErrors FrameErrors(const std::vector<View>& placed, const std::vector<View>& truth, double extent);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CLIENT_VISIT_SPLIT_H_
