@@ -219,6 +219,30 @@
     jobsTimer = setTimeout(pollJobs, running ? 700 : 2500);
   }
 
+  // What a live job is doing, in its phase's own unit.
+  function progressText(j) {
+    if (j.phase === 'posing') {
+      const stages = ['finding features', 'matching photos', 'building the model'];
+      return 'COLMAP: ' + stages[Math.min(j.iteration, 2)] + ' (stage ' + Math.min(j.iteration + 1, 3) + ' / 3)';
+    }
+    if (j.phase === 'registering') return 'frame ' + j.iteration + ' / ' + j.total_iterations + ' localised';
+    return 'step ' + j.iteration + ' / ' + j.total_iterations;
+  }
+
+  // How a finished job's scan was posed and placed in the place's frame.
+  function placementText(m) {
+    const parts = [];
+    if (m.posing_frames) parts.push('posed ' + m.posing_registered + ' / ' + m.posing_frames + ' photos');
+    if (m.registration_identity === 1) {
+      parts.push('already in the place\'s frame');
+    } else if (m.registration_scale) {
+      parts.push('placed: ' + m.registration_rotation_deg.toFixed(1) + '°, ×' + m.registration_scale.toFixed(3) +
+        ', ' + m.registration_frames_agreeing + ' frames agree');
+    }
+    if (m.registration_unverified === 1) parts.push('frame not verified');
+    return parts.join(' · ');
+  }
+
   function renderJobs(jobs) {
     const box = $('jobs');
     if (!jobs.length) { box.innerHTML = '<p class="muted">No jobs yet.</p>'; return false; }
@@ -235,13 +259,15 @@
         '</span><span class="phase">' + escapeHtml(j.phase.replace('_', ' ')) + '</span></div>';
       if (live && j.phase !== 'queued') {
         html += '<div class="bar"><span style="width:' + pct + '%"></span></div>' +
-          '<div class="muted progress">step ' + j.iteration + ' / ' + j.total_iterations +
+          '<div class="muted progress">' + progressText(j) +
           (j.psnr ? ' · PSNR ' + j.psnr.toFixed(1) + ' dB' : '') +
           (j.eta_seconds > 0 ? ' · ETA ' + Math.ceil(j.eta_seconds) + ' s' : '') + '</div>';
         html += '<a data-cancel="' + escapeHtml(j.job_id) + '">cancel</a>';
       } else if (j.phase === 'done' && j.version) {
         html += '<div class="muted">v' + j.version + ' · ' + (j.elapsed_seconds || 0).toFixed(0) + ' s · ' +
           '<a data-view-version="' + j.version + '">view v' + j.version + '</a></div>';
+        const placed = placementText(j.metrics || {});
+        if (placed) html += '<div class="muted placement">' + escapeHtml(placed) + '</div>';
         if (!knownDone.has(j.job_id)) { knownDone.add(j.job_id); newVersion = true; }
       } else if (j.error) {
         html += '<div class="muted">' + escapeHtml(j.error).slice(0, 200) + '</div>';
