@@ -164,7 +164,8 @@ int RunBenchRescan(const BenchRescanArgs& a) {
     std::vector<View> scored = test;
     double posing_seconds = 0;
     if (which == "own") ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, extent), &scan);
-    if (which == "unposed" || first_scan) {
+    const bool refine = which == "unposed-refined";
+    if (which == "unposed" || refine || first_scan) {
       t0 = std::chrono::steady_clock::now();
       absl::StatusOr<SfmResult> sfm = PoseWithColmap(&scan, &posed, a.threads, first_scan ? &scored : nullptr);
       posing_seconds = SecondsSince(t0);
@@ -177,6 +178,12 @@ int RunBenchRescan(const BenchRescanArgs& a) {
         continue;
       }
       row["posed"] = sfm->registered;
+      row["colmap_fx"] = scan.train.empty() ? 0.0 : scan.train[0].camera.intrinsics.fx;
+      row["known_fx"] = truth[0].camera.intrinsics.fx;
+      std::printf("  %s: COLMAP's focal %.2f px, k1 %.4f (known: %.2f px, k1 %.4f)\n", which.c_str(),
+                  scan.train.empty() ? 0.0 : scan.train[0].camera.intrinsics.fx,
+                  scan.train.empty() ? 0.0 : scan.train[0].camera.intrinsics.k1, truth[0].camera.intrinsics.fx,
+                  truth[0].camera.intrinsics.k1);
       row["reprojection_px"] = sfm->mean_reprojection_px;
     } else {
       for (size_t i = 0; i < scan.train.size(); ++i) posed.push_back(int(i));
@@ -217,6 +224,40 @@ int RunBenchRescan(const BenchRescanArgs& a) {
       row["status"] = r.status.ToString();
       if (r.status.ok()) ApplySimilarity(r.transform, &scan);
       const PoseErrors e = FrameErrors(scan.train, posed_truth, extent);
+      {  // Each placed frame's own PnP pose against the place's renders.
+        std::vector<View> pnp, pnp_truth;
+        for (size_t k = 0; k < r.tried.size(); ++k) {
+          if (!r.localized[k].placed) continue;
+          View v = scan.train[size_t(r.tried[k])];
+          v.camera.c2w = r.localized[k].c2w;
+          pnp.push_back(v);
+          pnp_truth.push_back(posed_truth[size_t(r.tried[k])]);
+        }
+        const PoseErrors pe = FrameErrors(pnp, pnp_truth, extent);
+        row["pnp_centre_error_pct_median"] = pe.centre_median;
+        row["pnp_rotation_error_deg_median"] = pe.rotation_median;
+        std::printf("  %s: registered poses %.2f%% / %.2f deg from the known; per-frame PnP poses %.2f%% / %.2f deg "
+                    "(%zu frames)\n",
+                    which.c_str(), e.centre_median, e.rotation_median, pe.centre_median, pe.rotation_median,
+                    pnp.size());
+      }
+      if (refine && r.status.ok()) {  // The shared camera and poses refined against the place.
+        double rms = 0;
+        Intrinsics in;
+        absl::Status rs = RefineAgainstPlace(r, &scan, &rms, &in);
+        if (rs.ok()) {
+          const PoseErrors re = FrameErrors(scan.train, posed_truth, extent);
+          row["refined_fx"] = in.fx;
+          row["refined_k1"] = in.k1;
+          row["refine_rms_px"] = rms;
+          row["refined_centre_error_pct_median"] = re.centre_median;
+          row["refined_rotation_error_deg_median"] = re.rotation_median;
+          std::printf("  %s: refined camera fx %.2f k1 %.4f (rms %.2f px); poses %.2f%% / %.2f deg from the known\n",
+                      which.c_str(), in.fx, in.k1, rms, re.centre_median, re.rotation_median);
+        } else {
+          std::printf("  %s: refinement failed: %s\n", which.c_str(), std::string(rs.message()).c_str());
+        }
+      }
       row["centre_error_pct_median"] = e.centre_median;
       row["centre_error_pct_max"] = e.centre_max;
       row["rotation_error_deg_median"] = e.rotation_median;

@@ -289,6 +289,19 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
   r.AddMetrics(metrics);
   if (r.status.ok()) {
     ApplySimilarity(r.transform, scene);
+    if (metrics->count("posing_frames") > 0) {
+      // Posed here by SfM over this scan alone: its self-calibrated camera
+      // and its poses refined against the place (registration.h).
+      double rms = 0;
+      Intrinsics in;
+      if (absl::Status s = RefineAgainstPlace(r, scene, &rms, &in); s.ok()) {
+        (*metrics)["registration_refined_fx"] = in.fx;
+        (*metrics)["registration_refined_k1"] = in.k1;
+        (*metrics)["registration_refine_rms_px"] = rms;
+      } else {
+        spdlog::warn("job {}: camera refinement skipped: {}", job_id, s.ToString());
+      }
+    }
     spdlog::info("job {}: registered into the place's frame: {}", job_id, r.Summary());
     return true;
   }

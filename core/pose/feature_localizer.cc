@@ -5,6 +5,7 @@
 #include <map>
 
 #include "absl/strings/str_cat.h"
+#include "Eigen/Geometry"
 #include "opencv2/calib3d.hpp"
 #include "opencv2/core.hpp"
 #include "opencv2/features2d.hpp"
@@ -172,9 +173,10 @@ FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& c
   out.matches = int(by_query.size());
   if (out.matches < o.min_inliers) return out;
   std::vector<cv::Point3f> object;
-  std::vector<cv::Point2f> normalised;
+  std::vector<cv::Point2f> normalised, pixels;
   for (const auto& [qi, m] : by_query) {
     const cv::Point2f& p = q.keypoints[qi].pt;
+    pixels.push_back(p);
     const Eigen::Vector3f d = cam.CameraDirection(p.x + 0.5f, p.y + 0.5f);
     object.push_back(m.second);
     normalised.emplace_back(d.x() / d.z(), d.y() / d.z());
@@ -215,7 +217,83 @@ FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& c
   out.c2w.col(3) = (-r.transpose() * t).cast<float>();
   out.inliers = int(inliers.size());
   out.reprojection_px = std::sqrt(sq / std::max<size_t>(1, proj.size())) * f;
+  const float sx = float(camera.intrinsics.width) / cam.intrinsics.width;
+  const float sy = float(camera.intrinsics.height) / cam.intrinsics.height;
+  for (int i : inliers) {
+    out.inlier_points.emplace_back(object[i].x, object[i].y, object[i].z);
+    out.inlier_pixels.emplace_back((pixels[i].x + 0.5f) * sx, (pixels[i].y + 0.5f) * sy);
+  }
   out.placed = out.c2w.allFinite();
+  return out;
+}
+
+absl::StatusOr<Intrinsics> RefineSharedCamera(const std::vector<FrameLocalization>& frames, const Intrinsics& guess,
+                                             std::vector<Pose>* poses, double* rms_px, double max_turn_deg) {
+  std::vector<std::vector<cv::Point3f>> object;
+  std::vector<std::vector<cv::Point2f>> image;
+  std::vector<size_t> which;
+  for (size_t f = 0; f < frames.size(); ++f) {
+    const FrameLocalization& l = frames[f];
+    if (!l.placed || l.inlier_points.size() < 6 || f >= poses->size()) continue;
+    object.emplace_back();
+    image.emplace_back();
+    for (size_t i = 0; i < l.inlier_points.size(); ++i) {
+      const Eigen::Vector3f& P = l.inlier_points[i];
+      const Eigen::Vector2f& p = l.inlier_pixels[i];
+      object.back().emplace_back(P.x(), P.y(), P.z());
+      image.back().emplace_back(p.x() - 0.5f, p.y() - 0.5f);  // OpenCV: pixel centres at integers.
+    }
+    which.push_back(f);
+  }
+  if (which.size() < 3) return absl::InvalidArgumentError("refining a shared camera needs 3 placed frames");
+  cv::Mat k = (cv::Mat_<double>(3, 3) << guess.fx, 0, guess.cx - 0.5, 0, guess.fy, guess.cy - 0.5, 0, 0, 1);
+  cv::Mat dist = (cv::Mat_<double>(1, 5) << guess.k1, guess.k2, guess.p1, guess.p2, 0);
+  std::vector<cv::Mat> rvecs, tvecs;
+  const int flags = cv::CALIB_USE_INTRINSIC_GUESS | cv::CALIB_FIX_ASPECT_RATIO | cv::CALIB_FIX_PRINCIPAL_POINT |
+                    cv::CALIB_ZERO_TANGENT_DIST | cv::CALIB_FIX_K2 | cv::CALIB_FIX_K3;
+  double rms = 0;
+  try {
+    rms = cv::calibrateCamera(object, image, cv::Size(guess.width, guess.height), k, dist, rvecs, tvecs, flags);
+  } catch (const cv::Exception& e) {
+    return absl::FailedPreconditionError(absl::StrCat("shared camera refinement failed: ", e.what()));
+  }
+  Intrinsics out = guess;
+  out.fx = float(k.at<double>(0, 0));
+  out.fy = float(k.at<double>(1, 1));
+  out.k1 = float(dist.at<double>(0));
+  if (!std::isfinite(rms) || !std::isfinite(out.fx) || !std::isfinite(out.k1) ||
+      std::abs(out.fx / guess.fx - 1) > 0.2) {
+    return absl::FailedPreconditionError("shared camera refinement diverged");
+  }
+  // Each frame's pose: Levenberg-Marquardt from the pose it came with, under
+  // the refined camera (calibrateCamera's own per-view poses can flip); kept
+  // only if it stays near it.
+  for (size_t v = 0; v < which.size(); ++v) {
+    const Pose& start = (*poses)[which[v]];
+    const Eigen::Matrix3d r0 = start.leftCols<3>().cast<double>().transpose();  // World -> camera.
+    const Eigen::Vector3d t0 = -r0 * start.col(3).cast<double>();
+    cv::Mat rm0(3, 3, CV_64F), rvec, tvec(3, 1, CV_64F);
+    for (int i = 0; i < 3; ++i) {
+      tvec.at<double>(i) = t0(i);
+      for (int j = 0; j < 3; ++j) rm0.at<double>(i, j) = r0(i, j);
+    }
+    cv::Rodrigues(rm0, rvec);
+    cv::solvePnPRefineLM(object[v], image[v], k, dist, rvec, tvec);
+    cv::Mat rm;
+    cv::Rodrigues(rvec, rm);
+    Eigen::Matrix3d r;
+    Eigen::Vector3d t;
+    for (int i = 0; i < 3; ++i) {
+      t(i) = tvec.at<double>(i);
+      for (int j = 0; j < 3; ++j) r(i, j) = rm.at<double>(i, j);
+    }
+    Pose c2w;
+    c2w.leftCols<3>() = r.transpose().cast<float>();
+    c2w.col(3) = (-r.transpose() * t).cast<float>();
+    const double turn = Eigen::AngleAxisd(r * r0.transpose()).angle() * 180 / M_PI;
+    if (c2w.allFinite() && turn < max_turn_deg) (*poses)[which[v]] = c2w;
+  }
+  if (rms_px != nullptr) *rms_px = rms;
   return out;
 }
 

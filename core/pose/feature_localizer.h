@@ -59,7 +59,27 @@ struct FrameLocalization {
   int matches = 0;              // 2-D/3-D correspondences tried.
   int inliers = 0;              // PnP inliers.
   double reprojection_px = 0;   // RMS over the inliers, at the matching size.
+  // The inlier correspondences: place points and the photo's pixels (at its
+  // own size, pixel centres at +0.5), for a refinement over many frames.
+  std::vector<Eigen::Vector3f> inlier_points;
+  std::vector<Eigen::Vector2f> inlier_pixels;
 };
+
+// Refines one camera shared by many localised frames of a scan (focal
+// length and radial k1; principal point, aspect and the rest fixed) and
+// then each frame's pose, by least squares over all their inlier
+// correspondences with the place's points held fixed (OpenCV's
+// calibrateCamera started from `guess` for the camera; Levenberg-Marquardt
+// per frame from its pose in `poses`): the self-calibration of a
+// structure-from-motion run over a few frames is corrected against the
+// place. `poses` holds one starting pose per frame (the frames' registered
+// poses); a placed frame's is replaced by its refined pose when that turns
+// less than max_turn_deg away. INVALID_ARGUMENT with fewer than 3 placed
+// frames; FAILED_PRECONDITION when the refinement diverges (focal moved by
+// more than 20 %, or non-finite).
+absl::StatusOr<Intrinsics> RefineSharedCamera(const std::vector<FrameLocalization>& frames, const Intrinsics& guess,
+                                             std::vector<Pose>* poses, double* rms_px = nullptr,
+                                             double max_turn_deg = 3.0);
 
 class FeatureLocalizer {
  public:

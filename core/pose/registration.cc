@@ -157,7 +157,9 @@ RegistrationReport RegisterScan(const Scene& scan, const PlaceMap& map, const st
   for (const View& v : scan.train) scan_cams.push_back(v.camera);
   std::vector<const View*> frames;
   for (int i : SpreadCameras(scan_cams, options.max_frames)) {
-    if (!scan.train[i].image.empty()) frames.push_back(&scan.train[i]);
+    if (scan.train[i].image.empty()) continue;
+    frames.push_back(&scan.train[i]);
+    r.tried.push_back(i);
   }
   r.frames = int(frames.size());
   std::vector<FrameLocalization> found = LocalizeFrames(**loc, frames, progress, cancel);
@@ -185,6 +187,28 @@ RegistrationReport RegisterScan(const Scene& scan, const PlaceMap& map, const st
   }
   if (!r.status.ok()) r.status = absl::Status(r.status.code(), absl::StrCat(r.status.message(), " (", r.Summary(), ")"));
   return r;
+}
+
+absl::Status RefineAgainstPlace(const RegistrationReport& report, Scene* scene, double* rms_px,
+                                Intrinsics* refined) {
+  if (scene->train.empty()) return absl::InvalidArgumentError("the scan has no frames");
+  std::vector<Pose> poses(report.localized.size(), Pose::Zero());
+  for (size_t k = 0; k < report.tried.size() && k < poses.size(); ++k) {
+    poses[k] = scene->train[size_t(report.tried[k])].camera.c2w;
+  }
+  absl::StatusOr<Intrinsics> in = RefineSharedCamera(report.localized, scene->train[0].camera.intrinsics, &poses,
+                                                     rms_px);
+  if (!in.ok()) return in.status();
+  for (std::vector<View>* views : {&scene->train, &scene->val, &scene->test}) {
+    for (View& v : *views) v.camera.intrinsics = in->Scaled(v.camera.intrinsics.width, v.camera.intrinsics.height);
+  }
+  for (size_t k = 0; k < report.tried.size() && k < poses.size(); ++k) {
+    if (report.localized[k].placed && poses[k].allFinite()) {
+      scene->train[size_t(report.tried[k])].camera.c2w = poses[k];
+    }
+  }
+  if (refined != nullptr) *refined = *in;
+  return absl::OkStatus();
 }
 
 void ApplySimilarity(const Similarity& s, Scene* scene) {

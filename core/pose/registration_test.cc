@@ -1,5 +1,6 @@
 #include "core/pose/registration.h"
 
+#include <algorithm>
 #include <cmath>
 #include <iostream>
 #include <random>
@@ -78,6 +79,46 @@ TEST(RegistrationTest, ScanOfAnotherPlaceIsRefused) {
   RegistrationReport r = RegisterScan(p.scan, map, cams, PlaceExtent(cams, Normalization()), RegistrationOptions());
   EXPECT_TRUE(absl::IsFailedPrecondition(r.status)) << r.status;
   EXPECT_LT(r.frames_agreeing, 3) << r.Summary();
+}
+
+TEST(RegistrationTest, SelfCalibratedCameraIsRefinedAgainstThePlace) {
+  Place p = MakePlace(8, /*textured=*/true);
+  ProceduralPlaceMap map(ProceduralWorldAt(p.options, 0));
+  Scene scan = p.scan;
+  const float true_fx = scan.train[0].camera.intrinsics.fx;
+  for (View& v : scan.train) {  // A structure-from-motion run's focal, 4 % off.
+    v.camera.intrinsics.fx *= 1.04f;
+    v.camera.intrinsics.fy *= 1.04f;
+  }
+  ApplySimilarity(RandomSimilarity(31), &scan);
+  RegistrationReport r = RegisterScan(scan, map, p.cameras, p.extent, RegistrationOptions());
+  ASSERT_TRUE(r.status.ok()) << r.status;
+  ApplySimilarity(r.transform, &scan);
+  double rms = 0;
+  Intrinsics refined;
+  ASSERT_TRUE(RefineAgainstPlace(r, &scan, &rms, &refined).ok());
+  std::cout << "refined fx " << refined.fx << " (true " << true_fx << ", started " << 1.04f * true_fx << "), rms "
+            << rms << " px\n";
+  EXPECT_NEAR(refined.fx, true_fx, 0.01f * true_fx);
+  EXPECT_LT(rms, RegistrationOptions().localizer.reprojection_px);  // Inliers stay inliers.
+  for (const View& v : scan.train) EXPECT_EQ(v.camera.intrinsics.fx, refined.fx);
+  // Each placed frame now has its own PnP pose under the refined camera: a
+  // single frame's pose is noisier than the fit over all (about 1 degree),
+  // so the median holds the registration's bound and every frame a looser
+  // one.
+  std::vector<double> centre, rotation;
+  for (size_t i = 0; i < scan.train.size(); ++i) {
+    const Pose& a = scan.train[i].camera.c2w;
+    const Pose& b = p.scan.train[i].camera.c2w;
+    centre.push_back((a.col(3) - b.col(3)).norm() / p.extent);
+    rotation.push_back(RotationAngleDegrees(a.leftCols<3>().cast<double>(), b.leftCols<3>().cast<double>()));
+    EXPECT_LT(centre.back(), 0.03) << "frame " << i;
+    EXPECT_LT(rotation.back(), 2.0) << "frame " << i;
+  }
+  std::sort(centre.begin(), centre.end());
+  std::sort(rotation.begin(), rotation.end());
+  EXPECT_LT(centre[centre.size() / 2], 0.01);
+  EXPECT_LT(rotation[rotation.size() / 2], 0.5);
 }
 
 TEST(RegistrationTest, ApplySimilarityMovesEverySplitAndPoint) {
