@@ -5,7 +5,9 @@
 //   place           visit B in the place's frame (registration must snap to
 //                   the identity);
 //   own             visit B moved into a frame of its own (a similarity);
-//   unposed         visit B's photos only, posed by COLMAP, then registered;
+//   unposed         visit B's photos only, posed by COLMAP, registered, its
+//                   camera and poses refined against the place (as the
+//                   service does; "unposed-unrefined" skips the refinement);
 //   unposed-first   visit A's photos only, posed by COLMAP, as the place's
 //                   first scan, against visit A posed (scored at matched
 //                   poses: the held-out views posed in the same COLMAP run,
@@ -164,8 +166,10 @@ int RunBenchRescan(const BenchRescanArgs& a) {
     std::vector<View> scored = test;
     double posing_seconds = 0;
     if (which == "own") ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, extent), &scan);
-    const bool refine = which == "unposed-refined";
-    if (which == "unposed" || refine || first_scan) {
+    // As the service: a scan it posed has its camera refined against the
+    // place after registration ("unposed-unrefined": without, to compare).
+    const bool refine = which == "unposed";
+    if (which == "unposed" || which == "unposed-unrefined" || first_scan) {
       t0 = std::chrono::steady_clock::now();
       absl::StatusOr<SfmResult> sfm = PoseWithColmap(&scan, &posed, a.threads, first_scan ? &scored : nullptr);
       posing_seconds = SecondsSince(t0);
