@@ -282,15 +282,12 @@ grpc::Status ClnerfServiceImpl::ListCameras(grpc::ServerContext*, const v1::List
   }
   resp->set_version(list->version);
   resp->set_time_steps(list->time_steps);
-  std::vector<int> index(size_t(list->time_steps) + 1, 0);
   for (size_t k = 0; k < list->cameras.size(); ++k) {
     const Camera& c = list->cameras[k];
-    const int t = std::clamp(c.time_step, 0, list->time_steps);
-    const int i = index[size_t(t)]++;
     if (req->has_time_step() && c.time_step != req->time_step()) continue;
     v1::TrainedCamera* out = resp->add_cameras();
     out->set_time_step(c.time_step);
-    out->set_index(i);
+    out->set_index(list->index[k]);
     out->set_name(list->names[k]);
     *out->mutable_camera() = CameraToProto(c);
   }

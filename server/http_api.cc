@@ -137,16 +137,14 @@ absl::StatusOr<int64_t> IntParam(const httplib::Request& req, const char* name, 
 // row-major 3x4 camera-to-world, OpenCV convention, the place's frame.
 json CamerasJson(const CameraList& list, int t) {
   json cams = json::array();
-  std::vector<int> index(size_t(list.time_steps) + 1, 0);
   for (size_t k = 0; k < list.cameras.size(); ++k) {
     const Camera& c = list.cameras[k];
-    const int i = index[size_t(std::clamp(c.time_step, 0, list.time_steps))]++;
     if (t >= 0 && c.time_step != t) continue;
     json pose = json::array();
     for (int r = 0; r < 3; ++r)
       for (int k = 0; k < 4; ++k) pose.push_back(c.c2w(r, k));
     const Intrinsics& in = c.intrinsics;
-    cams.push_back(json{{"time_step", c.time_step}, {"index", i}, {"name", list.names[k]}, {"c2w_opencv", pose},
+    cams.push_back(json{{"time_step", c.time_step}, {"index", list.index[k]}, {"name", list.names[k]}, {"c2w_opencv", pose},
                         {"width", in.width}, {"height", in.height}, {"fx", in.fx}, {"fy", in.fy},
                         {"cx", in.cx}, {"cy", in.cy}, {"k1", in.k1}, {"k2", in.k2}, {"p1", in.p1}, {"p2", in.p2}});
   }

@@ -29,13 +29,6 @@ using testing_util::TinyServerOptions;
 
 class HttpApiTest : public ServerFixture {
  protected:
-  void StartHttp(ServerOptions o) {
-    o.http_listen = "127.0.0.1:0";
-    StartServer(o);
-    ASSERT_GT(server_->http_port(), 0);
-    http_ = std::make_unique<httplib::Client>("127.0.0.1", server_->http_port());
-    http_->set_read_timeout(std::chrono::seconds(60));
-  }
   json Json(const httplib::Result& r) {
     EXPECT_TRUE(r) << "no HTTP response";
     if (!r) return json();
@@ -52,7 +45,6 @@ class HttpApiTest : public ServerFixture {
     return absl::StrCat("/api/render?width=", in.width, "&height=", in.height, "&c2w=", absl::StrJoin(m, ","),
                         "&fx=", in.fx, "&fy=", in.fy, "&cx=", in.cx, "&cy=", in.cy, extra);
   }
-  std::unique_ptr<httplib::Client> http_;
 };
 
 double MeanAbsDiff(const Image& a, const Image& b) {

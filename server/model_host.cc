@@ -354,6 +354,7 @@ absl::StatusOr<CameraList> ModelHost::Cameras(int64_t version) const {
   for (const Camera& c : out.cameras) {
     const size_t t = size_t(std::clamp(c.time_step, 0, std::max(0, out.time_steps - 1)));
     const size_t i = seen[t]++;
+    out.index.push_back(int(i));
     out.names.push_back(t < names.size() && i < names[t].size() ? names[t][i] : std::string());
   }
   return out;

@@ -88,6 +88,7 @@ struct CameraList {
   // Per camera, its frame's name ("" where the version's lineage did not
   // record names, e.g. stores from before they were).
   std::vector<std::string> names;
+  std::vector<int> index;  // Per camera, its index within its time step.
 };
 
 // Where photos were taken in the place's frame (core/pose/photo_localization.h).

@@ -1,5 +1,6 @@
-// ServerFixture: the real gRPC server in-process on localhost:0 and a stub,
-// with helpers to upload, watch, render and list. Test code only.
+// ServerFixture: the real gRPC server in-process on localhost:0 and a stub
+// (and, with StartHttp, its HTTP front end and a client), with helpers to
+// upload, watch, render and list. Test code only.
 #ifndef CLNERF_SERVER_SERVER_FIXTURE_H_
 #define CLNERF_SERVER_SERVER_FIXTURE_H_
 
@@ -12,6 +13,7 @@
 #include "clnerf/v1/clnerf.grpc.pb.h"
 #include "grpcpp/create_channel.h"
 #include "gtest/gtest.h"
+#include "httplib.h"
 #include "server/grpc_server.h"
 #include "server/server_test_util.h"
 
@@ -40,6 +42,15 @@ class ServerFixture : public ::testing::Test {
     server_ = *std::move(s);
     channel_ = grpc::CreateChannel("localhost:" + std::to_string(server_->port()), grpc::InsecureChannelCredentials());
     stub_ = v1::ClnerfService::NewStub(channel_);
+  }
+  // The server with its HTTP front end on 127.0.0.1:0 too, and `http_` a
+  // client of it.
+  void StartHttp(ServerOptions o, std::chrono::seconds read_timeout = std::chrono::seconds(60)) {
+    o.http_listen = "127.0.0.1:0";
+    StartServer(o);
+    ASSERT_GT(server_->http_port(), 0);
+    http_ = std::make_unique<httplib::Client>("127.0.0.1", server_->http_port());
+    http_->set_read_timeout(read_timeout);
   }
   void StopServer() {
     if (server_) server_->Shutdown();
@@ -94,6 +105,7 @@ class ServerFixture : public ::testing::Test {
   std::unique_ptr<GrpcServer> server_;
   std::shared_ptr<grpc::Channel> channel_;
   std::unique_ptr<v1::ClnerfService::Stub> stub_;
+  std::unique_ptr<httplib::Client> http_;  // After StartHttp.
 };
 
 }  // namespace testing_util

@@ -58,24 +58,14 @@ ScanUpload Unposed(const Scene& scene) {
   return up;
 }
 
-class UnposedScanTest : public ServerFixture {
- protected:
-  void StartHttp(ServerOptions o) {
-    o.http_listen = "127.0.0.1:0";
-    StartServer(o);
-    ASSERT_GT(server_->http_port(), 0);
-    http_ = std::make_unique<httplib::Client>("127.0.0.1", server_->http_port());
-    http_->set_read_timeout(std::chrono::seconds(120));
-  }
-  std::unique_ptr<httplib::Client> http_;
-};
+class UnposedScanTest : public ServerFixture {};
 
 TEST_F(UnposedScanTest, VideoOverHttpIsPosedTrainedAndItsCamerasMatchTheTruth) {
   if (!ToolsInstalled()) GTEST_SKIP() << "colmap / ffmpeg are not installed (scripts/install-deps.sh)";
   const std::string store = TempDir("srv_unposed_video");
   ServerOptions o = TinyServerOptions(store, 60);
   o.registration.max_references = 4;  // Localisation renders this tiny, hazy model: keep them few.
-  StartHttp(o);
+  StartHttp(o, std::chrono::seconds(120));
   const Scene scene = TexturedOrbit(24);
   const std::string dir = TempDir("unposed_video_src");
   for (size_t i = 0; i < scene.train.size(); ++i) {
@@ -109,13 +99,7 @@ TEST_F(UnposedScanTest, VideoOverHttpIsPosedTrainedAndItsCamerasMatchTheTruth) {
   EXPECT_GE(cams.size(), scene.train.size() * 3 / 4);
   std::vector<PosePair> pairs;
   std::vector<Camera> truth;
-  for (const Camera& c : [&] {
-         std::vector<Camera> all;
-         for (const View& v : scene.train) all.push_back(v.camera);
-         return all;
-       }()) {
-    truth.push_back(c);
-  }
+  for (const View& v : scene.train) truth.push_back(v.camera);
   for (const json& c : cams) {
     // Video frames are named frame_NNNN.jpg in video order: frame N is view N.
     const std::string name = c["name"];

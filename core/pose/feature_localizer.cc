@@ -130,6 +130,27 @@ absl::StatusOr<std::unique_ptr<FeatureLocalizer>> FeatureLocalizer::Build(const 
   return std::unique_ptr<FeatureLocalizer>(new FeatureLocalizer(std::move(impl)));
 }
 
+namespace {
+
+// OpenCV's world-to-camera rotation vector and translation as a
+// camera-to-world pose (OpenCV convention).
+Pose CameraToWorld(const cv::Mat& rvec, const cv::Mat& tvec) {
+  cv::Mat rm;
+  cv::Rodrigues(rvec, rm);
+  Eigen::Matrix3d r;
+  Eigen::Vector3d t;
+  for (int i = 0; i < 3; ++i) {
+    t(i) = tvec.at<double>(i);
+    for (int j = 0; j < 3; ++j) r(i, j) = rm.at<double>(i, j);
+  }
+  Pose c2w;
+  c2w.leftCols<3>() = r.transpose().cast<float>();
+  c2w.col(3) = (-r.transpose() * t).cast<float>();
+  return c2w;
+}
+
+}  // namespace
+
 FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& camera) const {
   const LocalizerOptions& o = impl_->options;
   FrameLocalization out;
@@ -205,16 +226,7 @@ FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& c
     const cv::Point2f e = proj[i] - img_in[i];
     sq += double(e.x) * e.x + double(e.y) * e.y;
   }
-  cv::Mat rm;
-  cv::Rodrigues(rvec, rm);
-  Eigen::Matrix3d r;
-  Eigen::Vector3d t;
-  for (int i = 0; i < 3; ++i) {
-    t(i) = tvec.at<double>(i);
-    for (int j = 0; j < 3; ++j) r(i, j) = rm.at<double>(i, j);
-  }
-  out.c2w.leftCols<3>() = r.transpose().cast<float>();
-  out.c2w.col(3) = (-r.transpose() * t).cast<float>();
+  out.c2w = CameraToWorld(rvec, tvec);
   out.inliers = int(inliers.size());
   out.reprojection_px = std::sqrt(sq / std::max<size_t>(1, proj.size())) * f;
   const float sx = float(camera.intrinsics.width) / cam.intrinsics.width;
@@ -279,17 +291,8 @@ absl::StatusOr<Intrinsics> RefineSharedCamera(const std::vector<FrameLocalizatio
     }
     cv::Rodrigues(rm0, rvec);
     cv::solvePnPRefineLM(object[v], image[v], k, dist, rvec, tvec);
-    cv::Mat rm;
-    cv::Rodrigues(rvec, rm);
-    Eigen::Matrix3d r;
-    Eigen::Vector3d t;
-    for (int i = 0; i < 3; ++i) {
-      t(i) = tvec.at<double>(i);
-      for (int j = 0; j < 3; ++j) r(i, j) = rm.at<double>(i, j);
-    }
-    Pose c2w;
-    c2w.leftCols<3>() = r.transpose().cast<float>();
-    c2w.col(3) = (-r.transpose() * t).cast<float>();
+    const Pose c2w = CameraToWorld(rvec, tvec);
+    const Eigen::Matrix3d r = c2w.leftCols<3>().cast<double>().transpose();  // World -> camera.
     const double turn = Eigen::AngleAxisd(r * r0.transpose()).angle() * 180 / M_PI;
     if (c2w.allFinite() && turn < max_turn_deg) (*poses)[which[v]] = c2w;
   }
