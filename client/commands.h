@@ -142,6 +142,7 @@ struct BenchRegisterArgs {
   uint64_t seed = 1;              // Axis and shift of that frame.
   int threads = 0;
   bool verbose = false;           // Per-frame PnP figures.
+  std::string model;              // θ_A's checkpoint: loaded if it exists, else trained and saved there.
   std::string json;
 };
 

@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <random>
 
 #include "absl/strings/str_format.h"
@@ -19,6 +20,7 @@
 #include "client/core_flags.h"
 #include "core/data/dataset.h"
 #include "core/data/stopwatch.h"
+#include "core/io/checkpoint.h"
 #include "core/pose/place_map.h"
 #include "Eigen/Geometry"
 #include "nlohmann/json.hpp"
@@ -26,6 +28,39 @@
 namespace clnerf {
 
 namespace {
+
+// θ_A: loaded from a.model when that file exists, else trained on visit A
+// (and saved to a.model when one is named).
+absl::StatusOr<NgpModel> PlaceModel(const Scene& visit_a, const BenchRegisterArgs& a) {
+  if (!a.model.empty() && std::filesystem::exists(a.model)) {
+    absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
+    if (!ck.ok()) return ck.status();
+    std::fprintf(stderr, "bench register: θ_A loaded from %s\n", a.model.c_str());
+    return std::move(ck->model);
+  }
+  absl::StatusOr<FitResult> fit = FitScene(visit_a, a.fit, {});
+  if (!fit.ok()) return fit.status();
+  if (!a.model.empty()) {
+    if (absl::StatusOr<size_t> s = SaveCheckpoint(*fit->model, a.model); !s.ok()) return s.status();
+  }
+  return std::move(*fit->model);
+}
+
+// Per frame: PnP inliers/matches, reprojection RMS and, when the scan is in
+// the place's frame (`truth`), the PnP pose's own error against it.
+void PrintFrames(const RegistrationReport& r, const Scene* truth, double extent) {
+  for (size_t k = 0; k < r.localized.size(); ++k) {
+    const FrameLocalization& f = r.localized[k];
+    std::printf(" %d/%d%s", f.inliers, f.matches, f.placed ? "*" : "");
+    if (truth != nullptr && f.placed && k < r.tried.size()) {
+      const Pose& t = truth->train[size_t(r.tried[k])].camera.c2w;
+      std::printf("(%.1fpx %.2f%% %.2fdeg)", f.reprojection_px, 100 * (f.c2w.col(3) - t.col(3)).norm() / extent,
+                  RotationAngleDegrees(f.c2w.leftCols<3>().cast<double>(), t.leftCols<3>().cast<double>()));
+    }
+  }
+  std::printf("  (PnP inliers/matches per frame; * = placed%s)\n",
+              truth != nullptr ? "; RMS px, centre and rotation error of the frame's own PnP pose" : "");
+}
 
 }  // namespace
 
@@ -46,7 +81,8 @@ CLI::App* BindBenchRegister(CLI::App* parent, BenchRegisterArgs* a) {
       ->capture_default_str();
   BindDatasetFlags(c, &a->dataset);
   BindThreadsFlag(c, &a->threads);
-  c->add_flag("--verbose", a->verbose, "Print each frame's PnP inliers and matches");
+  c->add_flag("--verbose", a->verbose, "Print each frame's PnP inliers, matches and pose error");
+  c->add_option("--model", a->model, "θ_A's checkpoint: loaded if the file exists, else trained and saved there");
   c->add_option("--json", a->json, "Write JSON here ('-' = stdout)");
   return c;
 }
@@ -60,14 +96,14 @@ int RunBenchRegister(const BenchRegisterArgs& a) {
   std::fprintf(stderr, "bench register: %s, visit A %zu frames (trains θ_A, %d iterations), visit B %zu frames\n",
                a.data.c_str(), visit_a.train.size(), a.fit.train.iterations, visit_b.train.size());
   const auto t0 = std::chrono::steady_clock::now();
-  absl::StatusOr<FitResult> fit = FitScene(visit_a, a.fit, {});
-  if (!fit.ok()) return Fail(fit.status());
+  absl::StatusOr<NgpModel> model = PlaceModel(visit_a, a);
+  if (!model.ok()) return Fail(model.status());
   const double train_seconds = SecondsSince(t0);
   std::vector<Camera> place;
   for (const View& v : visit_a.train) place.push_back(v.camera);
-  const double extent = PlaceExtent(place, fit->model->normalization());
+  const double extent = PlaceExtent(place, model->normalization());
   RenderOptions ro;
-  ModelPlaceMap map(*fit->model, ro);
+  ModelPlaceMap map(*model, ro);
 
   nlohmann::json out = {{"data", a.data}, {"frames_a", visit_a.train.size()}, {"frames_b", visit_b.train.size()},
                         {"train_a_seconds", train_seconds}, {"place_extent", extent}, {"cases", nlohmann::json::array()}};
@@ -92,10 +128,7 @@ int RunBenchRegister(const BenchRegisterArgs& a) {
                 r.frames_localized, r.frames, r.frames_agreeing, r.identity ? " (identity)" : "", e.centre_median,
                 e.centre_max, e.rotation_median, e.rotation_max, seconds, r.render_seconds, r.localize_seconds);
     if (!r.status.ok()) std::printf("  why: %s\n", std::string(r.status.message()).c_str());
-    if (a.verbose) {
-      for (const FrameLocalization& f : r.localized) std::printf(" %d/%d%s", f.inliers, f.matches, f.placed ? "*" : "");
-      std::printf("  (PnP inliers/matches per frame; * = placed)\n");
-    }
+    if (a.verbose) PrintFrames(r, own ? nullptr : &visit_b, extent);
   }
   if (!a.json.empty()) {
     if (absl::Status s = WriteJson(a.json, out); !s.ok()) return Fail(s);

@@ -78,34 +78,40 @@ bool Hypothesis(const PosePair& a, const PosePair& b, Similarity* s) {
   return true;
 }
 
-// Least squares over the inliers' centres and points along their axes
-// (length `axis` in source units, `axis * scale` in target units), so the
-// rotation is fixed even when the centres are collinear.
+// Weighted least squares over the inliers: centres (error in target units,
+// over centre_tol) plus rotations (chordal error, over rot_tol in radians),
+// so each term counts by how well it is known. Centres alone would set the
+// rotation of a small rig from their noise; rotations alone would leave the
+// scale and shift free. Rotation: the SVD of the weighted correlation (as in
+// Umeyama, plus the frames' relative rotations); then scale and translation
+// in closed form; three rounds, as the rotation and scale depend on each other.
 absl::StatusOr<Similarity> Refine(const Similarity& start, const std::vector<PosePair>& pairs,
-                                  const std::vector<int>& inliers) {
-  std::vector<Eigen::Vector3d> cs;
-  for (int i : inliers) cs.push_back(Centre(pairs[i].from));
-  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
-  for (const auto& c : cs) mean += c;
-  mean /= double(cs.size());
-  double spread = 0;
-  for (const auto& c : cs) spread = std::max(spread, (c - mean).norm());
-  if (spread <= 0) return absl::FailedPreconditionError("the scan's cameras do not move");
-  const double axis = 0.25 * spread;
+                                  const std::vector<int>& inliers, double centre_tol, double rot_tol_rad) {
+  if (inliers.size() < 2) return absl::FailedPreconditionError("needs at least 2 inlier frames");
+  Eigen::Vector3d ma = Eigen::Vector3d::Zero(), mb = Eigen::Vector3d::Zero();
+  for (int i : inliers) {
+    ma += Centre(pairs[i].from);
+    mb += Centre(pairs[i].to);
+  }
+  ma /= double(inliers.size());
+  mb /= double(inliers.size());
+  double var_a = 0;
+  for (int i : inliers) var_a += (Centre(pairs[i].from) - ma).squaredNorm();
+  if (!(var_a > 0)) return absl::FailedPreconditionError("the scan's cameras do not move");
+  const double wc = 1.0 / (centre_tol * centre_tol), wr = 1.0 / (rot_tol_rad * rot_tol_rad);
   Similarity s = start;
   for (int round = 0; round < 3; ++round) {
-    std::vector<Eigen::Vector3d> from, to;
+    Eigen::Matrix3d m = Eigen::Matrix3d::Zero();
     for (int i : inliers) {
-      from.push_back(Centre(pairs[i].from));
-      to.push_back(Centre(pairs[i].to));
-      for (int a = 0; a < 3; ++a) {
-        from.push_back(Centre(pairs[i].from) + axis * Rot(pairs[i].from).col(a));
-        to.push_back(Centre(pairs[i].to) + axis * s.scale * Rot(pairs[i].to).col(a));
-      }
+      m += wc * s.scale * (Centre(pairs[i].to) - mb) * (Centre(pairs[i].from) - ma).transpose();
+      m += wr * Rot(pairs[i].to) * Rot(pairs[i].from).transpose();
     }
-    absl::StatusOr<Similarity> fit = FitSimilarity(from, to);
-    if (!fit.ok()) return fit.status();
-    s = *fit;
+    s.rotation = Orthonormalize(m);
+    double dot = 0;
+    for (int i : inliers) dot += (Centre(pairs[i].to) - mb).dot(s.rotation * (Centre(pairs[i].from) - ma));
+    s.scale = dot / var_a;
+    if (!(s.scale > 0) || !std::isfinite(s.scale)) return absl::FailedPreconditionError("no positive scale");
+    s.translation = mb - s.scale * (s.rotation * ma);
   }
   return s;
 }
@@ -225,7 +231,7 @@ absl::StatusOr<RobustSimilarity> FitSimilarityRobust(const std::vector<PosePair>
   // Refine on the inliers, then take the refined transform's inliers (twice,
   // as the set settles) while it keeps at least as many.
   for (int round = 0; round < 2; ++round) {
-    absl::StatusOr<Similarity> refined = Refine(out.transform, pairs, out.inliers);
+    absl::StatusOr<Similarity> refined = Refine(out.transform, pairs, out.inliers, centre_tol, rot_tol * M_PI / 180.0);
     if (!refined.ok()) break;
     Scored sc = Score(*refined, pairs, centre_tol, rot_tol);
     if (sc.inliers.size() < out.inliers.size()) break;
