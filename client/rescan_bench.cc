@@ -5,9 +5,11 @@
 //   place           visit B in the place's frame (registration must snap to
 //                   the identity);
 //   own             visit B moved into a frame of its own (a similarity);
-//   unposed         visit B's photos only, posed by COLMAP, registered, its
-//                   camera and poses refined against the place (as the
-//                   service does; "unposed-unrefined" skips the refinement);
+//   unposed         visit B's photos only, posed by COLMAP started from the
+//                   place's camera, registered, its camera and poses refined
+//                   against the place (as the service does;
+//                   "unposed-unseeded" starts COLMAP from its own guess,
+//                   "unposed-unrefined" also skips the refinement);
 //   unposed-first   visit A's photos only, posed by COLMAP, as the place's
 //                   first scan, against visit A posed (scored at matched
 //                   poses: the held-out views posed in the same COLMAP run,
@@ -19,7 +21,10 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <optional>
+#include <set>
 
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "client/commands.h"
@@ -42,7 +47,8 @@ namespace {
 // upload's test frames with its training frames: those COLMAP posed are
 // kept, with its cameras, the others dropped.
 absl::StatusOr<SfmResult> PoseWithColmap(Scene* scan, std::vector<int>* posed, int threads,
-                                         std::vector<View>* held_out = nullptr) {
+                                         std::vector<View>* held_out = nullptr,
+                                         std::optional<Intrinsics> initial_camera = std::nullopt) {
   char tmpl[] = "/tmp/clnerf-bench-rescan-XXXXXX";
   if (mkdtemp(tmpl) == nullptr) return absl::InternalError("cannot create a scratch folder");
   const std::string dir = tmpl;
@@ -59,6 +65,10 @@ absl::StatusOr<SfmResult> PoseWithColmap(Scene* scan, std::vector<int>* posed, i
   SfmOptions o;
   o.workspace = dir + "/colmap";
   o.threads = threads > 0 ? threads : 2;
+  if (initial_camera && !scan->train.empty()) {
+    const Intrinsics& in = scan->train[0].camera.intrinsics;
+    o.initial_camera = initial_camera->Scaled(in.width, in.height);
+  }
   absl::StatusOr<SfmResult> r = ColmapSfm().Run(photos, o);
   std::error_code ec;
   std::filesystem::remove_all(dir, ec);
@@ -115,7 +125,7 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--first-iters", a->first_iterations, "Training steps of visit A (the first scan)")
       ->capture_default_str();
   c->add_option("--iters", a->update.train.iterations, "Training steps of visit B's update")->capture_default_str();
-  c->add_option("--cases", a->cases, "Comma-separated: place, own, unposed, unposed-first")->capture_default_str();
+  c->add_option("--cases", a->cases, "Comma-separated: place, own, unposed, unposed-unseeded, unposed-unrefined, unposed-first")->capture_default_str();
   c->add_option("--rotation", a->rotation_deg, "Visit B's own frame: rotation (degrees)")->capture_default_str();
   c->add_option("--scale", a->scale, "... and scale")->capture_default_str();
   c->add_option("--seed", a->seed, "Seed of its axis and shift")->capture_default_str();
@@ -139,6 +149,14 @@ int RunBenchRescan(const BenchRescanArgs& a) {
   visit_a.test.clear();
   visit_a.val.clear();
   const std::vector<std::string> cases = absl::StrSplit(a.cases, ',', absl::SkipEmpty());
+  for (const std::string& c : cases) {
+    static const std::set<std::string> kCases = {"place", "own", "unposed", "unposed-unseeded", "unposed-unrefined",
+                                                 "unposed-first"};
+    if (!kCases.count(c)) {
+      return Fail(absl::InvalidArgumentError(absl::StrCat(
+          "unknown case '", c, "' (place, own, unposed, unposed-unseeded, unposed-unrefined, unposed-first)")));
+    }
+  }
   std::fprintf(stderr, "bench rescan: %s, visit A %zu frames (%d iterations), visit B %zu frames (%d), %zu held out\n",
                a.data.c_str(), visit_a.train.size(), a.first_iterations, visit_b.train.size(),
                a.update.train.iterations, test.size());
@@ -168,10 +186,15 @@ int RunBenchRescan(const BenchRescanArgs& a) {
     if (which == "own") ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, extent), &scan);
     // As the service: a scan it posed has its camera refined against the
     // place after registration ("unposed-unrefined": without, to compare).
-    const bool refine = which == "unposed";
-    if (which == "unposed" || which == "unposed-unrefined" || first_scan) {
+    // A later visit's COLMAP run starts from the place's camera, as the
+    // service's does ("unposed-unseeded": from COLMAP's own guess).
+    const bool refine = which == "unposed" || which == "unposed-unseeded";
+    const std::optional<Intrinsics> seed =
+        which == "unposed" ? std::optional<Intrinsics>(place.back().intrinsics) : std::nullopt;
+    if (refine || which == "unposed-unrefined" || first_scan) {
       t0 = std::chrono::steady_clock::now();
-      absl::StatusOr<SfmResult> sfm = PoseWithColmap(&scan, &posed, a.threads, first_scan ? &scored : nullptr);
+      absl::StatusOr<SfmResult> sfm =
+          PoseWithColmap(&scan, &posed, a.threads, first_scan ? &scored : nullptr, seed);
       posing_seconds = SecondsSince(t0);
       row["posing_seconds"] = posing_seconds;
       if (!sfm.ok()) {

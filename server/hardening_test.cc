@@ -274,7 +274,7 @@ TEST_F(ServerFixture, AJobCrashedAtAnyPublishStepIsKnownAfterRestart) {
           << R"( "gate": {"min_new_psnr": 8, "min_replay_consistency_psnr": 10, "max_replay_drop_db": 10}})";
     }
     ServerProcess proc(absl::StrCat("CLNERF_CRASH_AT=", point),
-                       absl::StrFormat("--store %s --listen 127.0.0.1:0 --iters 30 --config %s.json --log-level warn",
+                       absl::StrFormat("--store %s --listen 127.0.0.1:0 --iters 30 --first-scan-iters 0 --config %s.json --log-level warn",
                                        store, store),
                        store + ".log");
     ASSERT_GT(proc.port(), 0) << "the server did not start; see " << store << ".log";

@@ -32,8 +32,8 @@ int main(int argc, char** argv) {
   app.add_option("--iters", iters, "Training iterations per update (default 300)");
   int first_iters = -1;
   app.add_option("--first-scan-iters", first_iters,
-                 "Training iterations of a place's first scan (e.g. 2000, what `clnerf train` gives a capture; "
-                 "default 0 = as --iters)");
+                 "Training iterations of a place's first scan (default 2000, what `clnerf train` gives a "
+                 "capture; 0 = as --iters)");
   app.add_option("--max-queue", o.max_queue, "Scans that may wait for training")->capture_default_str();
   app.add_option("--keep-versions", o.keep_versions, "Model versions kept on disk, oldest pruned first (0 = all)")
       ->capture_default_str();

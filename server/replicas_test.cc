@@ -65,7 +65,7 @@ class ReplicasTest : public ::testing::Test {
 
   std::unique_ptr<ServerProcess> Start(const std::string& name, int iters, const std::string& extra = "") {
     const std::string args = absl::StrFormat(
-        "--store %s --listen 127.0.0.1:0 --http 127.0.0.1:0 --iters %d --config %s/config.json --etcd %s "
+        "--store %s --listen 127.0.0.1:0 --http 127.0.0.1:0 --iters %d --first-scan-iters 0 --config %s/config.json --etcd %s "
         "--etcd-prefix /test --lease-ttl %d --replica-poll %g --train-threads 1 --render-threads 1 --train-nice 0 %s",
         store_, iters, root_, etcd_.endpoint(), kLeaseTtl, kPoll, extra);
     auto p = std::make_unique<ServerProcess>("", args, absl::StrCat(root_, "/", name, ".log"), 300);

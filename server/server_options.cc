@@ -111,6 +111,9 @@ absl::Status ApplyGate(const nlohmann::json& g, GateOptions* o) {
     else if (k == "min_replay_consistency_psnr") s = Get(*it, "gate.min_replay_consistency_psnr", &o->min_replay_consistency_psnr);
     else if (k == "validation_views") s = Get(*it, "gate.validation_views", &o->validation_views);
     else if (k == "max_new_psnr_drop_db") s = Get(*it, "gate.max_new_psnr_drop_db", &o->max_new_psnr_drop_db);
+    else if (k == "replay_memorised_margin_db") {
+      s = Get(*it, "gate.replay_memorised_margin_db", &o->replay_memorised_margin_db);
+    }
     else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'gate.", k, "'"));
     if (!s.ok()) return s;
   }
@@ -206,6 +209,7 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "view_colour") s = Get(*it, k.c_str(), &o->update.train.view_colour);  // Per-photo colour transforms.
     else if (k == "replay_labels_per_draw") s = Get(*it, k.c_str(), &o->update.replay_labels.labels_per_draw);
     else if (k == "carry_optimizer") s = Get(*it, k.c_str(), &o->update.carry_optimizer);
+    else if (k == "warm_lr_scale") s = Get(*it, k.c_str(), &o->update.warm_lr_scale);  // Warm updates' learning-rate factor.
     else if (k == "error_share") s = Get(*it, k.c_str(), &o->update.view_error.error_share);  // 0 = uniform.
     else if (k == "error_tiles") s = Get(*it, k.c_str(), &o->update.view_error.tiles);
     else if (k == "replay_seen_weight") s = Get(*it, k.c_str(), &o->update.replay_weights.seen_weight);

@@ -2,11 +2,14 @@
 
 #include <omp.h>
 
+#include <cmath>
 #include <filesystem>
+#include <optional>
 
 #include "absl/strings/str_cat.h"
 #include "core/continual/continual_update.h"
 #include "core/continual/deployment_gate.h"
+#include "core/data/image.h"
 #include "core/pose/place_map.h"
 #include "core/pose/registration.h"
 #include "core/pose/sfm.h"
@@ -21,6 +24,21 @@
 namespace clnerf {
 
 namespace {
+
+// COLMAP's starting camera for a later scan of a place: the place's latest
+// camera scaled to the photos' size (a rescan is usually taken with the
+// same phone; COLMAP still refines it). None for a first scan, or when the
+// photos' aspect differs from the camera's by more than 1 %.
+std::optional<Intrinsics> PlaceCameraFor(const Servable* prev, const std::vector<std::string>& photos) {
+  if (prev == nullptr || prev->memory().num_cameras() == 0 || photos.empty()) return std::nullopt;
+  absl::StatusOr<ImageSize> size = ReadImageSize(photos.front());
+  if (!size.ok() || size->width <= 0 || size->height <= 0) return std::nullopt;
+  const Intrinsics in = prev->memory().GetCamera(prev->memory().num_cameras() - 1).intrinsics;
+  if (in.width <= 0 || in.height <= 0) return std::nullopt;
+  const double aspect = double(size->width) / size->height, place_aspect = double(in.width) / in.height;
+  if (std::abs(aspect / place_aspect - 1) > 0.01) return std::nullopt;
+  return in.Scaled(size->width, size->height);
+}
 
 JobPhase ToJobPhase(UpdatePhase p) {
   switch (p) {
@@ -189,7 +207,7 @@ void UpdateWorker::Finish(const std::string& job_id, const std::string& scan_id,
   if (phase == JobPhase::kCancelled) spdlog::warn("job {} cancelled: {}", job_id, EscapeForLog(error));
 }
 
-bool UpdateWorker::PoseScan(const std::string& job_id, const ScanRecord& scan,
+bool UpdateWorker::PoseScan(const std::string& job_id, const ScanRecord& scan, const Servable* prev,
                             std::map<std::string, double>* metrics) {
   absl::StatusOr<std::vector<std::string>> photos = scans_->ImageFiles(scan.scan_id);
   const std::vector<double> estimate =
@@ -216,6 +234,7 @@ bool UpdateWorker::PoseScan(const std::string& job_id, const ScanRecord& scan,
   o.sequential = scan.sequential;
   o.threads = options_.train_threads;
   o.workspace = (std::filesystem::path(scans_->dir()).parent_path() / "posing" / scan.scan_id).string();
+  o.initial_camera = PlaceCameraFor(prev, photos.ok() ? *photos : std::vector<std::string>{});
   std::error_code ec;
   std::filesystem::remove_all(o.workspace, ec);  // A crashed run's leftovers.
   absl::StatusOr<SfmResult> r = photos.ok() ? ColmapSfm(options_.colmap_binary).Run(*photos, o, report, &cancel_)
@@ -372,7 +391,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   const int t = prev ? prev->model().num_time_steps() : 0;
   std::map<std::string, double> registration_metrics;  // Posing's and registration's.
   if (absl::StatusOr<ScanRecord> rec = scans_->Record(scan_id); rec.ok() && rec->pose_frame == "unposed") {
-    if (!PoseScan(job_id, *rec, &registration_metrics)) return;
+    if (!PoseScan(job_id, *rec, prev.get(), &registration_metrics)) return;
   }
   absl::StatusOr<Scene> scene =
       scans_->Load(scan_id, t, prev ? std::optional<Eigen::Vector3f>(prev->model().background()) : std::nullopt);

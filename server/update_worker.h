@@ -102,7 +102,9 @@ class UpdateWorker {
   // reads as posed in its own frame. A scan that cannot be posed ends its
   // job FAILED and is removed (nothing else changes). Returns false when
   // the job has ended; adds posing_* metrics to `metrics`.
-  bool PoseScan(const std::string& job_id, const ScanRecord& scan, std::map<std::string, double>* metrics);
+  // `prev`: the place's deployed version, if any (its camera seeds COLMAP's).
+  bool PoseScan(const std::string& job_id, const ScanRecord& scan, const Servable* prev,
+                std::map<std::string, double>* metrics);
   bool RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,
                          Scene* scene, std::map<std::string, double>* metrics);
 

@@ -1,5 +1,7 @@
 #include "core/continual/deployment_gate.h"
 
+#include <cmath>
+
 #include "absl/strings/str_format.h"
 #include "core/render/evaluate.h"
 #include "core/render/metrics.h"
@@ -15,6 +17,7 @@ absl::Status GateOptions::Validate() const {
   }
   if (validation_views < 1) return absl::InvalidArgumentError("gate.validation_views must be >= 1");
   if (!(max_new_psnr_drop_db >= 0)) return absl::InvalidArgumentError("gate.max_new_psnr_drop_db must be >= 0");
+  if (std::isnan(replay_memorised_margin_db)) return absl::InvalidArgumentError("gate.replay_memorised_margin_db is NaN");
   return absl::OkStatus();
 }
 
@@ -37,6 +40,22 @@ absl::StatusOr<double> MeanPsnr(const NgpModel& model, const std::vector<View>& 
 }
 
 }  // namespace
+
+absl::Status CheckReplayDrop(double before, double after, double place_psnr, const GateOptions& o) {
+  const bool capped = place_psnr > 0 && o.replay_memorised_margin_db >= 0 &&
+                      before > place_psnr + o.replay_memorised_margin_db;
+  const double baseline = capped ? place_psnr + o.replay_memorised_margin_db : before;
+  if (baseline - after <= o.max_replay_drop_db) return absl::OkStatus();
+  if (!capped) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "deployment gate: PSNR on earlier scans' buffered images fell from %.2f to %.2f dB (more than %.2f dB)",
+        before, after, o.max_replay_drop_db));
+  }
+  return absl::FailedPreconditionError(absl::StrFormat(
+      "deployment gate: PSNR on earlier scans' buffered images fell from %.2f to %.2f dB, more than %.2f dB below "
+      "%.2f (the place's %.2f dB on held-out views plus %.2f)",
+      before, after, o.max_replay_drop_db, baseline, place_psnr, o.replay_memorised_margin_db));
+}
 
 GateReport RunDeploymentGate(const NgpModel& next, const Scene& scan, const NgpModel* prev,
                              const ReplayMemory* prev_memory, const GateOptions& o, int threads,
@@ -92,10 +111,9 @@ GateReport RunDeploymentGate(const NgpModel& next, const Scene& scan, const NgpM
     }
     rep.metrics["replay_buffer_psnr_prev"] = *before;
     rep.metrics["replay_buffer_psnr"] = *after;
-    if (*before - *after > o.max_replay_drop_db) {
-      return fail(absl::StrFormat(
-          "deployment gate: PSNR on earlier scans' buffered images fell from %.2f to %.2f dB (more than %.2f dB)",
-          *before, *after, o.max_replay_drop_db));
+    if (absl::Status s = CheckReplayDrop(*before, *after, place_psnr, o); !s.ok()) {
+      rep.status = s;
+      return rep;
     }
   }
 

@@ -121,11 +121,16 @@ absl::StatusOr<SfmResult> ColmapSfm::Run(const std::vector<std::string>& photos,
     return s;
   };
   SfmResult timing;
-  absl::Status s = stage("features",
-                         {"feature_extractor", "--database_path", db, "--image_path", (ws / "images").string(),
-                          "--ImageReader.single_camera", "1", "--ImageReader.camera_model", "SIMPLE_RADIAL",
-                          "--SiftExtraction.use_gpu", "0", "--SiftExtraction.num_threads", threads},
-                         &timing.features_seconds);
+  std::vector<std::string> extract = {"feature_extractor", "--database_path", db, "--image_path",
+                                      (ws / "images").string(), "--ImageReader.single_camera", "1",
+                                      "--ImageReader.camera_model", "SIMPLE_RADIAL", "--SiftExtraction.use_gpu", "0",
+                                      "--SiftExtraction.num_threads", threads};
+  if (o.initial_camera.has_value()) {
+    const Intrinsics& c = *o.initial_camera;  // SIMPLE_RADIAL: f, cx, cy, k.
+    extract.insert(extract.end(), {"--ImageReader.camera_params",
+                                   absl::StrFormat("%.6f,%.6f,%.6f,%.8f", 0.5 * (c.fx + c.fy), c.cx, c.cy, c.k1)});
+  }
+  absl::Status s = stage("features", std::move(extract), &timing.features_seconds);
   if (!s.ok()) return s;
   s = stage("matching",
             {o.sequential ? "sequential_matcher" : "exhaustive_matcher", "--database_path", db,

@@ -33,6 +33,13 @@ struct SfmOptions {
   // mean reprojection error is at most max_reprojection_px.
   double min_registered_fraction = 0.5;
   double max_reprojection_px = 2.0;
+  // A camera to start from, e.g. the place's own camera scaled to the
+  // photos (a later visit is usually taken with the same phone): its focal
+  // length (mean of fx, fy), principal point and k1 seed the shared camera
+  // instead of the tool's guess from the image size. The tool still refines
+  // it; a good start keeps a narrow-baseline capture's self-calibration from
+  // drifting. Unset: the tool's own guess.
+  std::optional<Intrinsics> initial_camera;
   absl::Status Validate() const;
 };
 
