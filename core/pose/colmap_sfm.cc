@@ -2,6 +2,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <regex>
 
 #include "absl/strings/str_cat.h"
@@ -10,6 +11,7 @@
 #include "core/data/stopwatch.h"
 #include "core/pose/process.h"
 #include "core/pose/sfm.h"
+#include "spdlog/spdlog.h"
 
 namespace clnerf {
 
@@ -22,6 +24,10 @@ absl::Status SfmOptions::Validate() const {
     return absl::InvalidArgumentError("min_registered_fraction must be in [0, 1]");
   }
   if (!(max_reprojection_px > 0)) return absl::InvalidArgumentError("max_reprojection_px must be > 0");
+  if (mapper_attempts < 1) return absl::InvalidArgumentError("SfmOptions::mapper_attempts must be >= 1");
+  if (!(mapper_retry_fraction >= 0 && mapper_retry_fraction <= 1)) {
+    return absl::InvalidArgumentError("SfmOptions::mapper_retry_fraction must be in [0, 1]");
+  }
   return absl::OkStatus();
 }
 
@@ -51,15 +57,17 @@ absl::Status StagePhotos(const std::vector<std::string>& photos, const fs::path&
   return absl::OkStatus();
 }
 
-// The model folder under <ws>/sparse with the most registered images.
-absl::StatusOr<SfmResult> ReadLargestModel(const fs::path& ws, size_t num_photos, fs::path* model) {
+// The model folder under `sparse` (a mapper's output) with the most
+// registered images.
+absl::StatusOr<SfmResult> ReadLargestModel(const fs::path& ws, const fs::path& sparse, size_t num_photos,
+                                           fs::path* model) {
   SfmResult best;
   best.cameras.assign(num_photos, std::nullopt);
   std::error_code ec;
-  for (const auto& e : fs::directory_iterator(ws / "sparse", ec)) {
+  for (const auto& e : fs::directory_iterator(sparse, ec)) {
     if (!e.is_directory()) continue;
     // LoadColmapScene looks for <dir>/sparse/: give it one holding only e.
-    const fs::path view = ws / ("model_" + e.path().filename().string());
+    const fs::path view = ws / ("model_" + sparse.filename().string() + "_" + e.path().filename().string());
     fs::create_directories(view, ec);
     fs::create_directory_symlink(e.path(), view / "sparse", ec);
     DatasetOptions dopts;
@@ -84,6 +92,45 @@ absl::StatusOr<SfmResult> ReadLargestModel(const fs::path& ws, size_t num_photos
   }
   if (best.registered == 0) return absl::FailedPreconditionError("COLMAP posed none of the photos");
   return best;
+}
+
+// COLMAP's mapper on <ws>/database.db, run again with another seed while
+// it poses fewer than o.mapper_retry_fraction of the photos (up to
+// o.mapper_attempts runs); the run posing the most is returned.
+absl::StatusOr<SfmResult> MapBest(const fs::path& ws, size_t num_photos, const SfmOptions& o,
+                                  const std::function<absl::Status(std::vector<std::string>)>& run_mapper,
+                                  fs::path* model) {
+  const double enough = o.mapper_retry_fraction * double(num_photos);
+  absl::StatusOr<SfmResult> r = absl::FailedPreconditionError("COLMAP posed none of the photos");
+  for (int attempt = 0; attempt < o.mapper_attempts; ++attempt) {
+    const fs::path sparse = ws / (attempt == 0 ? std::string("sparse") : absl::StrCat("sparse_", attempt));
+    fs::create_directories(sparse);
+    absl::Status s = run_mapper({"mapper", "--database_path", (ws / "database.db").string(), "--image_path",
+                                 (ws / "images").string(), "--output_path", sparse.string(), "--Mapper.num_threads",
+                                 std::to_string(o.threads), "--Mapper.min_model_size", "3", "--random_seed",
+                                 std::to_string(attempt)});
+    if (absl::IsCancelled(s) || absl::IsNotFound(s)) return s;
+    fs::path m;
+    absl::StatusOr<SfmResult> got = absl::FailedPreconditionError(absl::StrCat(
+        "COLMAP could not start a model (no image pair with enough matches): too little overlap or texture (",
+        s.message(), ")"));
+    if (!fs::is_empty(sparse)) {
+      if (!s.ok()) spdlog::warn("COLMAP's mapper: {} (its models are read)", std::string(s.message()));
+      got = ReadLargestModel(ws, sparse, num_photos, &m);
+    }
+    if (got.ok() && (!r.ok() || got->registered > r->registered)) {
+      r = std::move(got);
+      *model = m;
+    } else if (!r.ok() && !got.ok()) {
+      r = got.status();
+    }
+    if (r.ok() && r->registered >= enough) break;
+    if (attempt + 1 < o.mapper_attempts) {
+      spdlog::info("COLMAP's mapper posed {} of {} photos; trying again with another seed",
+                   r.ok() ? r->registered : 0, num_photos);
+    }
+  }
+  return r;
 }
 
 // "Mean reprojection error: 0.61px" from model_analyzer's log.
@@ -137,18 +184,11 @@ absl::StatusOr<SfmResult> ColmapSfm::Run(const std::vector<std::string>& photos,
              "--SiftMatching.use_gpu", "0", "--SiftMatching.num_threads", threads},
             &timing.matching_seconds);
   if (!s.ok()) return s;
-  s = stage("mapping",
-            {"mapper", "--database_path", db, "--image_path", (ws / "images").string(), "--output_path",
-             (ws / "sparse").string(), "--Mapper.num_threads", threads, "--Mapper.min_model_size", "3"},
-            &timing.mapping_seconds);
-  if (!s.ok() && !absl::IsCancelled(s) && !absl::IsNotFound(s) && fs::is_empty(ws / "sparse")) {
-    return absl::FailedPreconditionError(absl::StrCat(
-        "COLMAP could not start a model (no image pair with enough matches): too little overlap or texture (",
-        s.message(), ")"));
-  }
-  if (!s.ok()) return s;
+  const double need = o.min_registered_fraction * double(photos.size());
   fs::path model;
-  absl::StatusOr<SfmResult> r = ReadLargestModel(ws, photos.size(), &model);
+  absl::StatusOr<SfmResult> r = MapBest(
+      ws, photos.size(), o, [&](std::vector<std::string> args) { return stage("mapping", std::move(args), &timing.mapping_seconds); },
+      &model);
   if (!r.ok()) return r.status();
   const std::string analyzer_log = (ws / "analyzer.log").string();
   s = RunProcess({binary_, "model_analyzer", "--path", model.string()}, analyzer_log, cancel);
@@ -157,7 +197,6 @@ absl::StatusOr<SfmResult> ColmapSfm::Run(const std::vector<std::string>& photos,
   r->features_seconds = timing.features_seconds;
   r->matching_seconds = timing.matching_seconds;
   r->mapping_seconds = timing.mapping_seconds;
-  const double need = o.min_registered_fraction * double(photos.size());
   if (r->registered < need) {
     return absl::FailedPreconditionError(absl::StrFormat(
         "COLMAP posed only %d of %zu photos (%.0f%% needed): too little overlap or texture", r->registered,

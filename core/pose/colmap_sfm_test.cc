@@ -1,10 +1,13 @@
 // COLMAP (Debian's colmap, run for real) poses an unposed procedural scan;
 // after one similarity fit its poses match the known ones.
 #include <cstdlib>
+#include <fstream>
 #include <filesystem>
 #include <iostream>
 #include <random>
+#include <regex>
 
+#include "absl/strings/str_format.h"
 #include "core/data/image.h"
 #include "core/data/procedural_scene.h"
 #include "core/pose/place_map.h"
@@ -86,6 +89,46 @@ TEST(ColmapSfmTest, PosesAnUnposedScanUpToASimilarity) {
               0.5)
         << "photo " << index[k];
   }
+}
+
+// A later visit's run starts from the place's camera: COLMAP reads it as
+// its camera's starting parameters (its log prints the focal length it
+// starts from; its own guess would be 1.2 x the long side, 288 px here).
+TEST(ColmapSfmTest, StartsFromAGivenCamera) {
+  if (!ColmapInstalled()) GTEST_SKIP() << "colmap is not installed";
+  ProceduralSceneOptions po;
+  po.backdrop = true;
+  po.textured = true;
+  po.width = 320;
+  po.height = 240;
+  po.num_train_views = 20;
+  po.num_test_views = 1;
+  absl::StatusOr<Scene> scene = GenerateProceduralScene(po);
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  const std::string dir = TempDir("colmap_seeded");
+  std::vector<std::string> photos;
+  for (size_t i = 0; i < scene->train.size(); ++i) {
+    photos.push_back(dir + "/photo_" + std::to_string(i) + ".png");
+    ASSERT_TRUE(WriteImage(photos.back(), scene->train[i].image).ok());
+  }
+  const Intrinsics truth = scene->train[0].camera.intrinsics;
+  SfmOptions o;
+  o.workspace = dir + "/ws";
+  o.keep_workspace = true;
+  o.initial_camera = truth;
+  o.initial_camera->fx = o.initial_camera->fy = 1.05f * truth.fx;  // Near, not equal.
+  absl::StatusOr<SfmResult> r = ColmapSfm().Run(photos, o);
+  ASSERT_TRUE(r.ok()) << r.status() << " " << o.workspace;
+  std::ifstream log(o.workspace + "/colmap.log");
+  const std::string text((std::istreambuf_iterator<char>(log)), std::istreambuf_iterator<char>());
+  // "  Focal Length:    350.00px (Prior)" per photo.
+  const std::regex seeded(absl::StrFormat("Focal Length:\\s+%.2fpx", 1.05f * truth.fx));
+  EXPECT_TRUE(std::regex_search(text, seeded)) << "the starting focal length is not in " << o.workspace
+                                               << "/colmap.log";
+  for (const std::optional<Camera>& c : r->cameras) {
+    if (c) EXPECT_NEAR(c->intrinsics.fx, truth.fx, 0.03 * truth.fx);  // Refined from the start.
+  }
+  fs::remove_all(dir);
 }
 
 TEST(ColmapSfmTest, PhotosWithNothingInCommonAreRefused) {

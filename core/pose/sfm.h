@@ -33,6 +33,14 @@ struct SfmOptions {
   // mean reprojection error is at most max_reprojection_px.
   double min_registered_fraction = 0.5;
   double max_reprojection_px = 2.0;
+  // COLMAP's incremental mapper is not deterministic on several threads: the
+  // same 24 photos of the procedural forward-facing scene came out 24 of 24
+  // posed in one run and 3 or 6 in others (the rest in smaller models). A
+  // run that poses fewer than mapper_retry_fraction of the photos is mapped
+  // again with another seed (features and matches are kept), up to
+  // mapper_attempts runs in all; the run posing the most photos is kept.
+  int mapper_attempts = 3;
+  double mapper_retry_fraction = 0.9;
   // A camera to start from, e.g. the place's own camera scaled to the
   // photos (a later visit is usually taken with the same phone): its focal
   // length (mean of fx, fy), principal point and k1 seed the shared camera
