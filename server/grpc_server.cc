@@ -67,7 +67,7 @@ absl::StatusOr<std::unique_ptr<GrpcServer>> GrpcServer::Start(const ServerOption
                options.token.empty() ? "off" : "on", options.tls_cert.empty() ? "off" : "on");
   if (!options.http_listen.empty()) {
     absl::StatusOr<std::unique_ptr<HttpServer>> http = HttpServer::Start(options.http_listen, srv->places_.get(),
-                                                                         options.token);
+                                                                         options.token, options.http_allowed_hosts);
     if (!http.ok()) return http.status();
     srv->http_ = *std::move(http);
   }

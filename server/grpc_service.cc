@@ -74,7 +74,7 @@ grpc::Status ClnerfServiceImpl::UploadScan(grpc::ServerContext* ctx, grpc::Serve
         absl::StatusOr<std::shared_ptr<ModelHost>> p = places_->Get(msg.header().place());
         if (!p.ok()) return ToGrpcStatus(p.status());
         host = *std::move(p);
-        if (host->shutting_down()) return Unavailable();
+        if (host->shutting_down()) return ToGrpcStatus(host->StoppedStatus());
         if (absl::Status h = host->WritableStatus(); !h.ok()) return ToGrpcStatus(h);
       }
       s = decl.ok() ? assembler.Begin(*std::move(decl)) : decl.status();
@@ -161,7 +161,7 @@ grpc::Status ClnerfServiceImpl::WatchJob(grpc::ServerContext* ctx, const v1::Wat
       if (!writer->Write(ToProto(*j))) return grpc::Status(grpc::StatusCode::CANCELLED, "watcher went away");
       if (IsFinal(j->phase)) return grpc::Status::OK;
     }
-    if (host->shutting_down()) return Unavailable();
+    if (host->shutting_down()) return ToGrpcStatus(host->StoppedStatus());
   }
 }
 
@@ -202,7 +202,7 @@ grpc::Status ClnerfServiceImpl::Render(grpc::ServerContext* ctx, const v1::Rende
   absl::StatusOr<std::shared_ptr<ModelHost>> place = places_->Get(req->place());
   if (!place.ok()) return ToGrpcStatus(place.status());
   ModelHost* const host = place->get();
-  if (host->shutting_down()) return Unavailable();
+  if (host->shutting_down()) return ToGrpcStatus(host->StoppedStatus());
   absl::StatusOr<Camera> cam = CameraFromProto(req->camera(), "camera");
   if (!cam.ok()) return ToGrpcStatus(cam.status());
   absl::StatusOr<RenderResult> r =
@@ -245,7 +245,7 @@ grpc::Status ClnerfServiceImpl::RenderStream(grpc::ServerContext* ctx, const v1:
   const std::function<bool()> stop = StopWhenAbandoned(ctx);
   for (size_t i = 0; i < cams.size(); ++i) {
     if (ctx->IsCancelled()) return grpc::Status(grpc::StatusCode::CANCELLED, "render stream cancelled");
-    if (host->shutting_down()) return Unavailable();
+    if (host->shutting_down()) return ToGrpcStatus(host->StoppedStatus());
     absl::StatusOr<RenderResult> r = host->Render(cams[i], t, version, stop);
     if (absl::IsCancelled(r.status())) return AbandonedStatus(ctx, r.status());
     if (!r.ok()) return ToGrpcStatus(r.status());

@@ -320,6 +320,12 @@ TEST_F(ServerFixture, JsonLogsStayJsonWhateverClientsSend) {
   const std::string log = store + ".log";
   ServerProcess proc("", absl::StrFormat("--store %s --listen 127.0.0.1:0 --log-format json", store), log);
   ASSERT_GT(proc.port(), 0) << "the server did not start; see " << log;
+  // Its stdout (the port line scripts read) is JSON records too.
+  ASSERT_FALSE(proc.stdout_lines().empty());
+  for (const std::string& line : proc.stdout_lines()) {
+    const nlohmann::json j = nlohmann::json::parse(line, nullptr, false);
+    EXPECT_TRUE(j.is_object() && j.value("port", 0) == proc.port()) << line;
+  }
   auto stub = proc.Stub();
   const Scene scene = TinyScans(1);
 

@@ -326,9 +326,8 @@ void HttpApi::Register(httplib::Server* server) {
     absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
     if (!place.ok()) return SendError(res, place.status());
     ModelHost* const host = place->get();
-    if (host->shutting_down() || stopping_.load()) {
-      return SendError(res, absl::UnavailableError("server is shutting down"));
-    }
+    if (stopping_.load()) return SendError(res, absl::UnavailableError("server is shutting down"));
+    if (host->shutting_down()) return SendError(res, host->StoppedStatus());
     absl::StatusOr<HttpRenderRequest> r = ParseRenderQuery(req.params);
     if (!r.ok()) return SendError(res, r.status());
     const ViewSessions::Ticket ticket = views_.Begin(r->view_id);
@@ -337,18 +336,19 @@ void HttpApi::Register(httplib::Server* server) {
       return ticket.superseded() || stopping_.load() || host->shutting_down() ||
              std::chrono::steady_clock::now() >= deadline;
     };
-    absl::StatusOr<RenderResult> out = host->Render(r->camera, r->time_step, r->version, stop);
-    if (absl::IsCancelled(out.status())) {
+    auto why = [&]() -> absl::Status {
       if (ticket.superseded()) {
-        return SendError(res, absl::CancelledError(absl::StrCat("superseded by a newer render of view '",
-                                                                r->view_id, "'")));
+        return absl::CancelledError(absl::StrCat("superseded by a newer render of view '", r->view_id, "'"));
       }
+      if (stopping_.load()) return absl::UnavailableError("server is shutting down");
+      if (host->shutting_down()) return host->StoppedStatus();
       if (std::chrono::steady_clock::now() >= deadline) {
-        return SendError(res, absl::DeadlineExceededError(absl::StrCat(
-                                  "the render did not finish within timeout_ms ", r->timeout_ms, " and was stopped")));
+        return absl::DeadlineExceededError(
+            absl::StrCat("the render did not finish within timeout_ms ", r->timeout_ms, " and was stopped"));
       }
-      return SendError(res, absl::UnavailableError("server is shutting down"));
-    }
+      return absl::OkStatus();
+    };
+    absl::StatusOr<RenderResult> out = host->Render(r->camera, r->time_step, r->version, stop, why);
     if (!out.ok()) return SendError(res, out.status());
     absl::StatusOr<std::string> bytes = r->format == HttpImageFormat::kPng ? EncodePng(out->image)
                                                                            : EncodeJpeg(out->image, r->quality);

@@ -259,6 +259,61 @@ TEST_F(HttpApiTest, BadRequestsGetTheirStatusAndAMessage) {
   EXPECT_EQ(Json(http_->Get("/api/info"))["deployed_version"], 1);
 }
 
+// Without --token (the default), other web sites must still not drive the
+// server through a visitor's browser: a cross-origin POST (a form on
+// evil.example) and a request by a rebound name are refused with 403
+// before any handler runs; the page's own requests and tools pass.
+TEST_F(HttpApiTest, OtherSitesCannotDeployOrReadThroughAVisitorsBrowser) {
+  ServerOptions o = TinyServerOptions(TempDir("srv_http_origin"));
+  o.http_allowed_hosts = {"nerf.example.org"};
+  StartHttp(o);
+  const std::string self = absl::StrCat("127.0.0.1:", server_->http_port());
+  auto forged = http_->Post("/api/deploy?version=1", httplib::Headers{{"Origin", "http://evil.example"}},
+                            "version=1", "application/x-www-form-urlencoded");
+  ASSERT_TRUE(forged);
+  EXPECT_EQ(forged->status, 403) << forged->body;
+  EXPECT_EQ(Json(forged)["code"], "PERMISSION_DENIED");
+  auto sandboxed = http_->Post("/api/jobs/job-000001/cancel", httplib::Headers{{"Origin", "null"}}, "", "text/plain");
+  ASSERT_TRUE(sandboxed);
+  EXPECT_EQ(sandboxed->status, 403);
+  // Same origin (the viewer's own fetch) and no Origin (curl) reach the API:
+  // nothing is deployed yet, so 404 for version 1.
+  for (const httplib::Headers& h : {httplib::Headers{{"Origin", "http://" + self}}, httplib::Headers{}}) {
+    auto r = http_->Post("/api/deploy?version=1", h, "", "text/plain");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 404) << r->body;
+  }
+  // DNS rebinding: the Host header names another site.
+  auto rebound = http_->Get("/api/info", httplib::Headers{{"Host", "evil.example"}});
+  ASSERT_TRUE(rebound);
+  EXPECT_EQ(rebound->status, 403);
+  EXPECT_NE(Json(rebound)["error"].get<std::string>().find("--http-allowed-host"), std::string::npos);
+  auto named = http_->Get("/api/info", httplib::Headers{{"Host", "nerf.example.org"}});
+  ASSERT_TRUE(named);
+  EXPECT_EQ(named->status, 200) << named->body;
+  EXPECT_EQ(http_->Get("/api/info")->status, 200);
+}
+
+// No route takes a parameter twice: a repeat is refused even with the same
+// value (cpp-httplib would merge it), and a request line too long to read
+// says so.
+TEST_F(HttpApiTest, RepeatedParametersAndOverlongRequestLinesAreRefused) {
+  StartHttp(TinyServerOptions(TempDir("srv_http_repeat")));
+  for (const char* path : {"/api/info?place=a&place=b", "/api/info?place=default&place=default",
+                           "/api/render?width=8&width=8&height=8", "/api/jobs?limit=1&li%6Dit=1"}) {
+    auto r = http_->Get(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 400) << path;
+    EXPECT_NE(Json(r)["error"].get<std::string>().find("is given more than once"), std::string::npos) << path;
+  }
+  EXPECT_EQ(http_->Get("/api/info?place=default")->status, 200);
+  auto long_line = http_->Get("/api/info?x=" + std::string(9000, 'a'));
+  ASSERT_TRUE(long_line);
+  EXPECT_EQ(long_line->status, 414);
+  EXPECT_NE(Json(long_line)["error"].get<std::string>().find("request line too long"), std::string::npos)
+      << long_line->body;
+}
+
 TEST_F(HttpApiTest, ANewerRenderOfTheSameViewCancelsTheStaleOneAndDeadlinesHold) {
   ServerOptions o = TinyServerOptions(TempDir("srv_http_cancel"));
   o.render_concurrency = 1;
@@ -301,6 +356,12 @@ TEST_F(HttpApiTest, ANewerRenderOfTheSameViewCancelsTheStaleOneAndDeadlinesHold)
   ASSERT_TRUE(late);
   EXPECT_EQ(late->status, 504) << late->body;
   EXPECT_EQ(Json(late)["code"], "DEADLINE_EXCEEDED");
+  // The metrics count it as what it was.
+  auto m = http_->Get("/metrics");
+  ASSERT_TRUE(m);
+  std::map<std::string, double> samples;
+  ASSERT_EQ(testing_util::ParsePrometheusText(m->body, &samples), "") << m->body;
+  EXPECT_EQ(samples["clnerf_renders_total{code=\"DEADLINE_EXCEEDED\"}"], 1) << m->body;
 }
 
 }  // namespace

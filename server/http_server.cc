@@ -2,11 +2,14 @@
 
 #include <chrono>
 #include <exception>
+#include <set>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_split.h"
 #include "httplib.h"
 #include "nlohmann/json.hpp"
+#include "server/http_origin_guard.h"
 #include "server/log_util.h"
 #include "server/web_assets.h"
 #include "spdlog/spdlog.h"
@@ -27,6 +30,20 @@ size_t BodyLimitFor(const std::string& path) {
   return kMaxBodyBytes;
 }
 
+// The first query parameter named twice in a request target ("" if none).
+// Read from the raw target: cpp-httplib drops a repeat with the same value
+// before a handler sees it, and no route takes a parameter twice.
+std::string RepeatedQueryParameter(const std::string& target) {
+  const size_t q = target.find('?');
+  if (q == std::string::npos) return "";
+  std::set<std::string> seen;
+  for (absl::string_view kv : absl::StrSplit(absl::string_view(target).substr(q + 1), '&', absl::SkipEmpty())) {
+    const std::string key = httplib::detail::decode_url(std::string(kv.substr(0, kv.find('='))), true);
+    if (!seen.insert(key).second) return key;
+  }
+  return "";
+}
+
 void SendJsonError(httplib::Response& res, int status, const std::string& code, const std::string& msg) {
   res.status = status;
   res.set_content(nlohmann::json{{"error", msg}, {"code", code}}.dump(-1, ' ', false,
@@ -37,7 +54,8 @@ void SendJsonError(httplib::Response& res, int status, const std::string& code, 
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string& listen, Places* places,
-                                                              const std::string& token) {
+                                                              const std::string& token,
+                                                              const std::vector<std::string>& allowed_hosts) {
   const size_t colon = listen.rfind(':');
   int port = -1;
   if (colon == std::string::npos || !absl::SimpleAtoi(listen.substr(colon + 1), &port) || port < 0 || port > 65535) {
@@ -54,9 +72,25 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string&
   s->api_ = std::make_unique<HttpApi>(places, token);
   httplib::Server& srv = *s->server_;
   srv.set_payload_max_length(kMaxUploadBodyBytes);
-  // Each route's own body limit, checked on the headers before any body
+  // Other web sites' requests are refused first (http_origin_guard.h); then
+  // each route's own body limit, checked on the headers before any body
   // byte is read (cpp-httplib's payload limit is one for all routes).
-  srv.set_pre_routing_handler([](const httplib::Request& req, httplib::Response& res) {
+  std::vector<std::string> hosts = allowed_hosts;
+  hosts.push_back(bind_host);  // A name it was told to listen on is its own.
+  srv.set_pre_routing_handler([hosts](const httplib::Request& req, httplib::Response& res) {
+    const RequestOrigin origin{req.method, req.get_header_value("Host"), req.get_header_value("Origin"),
+                               req.get_header_value("Sec-Fetch-Site")};
+    if (absl::Status s = CheckRequestOrigin(origin, hosts); !s.ok()) {
+      res.set_header("Connection", "close");
+      SendJsonError(res, 403, "PERMISSION_DENIED", std::string(s.message()));
+      spdlog::warn("http {} {}: {}", req.method, EscapeForLog(req.path, 128), std::string(s.message()));
+      return httplib::Server::HandlerResponse::Handled;
+    }
+    if (const std::string k = RepeatedQueryParameter(req.target); !k.empty()) {
+      SendJsonError(res, 400, "INVALID_ARGUMENT",
+                    absl::StrCat("parameter '", EscapeForLog(k, 64), "' is given more than once"));
+      return httplib::Server::HandlerResponse::Handled;
+    }
     const size_t limit = BodyLimitFor(req.path);
     size_t length = 0;
     const bool has_length = req.has_header("Content-Length");
@@ -97,6 +131,10 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string&
     } else if (res.status == 413) {
       SendJsonError(res, 413, "INVALID_ARGUMENT",
                     absl::StrCat("request body over ", BodyLimitFor(req.path), " bytes"));
+    } else if (req.method.empty()) {  // The request line itself could not be read (414: too long).
+      SendJsonError(res, res.status, "INVALID_ARGUMENT",
+                    res.status == 414 ? "request line too long (the URI is over 8 KiB)"
+                                      : absl::StrCat("HTTP ", res.status, ": the request could not be read"));
     } else {
       SendJsonError(res, res.status, res.status < 500 ? "INVALID_ARGUMENT" : "INTERNAL",
                     absl::StrCat("HTTP ", res.status, " for ", req.method, " ", EscapeForLog(req.path, 128)));

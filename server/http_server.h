@@ -3,6 +3,10 @@
 // cpp-httplib (Debian's libcpp-httplib-dev; no hand-written HTTP parsing).
 // It calls the same places and ModelHosts as the gRPC service.
 //
+// Requests from other web sites are refused (403): a Host header that does
+// not name this server (DNS rebinding) and mutating requests a browser marks
+// as cross-origin (http_origin_guard.h).
+//
 // Each request is logged at debug level (method, path, status, time);
 // client-supplied text is escaped. Request bodies are capped (the API takes
 // no uploads over HTTP), and unknown paths are JSON 404s.
@@ -15,6 +19,7 @@
 #include <memory>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "server/http_api.h"
@@ -29,8 +34,11 @@ namespace clnerf {
 class HttpServer {
  public:
   // Binds `listen` ("HOST:PORT"; port 0 = any free port) and starts serving.
+  // `allowed_hosts`: names it answers to besides IP addresses and localhost
+  // (http_origin_guard.h).
   static absl::StatusOr<std::unique_ptr<HttpServer>> Start(const std::string& listen, Places* places,
-                                                           const std::string& token);
+                                                           const std::string& token,
+                                                           const std::vector<std::string>& allowed_hosts = {});
   ~HttpServer();
   HttpServer(const HttpServer&) = delete;
   HttpServer& operator=(const HttpServer&) = delete;

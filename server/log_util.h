@@ -41,10 +41,31 @@ inline size_t LineBreakOrBidiAt(std::string_view s, size_t i, unsigned* code_poi
   return 0;
 }
 
+// The length of the well-formed UTF-8 sequence (2 to 4 bytes) that starts
+// at byte i and ends before byte `end`, or 0 (a lone or stray byte, an
+// overlong form, a surrogate, past U+10FFFF, or one cut at `end`).
+inline size_t Utf8SequenceAt(std::string_view s, size_t i, size_t end) {
+  auto byte = [&](size_t k) { return i + k < end ? static_cast<unsigned char>(s[i + k]) : 0u; };
+  const unsigned b0 = byte(0), b1 = byte(1);
+  auto cont = [&](size_t k) { return (byte(k) & 0xc0) == 0x80; };
+  if (b0 >= 0xc2 && b0 <= 0xdf) return cont(1) ? 2 : 0;
+  if (b0 >= 0xe0 && b0 <= 0xef) {
+    if ((b0 == 0xe0 && b1 < 0xa0) || (b0 == 0xed && b1 >= 0xa0)) return 0;  // Overlong; surrogates.
+    return cont(1) && cont(2) ? 3 : 0;
+  }
+  if (b0 >= 0xf0 && b0 <= 0xf4) {
+    if ((b0 == 0xf0 && b1 < 0x90) || (b0 == 0xf4 && b1 >= 0x90)) return 0;  // Overlong; past U+10FFFF.
+    return cont(1) && cont(2) && cont(3) ? 4 : 0;
+  }
+  return 0;
+}
+
 // Control characters and backslashes become C escapes (\n, \x1b, \\), and
 // the code points LineBreakOrBidiAt finds become \u escapes (\u2028);
-// everything else, UTF-8 included, is kept. At most `max_bytes` input bytes
-// are shown, then "...(N bytes)".
+// well-formed UTF-8 is kept, and any other byte of 0x80 or more (invalid
+// UTF-8, or a character cut by the limit) becomes \xNN, so the result is
+// always valid UTF-8 (a gRPC status message must be). At most `max_bytes`
+// input bytes are shown, then "...(N bytes)".
 inline std::string EscapeForLog(std::string_view s, size_t max_bytes = 512) {
   static constexpr char kHex[] = "0123456789abcdef";
   std::string out;
@@ -59,6 +80,17 @@ inline std::string EscapeForLog(std::string_view s, size_t max_bytes = 512) {
       continue;
     }
     const unsigned char c = static_cast<unsigned char>(s[i]);
+    if (c >= 0x80) {
+      if (const size_t len = Utf8SequenceAt(s, i, n); len > 0) {
+        out.append(s.substr(i, len));
+        i += len - 1;
+      } else {
+        out += "\\x";
+        out += kHex[c >> 4];
+        out += kHex[c & 15];
+      }
+      continue;
+    }
     switch (c) {
       case '\n': out += "\\n"; break;
       case '\r': out += "\\r"; break;

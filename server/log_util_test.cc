@@ -29,5 +29,16 @@ TEST(EscapeForLogTest, UnicodeLineBreaksAndBidiControlsAreEscaped) {
   }
 }
 
+TEST(EscapeForLogTest, InvalidUtf8BecomesHexEscapesSoTheResultIsValid) {
+  EXPECT_EQ(EscapeForLog("caf\xc3\xa9"), "caf\xc3\xa9");      // Well-formed: kept.
+  EXPECT_EQ(EscapeForLog("caf\xc3"), "caf\\xc3");              // A lone lead byte.
+  EXPECT_EQ(EscapeForLog("\xa9x"), "\\xa9x");                  // A stray continuation byte.
+  EXPECT_EQ(EscapeForLog("\xc0\xaf"), "\\xc0\\xaf");        // Overlong '/'.
+  EXPECT_EQ(EscapeForLog("\xed\xa0\x80"), "\\xed\\xa0\\x80");  // A surrogate.
+  EXPECT_EQ(EscapeForLog("\xf0\x9f\x8f\xa0"), "\xf0\x9f\x8f\xa0");  // U+1F3E0 kept.
+  // A character cut by the byte limit is escaped, not split.
+  EXPECT_EQ(EscapeForLog("ab\xc3\xa9", 3), "ab\\xc3...(4 bytes)");
+}
+
 }  // namespace
 }  // namespace clnerf

@@ -9,10 +9,34 @@
 #include <cstdlib>
 #include <thread>
 
+#include "absl/strings/str_cat.h"
+#include "absl/time/clock.h"
+#include "absl/time/time.h"
 #include "CLI/CLI.hpp"
+#include "nlohmann/json.hpp"
 #include "server/grpc_server.h"
 #include "server/log_setup.h"
 #include "spdlog/spdlog.h"
+
+namespace {
+
+// "clnerf-server listening on port 50051" on stdout, or in JSON mode
+// {"time": ..., "level": "info", "msg": "clnerf-server listening on port
+// 50051", "port": 50051}.
+void PrintPortLine(const char* text, const char* key, int port, bool json) {
+  const std::string msg = absl::StrCat(text, " ", port);
+  if (!json) {
+    std::printf("%s\n", msg.c_str());
+    return;
+  }
+  const nlohmann::json line = {{"time", absl::FormatTime("%Y-%m-%dT%H:%M:%E3S%z", absl::Now(), absl::LocalTimeZone())},
+                               {"level", "info"},
+                               {"msg", msg},
+                               {key, port}};
+  std::printf("%s\n", line.dump().c_str());
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   using namespace clnerf;
@@ -24,6 +48,8 @@ int main(int argc, char** argv) {
   app.add_option("--listen", o.listen, "HOST:PORT to listen on (port 0 = any free port)")->capture_default_str();
   app.add_option("--http", o.http_listen,
                  "HOST:PORT for the web viewer and its JSON API (port 0 = any free port; default off)");
+  app.add_option("--http-allowed-host", o.http_allowed_hosts,
+                 "A name the HTTP front end answers to besides IP addresses and localhost (repeatable; '*' = any)");
   app.add_option("--store", o.store_dir, "Store directory (scans, versions, manifest)")->capture_default_str();
   app.add_option("--token", o.token, "Bearer token required for mutating calls (default: $CLNERF_TOKEN; empty = no auth)");
   app.add_option("--config", config, "JSON config file (keys: README 'The service' > Operation, server/server_options.h); flags override it");
@@ -100,9 +126,12 @@ int main(int argc, char** argv) {
     spdlog::shutdown();
     return 1;
   }
-  // Machine-readable line for scripts (the port matters with :0).
-  std::printf("clnerf-server listening on port %d\n", (*server)->port());
-  if ((*server)->http_port() > 0) std::printf("clnerf-server http on port %d\n", (*server)->http_port());
+  // Machine-readable lines for scripts (the port matters with :0); in JSON
+  // mode each is a JSON record too (log pipelines read stdout with stderr).
+  PrintPortLine("clnerf-server listening on port", "port", (*server)->port(), log_format == "json");
+  if ((*server)->http_port() > 0) {
+    PrintPortLine("clnerf-server http on port", "http_port", (*server)->http_port(), log_format == "json");
+  }
   std::fflush(stdout);
   int sig = 0;
   sigwait(&sigs, &sig);

@@ -51,6 +51,7 @@ absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& 
   if (!shared.metrics) shared.metrics = std::make_shared<Metrics>();
   if (!shared.render_slots) shared.render_slots = std::make_shared<RenderSlots>(options.render_concurrency);
   std::unique_ptr<ModelHost> host(new ModelHost(options, shared));
+  host->place_ = place;
   PublisherOptions po;
   po.store_dir = options.store_dir;
   po.models = shared.models ? shared.models
@@ -195,7 +196,7 @@ void ModelHost::FollowReplicas(const std::optional<PlaceHead>& head) {
 }
 
 absl::Status ModelHost::WritableStatus() const {
-  if (stopping_) return absl::UnavailableError("server is shutting down");
+  if (stopping_) return StoppedStatus();
   return publisher_->WritableStatus();
 }
 
@@ -252,9 +253,13 @@ int64_t ModelHost::max_pixels_per_render() const {
 }
 
 absl::StatusOr<RenderResult> ModelHost::Render(const Camera& world_camera, std::optional<int> time_step,
-                                               int64_t version, const std::function<bool()>& should_stop) {
+                                               int64_t version, const std::function<bool()>& should_stop,
+                                               const std::function<absl::Status()>& why_stopped) {
   const auto t0 = std::chrono::steady_clock::now();
   absl::StatusOr<RenderResult> r = RenderImpl(world_camera, time_step, version, should_stop);
+  if (absl::IsCancelled(r.status()) && why_stopped) {
+    if (absl::Status why = why_stopped(); !why.ok()) r = why;
+  }
   metrics_->RenderDone(r.status().code(), SecondsSince(t0));
   return r;
 }
@@ -426,6 +431,16 @@ HostInfo ModelHost::Info() const {
   info.store_error = publisher_->error();
   info.uptime_seconds = SecondsSince(started_);
   return info;
+}
+
+absl::Status ModelHost::StoppedStatus() const {
+  if (deleted_) return absl::NotFoundError(absl::StrCat("place '", place_, "' was deleted"));
+  return absl::UnavailableError("server is shutting down");
+}
+
+void ModelHost::MarkDeleted() {
+  deleted_ = true;
+  if (worker_) worker_->PlaceDeleted();
 }
 
 bool ModelHost::Shutdown() {

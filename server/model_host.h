@@ -154,9 +154,12 @@ class ModelHost {
 
   // `time_step` unset = the version's latest; `version` 0 = deployed.
   // `should_stop` (optional, thread-safe) is polled while waiting for a slot
-  // and while rendering: the caller went away or its deadline passed.
+  // and while rendering: the caller went away or its deadline passed. A
+  // render it stopped is CANCELLED, or what `why_stopped` (optional) says
+  // (e.g. DEADLINE_EXCEEDED), which is also the code the metrics count.
   absl::StatusOr<RenderResult> Render(const Camera& world_camera, std::optional<int> time_step, int64_t version,
-                                      const std::function<bool()>& should_stop = {});
+                                      const std::function<bool()>& should_stop = {},
+                                      const std::function<absl::Status()>& why_stopped = {});
   // The largest render one request may ask for.
   int64_t max_pixels_per_render() const;
 
@@ -198,6 +201,11 @@ class ModelHost {
   absl::Status VerifyDeployed() { return publisher_->VerifyDeployed(); }
   const ServerOptions& options() const { return options_; }
   bool shutting_down() const { return stopping_.load(); }
+  // What a request to a host that is shutting down gets: UNAVAILABLE while
+  // the server stops (clients retry), NOT_FOUND once its place was deleted.
+  absl::Status StoppedStatus() const;
+  // Called by Places::Delete before Shutdown().
+  void MarkDeleted();
   // Stops the worker (waiting up to shutdown_grace_seconds). Returns false if
   // it did not stop in time; the process should then exit (see main.cc).
   bool Shutdown();
@@ -232,6 +240,8 @@ class ModelHost {
   const std::shared_ptr<Coordinator> coordinator_;  // Null: a single server.
   const int cores_;                     // For adaptive render threads.
   std::atomic<bool> stopping_{false};
+  std::atomic<bool> deleted_{false};
+  std::string place_;  // Its name; set once by Open.
   std::once_flag shutdown_once_;
   bool shutdown_clean_ = true;
 };

@@ -34,8 +34,9 @@ absl::Status ValidatePlaceName(std::string_view name) {
   for (size_t i = 0; i < name.size(); ++i) {
     const char c = name[i];
     if (!IsAlnum(c) && c != '-' && c != '_' && c != '.') {
+      const size_t len = std::max<size_t>(1, Utf8SequenceAt(name, i, name.size()));  // A whole character.
       return absl::InvalidArgumentError(absl::StrCat("place name ", Quoted(name), " has '",
-                                                     EscapeForLog(name.substr(i, 1)), "' at byte ", i,
+                                                     EscapeForLog(name.substr(i, len)), "' at byte ", i,
                                                      "; use letters, digits, '-', '_' and '.'"));
     }
   }

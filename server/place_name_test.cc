@@ -35,6 +35,16 @@ TEST(PlaceNameTest, MessagesEscapeControlCharacters) {
   EXPECT_EQ(s.message().find('\n'), std::string::npos) << s;
 }
 
+// "café": the message names the whole character and stays valid UTF-8 (a
+// gRPC status message must be).
+TEST(PlaceNameTest, MessagesQuoteWholeCharacters) {
+  const absl::Status s = ValidatePlaceName("caf\xc3\xa9");
+  EXPECT_TRUE(absl::IsInvalidArgument(s));
+  EXPECT_NE(s.message().find("has '\xc3\xa9' at byte 3"), std::string::npos) << s;
+  const absl::Status lone = ValidatePlaceName("caf\xc3");
+  EXPECT_NE(lone.message().find("has '\\xc3' at byte 3"), std::string::npos) << lone;
+}
+
 TEST(PlaceNameTest, EmptyMeansDefault) {
   EXPECT_EQ(PlaceOrDefault(""), "default");
   EXPECT_EQ(PlaceOrDefault("shop"), "shop");

@@ -6,6 +6,7 @@
 #include <set>
 #include <system_error>
 
+#include "absl/strings/ascii.h"
 #include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "core/io/durable_file.h"
@@ -130,6 +131,7 @@ absl::StatusOr<std::shared_ptr<ModelHost>> Places::Get(std::string_view name) co
   }
   if (gone) {
     spdlog::info("place '{}' was deleted by another replica", n);
+    gone->MarkDeleted();
     gone->Shutdown();
   }
   std::vector<std::string> known = Names();
@@ -142,12 +144,28 @@ std::shared_ptr<ModelHost> Places::Default() const {
   return it == hosts_.end() ? nullptr : it->second;
 }
 
+absl::Status Places::RefuseCaseTwin(const std::string& name) const {
+  const std::string lower = absl::AsciiStrToLower(name);
+  std::vector<std::string> names;
+  for (const auto& [other, host] : hosts_) names.push_back(other);
+  std::error_code ec;
+  for (const auto& e : fs::directory_iterator(places_dir_, ec)) names.push_back(e.path().filename().string());
+  for (const std::string& other : names) {
+    if (other != name && absl::AsciiStrToLower(other) == lower) {
+      return absl::AlreadyExistsError(absl::StrCat("place '", name, "' differs from the place '", other,
+                                                   "' only by case; names are compared ignoring case"));
+    }
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<std::shared_ptr<ModelHost>> Places::Create(std::string_view name) {
   const std::string n(name);
   if (absl::Status s = ValidatePlaceName(n); !s.ok()) return s;
   std::lock_guard<std::mutex> lock(mu_);
   if (shut_down_) return absl::UnavailableError("server is shutting down");
   if (hosts_.count(n) > 0) return absl::AlreadyExistsError(absl::StrCat("place '", n, "' already exists"));
+  if (absl::Status s = RefuseCaseTwin(n); !s.ok()) return s;
   const std::string dir = DirOf(n);
   std::error_code ec;
   if (!fs::create_directory(dir, ec) && !ec && !fs::is_empty(dir, ec)) {
@@ -185,6 +203,7 @@ absl::Status Places::Delete(std::string_view name) {
   }
   // Stop its update first (a request in flight keeps the host object, but
   // no new scan is trained), then take the directory away atomically.
+  host->MarkDeleted();
   host->Shutdown();
   std::error_code ec;
   fs::rename(DirOf(n), trash, ec);

@@ -80,6 +80,10 @@ class Places {
   Places(const ServerOptions& options, SharedServices shared);
   void FollowReplicas();
   std::string DirOf(const std::string& name) const;
+  // ALREADY_EXISTS when a place (here or in the store) has `name` in
+  // another case ("Default" beside "default"): it would confuse the viewer's
+  // picker and collide on case-insensitive volumes. Needs mu_.
+  absl::Status RefuseCaseTwin(const std::string& name) const;
   absl::StatusOr<std::shared_ptr<ModelHost>> OpenHost(const std::string& name) const;
   void WarmUp(const std::vector<std::string>& names);
 

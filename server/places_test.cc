@@ -156,6 +156,17 @@ TEST_F(PlacesTest, BadOrUnknownPlacesGetAClearStatusAndChangeNothing) {
   EXPECT_EQ(CreatePlace("../../etc").error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_EQ(CreatePlace(".hidden").error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_EQ(DeletePlace("../flat-1").error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  // Names that differ only by case collide on case-insensitive volumes.
+  for (const char* twin : {"Default", "FLAT-1"}) {
+    grpc::Status cs = CreatePlace(twin);
+    EXPECT_EQ(cs.error_code(), grpc::StatusCode::ALREADY_EXISTS) << twin;
+    EXPECT_NE(cs.error_message().find("only by case"), std::string::npos) << cs.error_message();
+  }
+  // A non-ASCII name: refused, with a message that is valid UTF-8 (gRPC
+  // sends it as a header) naming the whole character.
+  grpc::Status cafe = CreatePlace("caf\xc3\xa9");
+  EXPECT_EQ(cafe.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_NE(cafe.error_message().find("'\xc3\xa9' at byte 3"), std::string::npos) << cafe.error_message();
   // A 3 MB name (under gRPC's 4 MiB message limit, so it reaches the server).
   const std::string huge(3 << 20, 'x');
   grpc::Status hs = CreatePlace(huge);
@@ -212,6 +223,28 @@ TEST_F(PlacesTest, PlacesTakeTurnsForTheTrainingSlot) {
     if (p.name() != "default") {
       EXPECT_EQ(p.deployed_version(), 1) << p.name();
     }
+  }
+}
+
+// A request that holds a place's host while the place is deleted (a render
+// or upload racing DeletePlace) gets NOT_FOUND, not the UNAVAILABLE of a
+// server that is stopping (on which clients retry).
+TEST_F(PlacesTest, ARequestIntoADeletedPlaceIsNotFoundNotUnavailable) {
+  const Scene scene = TinyScans(1);
+  for (const bool deleted : {true, false}) {
+    absl::StatusOr<std::unique_ptr<ModelHost>> host =
+        ModelHost::Open(TinyServerOptions(TempDir("srv_places_gone")), {}, "shop");
+    ASSERT_TRUE(host.ok()) << host.status();
+    if (deleted) (*host)->MarkDeleted();
+    (*host)->Shutdown();
+    const absl::Status s = (*host)->AcceptScan(UploadOf(scene, 0)).status();
+    if (deleted) {
+      EXPECT_TRUE(absl::IsNotFound(s)) << s;
+      EXPECT_NE(s.message().find("place 'shop' was deleted"), std::string::npos) << s;
+    } else {
+      EXPECT_TRUE(absl::IsUnavailable(s)) << s;
+    }
+    EXPECT_EQ((*host)->StoppedStatus().code(), s.code());
   }
 }
 

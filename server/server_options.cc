@@ -171,6 +171,7 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     std::string str;
     if (k == "listen") s = Get(*it, "listen", &o->listen);
     else if (k == "http") s = Get(*it, "http", &o->http_listen);
+    else if (k == "http_allowed_hosts") s = Get(*it, "http_allowed_hosts", &o->http_allowed_hosts);
     else if (k == "store") s = Get(*it, "store", &o->store_dir);
     else if (k == "token") s = Get(*it, "token", &o->token);
     else if (k == "tls_cert") s = Get(*it, "tls_cert", &o->tls_cert);

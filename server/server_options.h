@@ -16,6 +16,7 @@
 
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -33,6 +34,10 @@ struct ServerOptions {
   // port 0 picks a free one; "" (default) = off. The token applies to its
   // mutating routes too.
   std::string http_listen;
+  // Names the HTTP front end answers to besides IP addresses and localhost
+  // (the Host header; guards against DNS rebinding, http_origin_guard.h),
+  // e.g. "nerf.example.org"; "*" = any name.
+  std::vector<std::string> http_allowed_hosts;
   std::string store_dir = "clnerf-store";
   std::string token;     // Bearer token for mutating calls ("" = no auth).
   std::string tls_cert;  // PEM certificate chain; with tls_key enables TLS.

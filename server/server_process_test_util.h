@@ -13,10 +13,12 @@
 #include <sys/wait.h>
 
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include <grpcpp/grpcpp.h>
 
@@ -44,9 +46,18 @@ class ServerProcess {
     char line[256];
     while (proc_ != nullptr && (port_ == 0 || (want_http && http_port_ == 0)) &&
            std::fgets(line, sizeof(line), proc_) != nullptr) {
-      if (pid_ == 0) std::sscanf(line, "%d", &pid_);
-      std::sscanf(line, "clnerf-server listening on port %d", &port_);
-      std::sscanf(line, "clnerf-server http on port %d", &http_port_);
+      if (pid_ == 0) {
+        std::sscanf(line, "%d", &pid_);  // The shell's `echo $$`.
+      } else {
+        stdout_lines_.emplace_back(line);
+      }
+      // Plain, or inside a JSON record's "msg" (--log-format json).
+      if (const char* p = std::strstr(line, "clnerf-server listening on port")) {
+        std::sscanf(p, "clnerf-server listening on port %d", &port_);
+      }
+      if (const char* p = std::strstr(line, "clnerf-server http on port")) {
+        std::sscanf(p, "clnerf-server http on port %d", &http_port_);
+      }
     }
     // The server is `timeout`'s child: signals go to it directly.
     std::ifstream children(absl::StrFormat("/proc/%d/task/%d/children", pid_, pid_));
@@ -61,6 +72,8 @@ class ServerProcess {
   ServerProcess(const ServerProcess&) = delete;
   ServerProcess& operator=(const ServerProcess&) = delete;
 
+  // What the server printed on stdout before it was ready (its port lines).
+  const std::vector<std::string>& stdout_lines() const { return stdout_lines_; }
   int port() const { return port_; }
   int http_port() const { return http_port_; }
   // The server's process id (not the `timeout` wrapper's).
@@ -84,8 +97,10 @@ class ServerProcess {
  private:
   FILE* proc_ = nullptr;
   int pid_ = 0, server_pid_ = 0, port_ = 0, http_port_ = 0;
+  std::vector<std::string> stdout_lines_;
 };
 
 }  // namespace clnerf::testing_util
 
 #endif  // CLNERF_SERVER_SERVER_PROCESS_TEST_UTIL_H_
+

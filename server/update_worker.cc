@@ -51,6 +51,7 @@ JobPhase ToJobPhase(UpdatePhase p) {
 
 // Why a job stopped by shutdown ended: its scan stays for the next start.
 constexpr const char* kKeptForRestart = "server shut down; the scan is kept and retrained after restart";
+constexpr const char* kPlaceDeleted = "the place was deleted; its scans went with it";
 
 // The frame the scan's poses are in, as its upload declared it ("own" when
 // it cannot be read: registration then decides).
@@ -207,6 +208,8 @@ void UpdateWorker::Finish(const std::string& job_id, const std::string& scan_id,
   if (phase == JobPhase::kCancelled) spdlog::warn("job {} cancelled: {}", job_id, EscapeForLog(error));
 }
 
+const char* UpdateWorker::StoppedWhy() const { return place_deleted_ ? kPlaceDeleted : kKeptForRestart; }
+
 bool UpdateWorker::PoseScan(const std::string& job_id, const ScanRecord& scan, const Servable* prev,
                             std::map<std::string, double>* metrics) {
   absl::StatusOr<std::vector<std::string>> photos = scans_->ImageFiles(scan.scan_id);
@@ -253,7 +256,7 @@ bool UpdateWorker::PoseScan(const std::string& job_id, const ScanRecord& scan, c
     r = s;
   }
   if (absl::IsCancelled(r.status())) {
-    Finish(job_id, scan.scan_id, JobPhase::kCancelled, stopping_ ? kKeptForRestart : "cancelled by request",
+    Finish(job_id, scan.scan_id, JobPhase::kCancelled, stopping_ ? StoppedWhy() : "cancelled by request",
            !stopping_);
     return false;
   }
@@ -299,7 +302,7 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
       &cancel_);
   if (absl::IsCancelled(r.status)) {
     if (stopping_) {
-      Finish(job_id, scan_id, JobPhase::kCancelled, kKeptForRestart, false);
+      Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
     } else {
       Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled by request", true);
     }
@@ -354,7 +357,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
       return;
     }
   }
-  const std::string kept = kKeptForRestart;
+  const std::string kept = StoppedWhy();
   if (job->cancel_requested) return Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled", true);
   // A deployed version not loaded yet is checked first: if it cannot load,
   // the store turns read-only and the job waits like any write would.

@@ -76,6 +76,9 @@ class UpdateWorker {
   // if it did not stop within `timeout` (the thread is then left running; the
   // caller should exit the process).
   bool Stop(std::chrono::duration<double> timeout);
+  // Before Stop() when the place is being deleted: jobs stopped then say so
+  // instead of promising a retrain after restart.
+  void PlaceDeleted() { place_deleted_ = true; }
   bool stopping() const { return stopping_.load(); }
 
  private:
@@ -119,6 +122,9 @@ class UpdateWorker {
   std::chrono::steady_clock::time_point job_started_;  // Of the job RunJob runs (worker thread only).
   std::atomic<bool> cancel_{false};
   std::atomic<bool> stopping_{false};
+  std::atomic<bool> place_deleted_{false};
+  // Why a job stopped by Stop() ends: kept for a restart, or its place deleted.
+  const char* StoppedWhy() const;
   std::mutex mu_;
   std::condition_variable cv_;  // Wakes store retries on Stop; signals exit.
   bool exited_ = false;         // Guarded by mu_.

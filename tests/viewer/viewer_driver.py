@@ -50,10 +50,10 @@ class Server:
             line = self.proc.stdout.readline()
             if not line:
                 fail(f"server exited early; see {log_path}")
-            m = re.match(r"clnerf-server listening on port (\d+)", line)
+            m = re.search(r"clnerf-server listening on port (\d+)", line)  # Plain or in a JSON record.
             if m:
                 self.grpc = int(m.group(1))
-            m = re.match(r"clnerf-server http on port (\d+)", line)
+            m = re.search(r"clnerf-server http on port (\d+)", line)
             if m:
                 self.http = int(m.group(1))
 
