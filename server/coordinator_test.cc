@@ -5,8 +5,10 @@
 #include "server/coordinator.h"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <mutex>
+#include <optional>
 #include <thread>
 
 #include "gtest/gtest.h"
@@ -222,6 +224,51 @@ TEST_F(EtcdTest, AJobTrainedBetweenTwoPollsIsKnownDoneOnTheOtherReplica) {
   EXPECT_EQ((*b)->deployed_version(), 1);
   (*b)->FollowReplicas(*head);  // Idempotent: still one record.
   EXPECT_EQ((*b)->ListJobs().size(), 1u);
+  (*a)->Shutdown();
+  (*b)->Shutdown();
+}
+
+// Issue 39: a replica polling the store while scans are uploaded through it
+// must never mark a scan it just acknowledged as removed elsewhere (its
+// listing of the store predated the upload). B polls in a tight loop while
+// 12 scans are uploaded through B.
+TEST_F(EtcdTest, AScanAcknowledgedDuringAPollIsNotCancelled) {
+  const std::string store = testing_util::TempDir("srv_follow_race");
+  auto ca = MakeEtcdCoordinator(Options("A", 5));
+  auto cb = MakeEtcdCoordinator(Options("B", 5));
+  ASSERT_TRUE(ca.ok() && cb.ok());
+  SharedServices sa, sb;
+  sa.coordinator = std::move(*ca);
+  sb.coordinator = std::move(*cb);
+  ServerOptions o = testing_util::TinyServerOptions(store);
+  o.max_queue = 64;
+  absl::StatusOr<std::unique_ptr<ModelHost>> a = ModelHost::Open(o, sa);
+  ASSERT_TRUE(a.ok()) << a.status();
+  absl::StatusOr<std::unique_ptr<ModelHost>> b = ModelHost::Open(o, sb);
+  ASSERT_TRUE(b.ok()) << b.status();
+  const Scene scene = testing_util::TinyScans(1);
+  std::atomic<bool> done{false};
+  std::thread poller([&] {
+    while (!done) {
+      absl::StatusOr<PlaceHead> head = sb.coordinator->ReadHead("default");
+      (*b)->FollowReplicas(head.ok() ? std::optional<PlaceHead>(*head) : std::nullopt);
+    }
+  });
+  std::vector<std::string> acked;
+  for (int i = 0; i < 12; ++i) {
+    absl::StatusOr<UploadAck> ack = (*b)->AcceptScan(testing_util::UploadOf(scene, 0));
+    ASSERT_TRUE(ack.ok()) << ack.status();
+    acked.push_back(ack->job_id);
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  done = true;
+  poller.join();
+  for (const std::string& id : acked) {
+    absl::StatusOr<JobStatus> j = (*b)->GetJob(id);
+    ASSERT_TRUE(j.ok()) << j.status();
+    EXPECT_NE(j->phase, JobPhase::kCancelled) << id << ": " << j->error;
+  }
   (*a)->Shutdown();
   (*b)->Shutdown();
 }

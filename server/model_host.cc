@@ -148,6 +148,11 @@ void ModelHost::FollowReplicas(const std::optional<PlaceHead>& head) {
       spdlog::warn("following version {}: {}", head->version, s.ToString());
     }
   }
+  // Under the upload lock from before the listing: a scan acknowledged here
+  // after the listing would otherwise look removed and be marked cancelled.
+  // Scans before versions: one trained elsewhere meanwhile is then in one of
+  // the two lists.
+  std::lock_guard<std::mutex> lock(upload_mu_);
   absl::StatusOr<std::vector<ScanRecord>> pending = scans_->List();
   absl::StatusOr<std::vector<VersionInfo>> versions = publisher_->versions().List();
   if (!pending.ok() || !versions.ok()) return;
@@ -156,7 +161,6 @@ void ModelHost::FollowReplicas(const std::optional<PlaceHead>& head) {
     if (v.unavailable.empty()) by_scan[v.scan_id] = &v;
   }
   std::set<std::string> stored;
-  std::lock_guard<std::mutex> lock(upload_mu_);
   // Scans uploaded through other replicas: known here as queued jobs (this
   // replica trains them if it gets the place's lease first).
   for (const ScanRecord& r : *pending) {
