@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <filesystem>
 #include <mutex>
 #include <optional>
 #include <thread>
@@ -269,6 +270,54 @@ TEST_F(EtcdTest, AScanAcknowledgedDuringAPollIsNotCancelled) {
     ASSERT_TRUE(j.ok()) << j.status();
     EXPECT_NE(j->phase, JobPhase::kCancelled) << id << ": " << j->error;
   }
+  (*a)->Shutdown();
+  (*b)->Shutdown();
+}
+
+// Issue 39: a job that replica A trains cannot be cancelled through replica
+// B (B would remove the scan, answer "cancelled", and A would ship it):
+// refused with FAILED_PRECONDITION, the scan kept; through A it works.
+TEST_F(EtcdTest, AJobAnotherReplicaTrainsIsNotCancelledHere) {
+  const std::string store = testing_util::TempDir("srv_cancel_elsewhere");
+  auto ca = MakeEtcdCoordinator(Options("A", 5));
+  auto cb = MakeEtcdCoordinator(Options("B", 5));
+  ASSERT_TRUE(ca.ok() && cb.ok());
+  SharedServices sa, sb;
+  sa.coordinator = std::move(*ca);
+  sb.coordinator = std::move(*cb);
+  ServerOptions o = testing_util::TinyServerOptions(store);
+  o.update.train.iterations = 100000;  // Still training when cancelled.
+  absl::StatusOr<std::unique_ptr<ModelHost>> a = ModelHost::Open(o, sa);
+  ASSERT_TRUE(a.ok()) << a.status();
+  const Scene scene = testing_util::TinyScans(1);
+  absl::StatusOr<UploadAck> first = (*a)->AcceptScan(testing_util::UploadOf(scene, 0));
+  absl::StatusOr<UploadAck> second = (*a)->AcceptScan(testing_util::UploadOf(scene, 0));
+  ASSERT_TRUE(first.ok() && second.ok());
+  for (int i = 0; i < 300 && (*a)->Info().running_job != first->job_id; ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  ASSERT_EQ((*a)->Info().running_job, first->job_id);
+  absl::StatusOr<std::unique_ptr<ModelHost>> b = ModelHost::Open(o, sb);  // Sees both jobs queued.
+  ASSERT_TRUE(b.ok()) << b.status();
+  (*b)->FollowReplicas(std::nullopt);
+  for (const UploadAck* ack : {&*first, &*second}) {
+    absl::StatusOr<JobStatus> r = (*b)->CancelJob(ack->job_id);
+    EXPECT_EQ(r.status().code(), absl::StatusCode::kFailedPrecondition) << r.status();
+    EXPECT_TRUE(std::filesystem::exists(store + "/scans/" + ack->scan_id)) << ack->scan_id;
+  }
+  absl::StatusOr<JobStatus> on_b = (*b)->GetJob(second->job_id);
+  ASSERT_TRUE(on_b.ok());
+  EXPECT_NE(on_b->phase, JobPhase::kCancelled);
+  // Through the replica that trains the place, both cancel.
+  ASSERT_TRUE((*a)->CancelJob(second->job_id).ok());
+  ASSERT_TRUE((*a)->CancelJob(first->job_id).ok());
+  absl::StatusOr<JobStatus> done = (*a)->WaitJob(first->job_id, 0, std::chrono::steady_clock::now());
+  for (int i = 0; i < 300 && !(done.ok() && IsFinal(done->phase)); ++i) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    done = (*a)->GetJob(first->job_id);
+  }
+  ASSERT_TRUE(done.ok());
+  EXPECT_EQ(done->phase, JobPhase::kCancelled);
   (*a)->Shutdown();
   (*b)->Shutdown();
 }

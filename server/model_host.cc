@@ -398,6 +398,32 @@ absl::StatusOr<LocalizeResult> ModelHost::Localize(int64_t version, const std::v
 absl::StatusOr<JobStatus> ModelHost::CancelJob(const std::string& id) {
   absl::StatusOr<JobStatus> before = jobs_.Get(id);
   if (!before.ok()) return before.status();
+  // Replicas: a job queued here may be training on the replica that holds
+  // the place's lease; removing its scan would not stop it, and it would
+  // ship after this replica said "cancelled". So a queued job is cancelled
+  // only while this replica holds the lease (no other can train or publish
+  // the place meanwhile: their commits are fenced); else refused.
+  bool took_lease = false;
+  if (coordinator_ != nullptr && coordinator_->replicated() && !IsFinal(before->phase) &&
+      jobs_.running() != id) {
+    const bool held = coordinator_->Holds(place_);
+    absl::StatusOr<bool> lease = coordinator_->TryAcquire(place_);
+    if (!lease.ok()) return lease.status();
+    if (!*lease) {
+      return absl::FailedPreconditionError(absl::StrCat(
+          "job ", id, " cannot be cancelled through this replica: another replica is training place '", place_,
+          "' and may be running it; cancel it through that replica, or once it is idle"));
+    }
+    took_lease = !held;
+  }
+  absl::StatusOr<JobStatus> out = CancelJobLocally(id, *before);
+  // As the worker does when it runs out of work: let any replica train next.
+  if (took_lease && jobs_.queued() == 0 && jobs_.running().empty()) coordinator_->Release(place_);
+  return out;
+}
+
+absl::StatusOr<JobStatus> ModelHost::CancelJobLocally(const std::string& id, const JobStatus& before_cancel) {
+  const JobStatus* before = &before_cancel;
   absl::StatusOr<bool> was_queued = jobs_.Cancel(id);
   if (!was_queued.ok()) return was_queued.status();
   if (*was_queued) {

@@ -172,6 +172,10 @@ class ModelHost {
                                     std::chrono::steady_clock::time_point deadline) const {
     return jobs_.WaitForChange(id, after_revision, deadline);
   }
+  // Cancels a queued job (its scan is removed) or stops the running one.
+  // With replicas, FAILED_PRECONDITION while another replica holds the
+  // place's training lease (it may be running the job; a cancel here could
+  // not stop it), UNAVAILABLE when the coordinator cannot be reached.
   absl::StatusOr<JobStatus> CancelJob(const std::string& id);
 
   absl::StatusOr<std::vector<VersionInfo>> ListVersions() const { return publisher_->versions().List(); }
@@ -214,6 +218,8 @@ class ModelHost {
 
  private:
   ModelHost(const ServerOptions& options, SharedServices shared);
+  // CancelJob once it may: dequeues (removing the scan) or stops the run.
+  absl::StatusOr<JobStatus> CancelJobLocally(const std::string& id, const JobStatus& before);
   absl::Status RecoverScans();
   absl::StatusOr<UploadAck> AcceptScanImpl(const ScanUpload& upload);
   absl::StatusOr<RenderResult> RenderImpl(const Camera& world_camera, std::optional<int> time_step, int64_t version,
