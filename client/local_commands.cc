@@ -98,8 +98,10 @@ int RunTrain(const TrainArgs& a) {
   SetThreads(a.fit.train.threads);
   absl::StatusOr<Scene> scene = LoadScene(a.data, a.dataset);
   if (!scene.ok()) return Fail(scene.status());
-  spdlog::info("loaded '{}': {} train, {} val, {} test views, {} time step(s)", scene->name, scene->train.size(),
-               scene->val.size(), scene->test.size(), scene->num_time_steps());
+  const absl::StatusOr<DatasetFormat> format = DetectDatasetFormat(a.data);
+  spdlog::info("loaded '{}' ({} loader): {} train, {} val, {} test views, {} time step(s)", scene->name,
+               format.ok() ? DatasetFormatName(*format) : "?", scene->train.size(), scene->val.size(),
+               scene->test.size(), scene->num_time_steps());
   absl::StatusOr<FitResult> fit = TrainWithProgress(*scene, a.fit);
   if (!fit.ok()) return Fail(fit.status());
   CheckpointOptions save_options;

@@ -50,9 +50,15 @@ bool LooksLikeNgp(const fs::path& json_path) {
   return frames != doc.end() && frames->is_array() && !frames->empty() && has_ngp_key(frames->front());
 }
 
-bool HasColmapModel(const fs::path& dir) {
+// A COLMAP model under sparse/0 or sparse: cameras at least (`complete`:
+// with the images file beside them, in the same form).
+bool HasColmapModel(const fs::path& dir, bool complete = false) {
   for (const fs::path& sub : {dir / "sparse" / "0", dir / "sparse"}) {
-    if (IsFile(sub / "cameras.bin") || IsFile(sub / "cameras.txt")) return true;
+    for (const char* ext : {".bin", ".txt"}) {
+      if (IsFile(sub / (std::string("cameras") + ext)) && (!complete || IsFile(sub / (std::string("images") + ext)))) {
+        return true;
+      }
+    }
   }
   return false;
 }
@@ -84,8 +90,13 @@ absl::StatusOr<DatasetFormat> DetectDatasetFormat(const std::string& dir) {
                                                         : DatasetFormat::kBlender;
   }
   if (IsFile(root / "transforms.json")) return DatasetFormat::kInstantNgp;
-  if (HasColmapModel(root)) return DatasetFormat::kColmap;
+  // A complete COLMAP model first; an LLFF folder whose sparse/0 keeps only
+  // cameras and points (no images.bin) loads from poses_bounds.npy; a
+  // broken model without it goes to the COLMAP loader, which names what is
+  // missing.
+  if (HasColmapModel(root, /*complete=*/true)) return DatasetFormat::kColmap;
   if (IsFile(root / "poses_bounds.npy")) return DatasetFormat::kLlff;
+  if (HasColmapModel(root)) return DatasetFormat::kColmap;
   return absl::NotFoundError(
       absl::StrCat("no dataset found in ", dir,
                    ": expected transforms_train.json (Blender), transforms.json (instant-ngp), "

@@ -83,6 +83,23 @@ TEST_F(DatasetTest, DetectsEachFormat) {
   EXPECT_STREQ(DatasetFormatName(DatasetFormat::kColmap), "colmap");
 }
 
+// An LLFF folder whose sparse/0 keeps cameras and points but no images file
+// loads from poses_bounds.npy; a complete COLMAP model still wins, and an
+// incomplete one without poses_bounds.npy goes to the COLMAP loader (which
+// names what is missing).
+TEST_F(DatasetTest, AnIncompleteColmapModelFallsBackToPosesBounds) {
+  fs::create_directories(dir_ / "sparse" / "0");
+  std::ofstream(dir_ / "sparse" / "0" / "cameras.bin") << "x";
+  std::ofstream(dir_ / "sparse" / "0" / "points3D.bin") << "x";
+  EXPECT_EQ(*DetectDatasetFormat(dir_.string()), DatasetFormat::kColmap);
+  std::ofstream(dir_ / "poses_bounds.npy") << "x";
+  EXPECT_EQ(*DetectDatasetFormat(dir_.string()), DatasetFormat::kLlff);
+  std::ofstream(dir_ / "sparse" / "0" / "images.txt") << "";  // Another form than the cameras': incomplete.
+  EXPECT_EQ(*DetectDatasetFormat(dir_.string()), DatasetFormat::kLlff);
+  std::ofstream(dir_ / "sparse" / "0" / "images.bin") << "x";
+  EXPECT_EQ(*DetectDatasetFormat(dir_.string()), DatasetFormat::kColmap);
+}
+
 TEST_F(DatasetTest, LoadsValidatesAndNamesTheScene) {
   WriteRgb("a.png");
   WriteRgb("b.png");
