@@ -226,9 +226,12 @@ TEST_F(LlffLoaderTest, ImagesAboveThePosesAndDetection) {
   ASSERT_EQ(scene->train.size(), 2u);
   EXPECT_EQ(scene->train[1].name, "../images/IMG_0101.png");
   EXPECT_EQ(scene->train[1].image.width, 16);
-  // A COLMAP model beside it takes precedence; a transforms.json even more.
+  // A complete COLMAP model beside it takes precedence (cameras alone, as
+  // LLFF's sparse/0 often keeps, do not: issue 39); a transforms.json even more.
   fs::create_directories(dir_ / "source" / "sparse" / "0");
   std::ofstream(dir_ / "source" / "sparse" / "0" / "cameras.bin") << "";
+  EXPECT_EQ(*DetectDatasetFormat(source), DatasetFormat::kLlff);
+  std::ofstream(dir_ / "source" / "sparse" / "0" / "images.bin") << "";
   EXPECT_EQ(*DetectDatasetFormat(source), DatasetFormat::kColmap);
   std::ofstream(dir_ / "source" / "transforms.json") << "{}";
   EXPECT_EQ(*DetectDatasetFormat(source), DatasetFormat::kInstantNgp);
