@@ -39,6 +39,15 @@ class EtcdTest : public ::testing::Test {
     o.metrics = &metrics_;
     return o;
   }
+  // What a replica named `id` shares with ModelHost::Open: an etcd
+  // coordinator with a 5 s lease.
+  absl::StatusOr<SharedServices> Replica(const std::string& id) {
+    absl::StatusOr<std::unique_ptr<Coordinator>> c = MakeEtcdCoordinator(Options(id, 5));
+    if (!c.ok()) return c.status();
+    SharedServices s;
+    s.coordinator = std::move(*c);
+    return s;
+  }
   LocalEtcd etcd_;
   Metrics metrics_;
 };
@@ -196,16 +205,12 @@ TEST_F(EtcdTest, IdsAreUniqueAcrossReplicasAndTheFirstHeadSticks) {
 // published: GetJob answers DONE with that version on every replica.
 TEST_F(EtcdTest, AJobTrainedBetweenTwoPollsIsKnownDoneOnTheOtherReplica) {
   const std::string store = testing_util::TempDir("srv_follow_unseen");
-  auto ca = MakeEtcdCoordinator(Options("A", 5));
-  auto cb = MakeEtcdCoordinator(Options("B", 5));
-  ASSERT_TRUE(ca.ok() && cb.ok());
-  SharedServices sa, sb;
-  sa.coordinator = std::move(*ca);
-  sb.coordinator = std::move(*cb);
+  absl::StatusOr<SharedServices> sa = Replica("A"), sb = Replica("B");
+  ASSERT_TRUE(sa.ok() && sb.ok());
   const ServerOptions o = testing_util::TinyServerOptions(store);
-  absl::StatusOr<std::unique_ptr<ModelHost>> a = ModelHost::Open(o, sa);
+  absl::StatusOr<std::unique_ptr<ModelHost>> a = ModelHost::Open(o, *sa);
   ASSERT_TRUE(a.ok()) << a.status();
-  absl::StatusOr<std::unique_ptr<ModelHost>> b = ModelHost::Open(o, sb);
+  absl::StatusOr<std::unique_ptr<ModelHost>> b = ModelHost::Open(o, *sb);
   ASSERT_TRUE(b.ok()) << b.status();
   absl::StatusOr<UploadAck> ack = (*a)->AcceptScan(testing_util::UploadOf(testing_util::TinyScans(1), 0));
   ASSERT_TRUE(ack.ok()) << ack.status();
@@ -214,7 +219,7 @@ TEST_F(EtcdTest, AJobTrainedBetweenTwoPollsIsKnownDoneOnTheOtherReplica) {
   }
   ASSERT_EQ((*a)->deployed_version(), 1);
   EXPECT_EQ((*b)->GetJob(ack->job_id).status().code(), absl::StatusCode::kNotFound);  // Not polled yet.
-  absl::StatusOr<PlaceHead> head = sb.coordinator->ReadHead("default");
+  absl::StatusOr<PlaceHead> head = sb->coordinator->ReadHead("default");
   ASSERT_TRUE(head.ok()) << head.status();
   (*b)->FollowReplicas(*head);
   absl::StatusOr<JobStatus> job = (*b)->GetJob(ack->job_id);
@@ -235,23 +240,19 @@ TEST_F(EtcdTest, AJobTrainedBetweenTwoPollsIsKnownDoneOnTheOtherReplica) {
 // 12 scans are uploaded through B.
 TEST_F(EtcdTest, AScanAcknowledgedDuringAPollIsNotCancelled) {
   const std::string store = testing_util::TempDir("srv_follow_race");
-  auto ca = MakeEtcdCoordinator(Options("A", 5));
-  auto cb = MakeEtcdCoordinator(Options("B", 5));
-  ASSERT_TRUE(ca.ok() && cb.ok());
-  SharedServices sa, sb;
-  sa.coordinator = std::move(*ca);
-  sb.coordinator = std::move(*cb);
+  absl::StatusOr<SharedServices> sa = Replica("A"), sb = Replica("B");
+  ASSERT_TRUE(sa.ok() && sb.ok());
   ServerOptions o = testing_util::TinyServerOptions(store);
   o.max_queue = 64;
-  absl::StatusOr<std::unique_ptr<ModelHost>> a = ModelHost::Open(o, sa);
+  absl::StatusOr<std::unique_ptr<ModelHost>> a = ModelHost::Open(o, *sa);
   ASSERT_TRUE(a.ok()) << a.status();
-  absl::StatusOr<std::unique_ptr<ModelHost>> b = ModelHost::Open(o, sb);
+  absl::StatusOr<std::unique_ptr<ModelHost>> b = ModelHost::Open(o, *sb);
   ASSERT_TRUE(b.ok()) << b.status();
   const Scene scene = testing_util::TinyScans(1);
   std::atomic<bool> done{false};
   std::thread poller([&] {
     while (!done) {
-      absl::StatusOr<PlaceHead> head = sb.coordinator->ReadHead("default");
+      absl::StatusOr<PlaceHead> head = sb->coordinator->ReadHead("default");
       (*b)->FollowReplicas(head.ok() ? std::optional<PlaceHead>(*head) : std::nullopt);
     }
   });
@@ -279,15 +280,11 @@ TEST_F(EtcdTest, AScanAcknowledgedDuringAPollIsNotCancelled) {
 // refused with FAILED_PRECONDITION, the scan kept; through A it works.
 TEST_F(EtcdTest, AJobAnotherReplicaTrainsIsNotCancelledHere) {
   const std::string store = testing_util::TempDir("srv_cancel_elsewhere");
-  auto ca = MakeEtcdCoordinator(Options("A", 5));
-  auto cb = MakeEtcdCoordinator(Options("B", 5));
-  ASSERT_TRUE(ca.ok() && cb.ok());
-  SharedServices sa, sb;
-  sa.coordinator = std::move(*ca);
-  sb.coordinator = std::move(*cb);
+  absl::StatusOr<SharedServices> sa = Replica("A"), sb = Replica("B");
+  ASSERT_TRUE(sa.ok() && sb.ok());
   ServerOptions o = testing_util::TinyServerOptions(store);
   o.update.train.iterations = 100000;  // Still training when cancelled.
-  absl::StatusOr<std::unique_ptr<ModelHost>> a = ModelHost::Open(o, sa);
+  absl::StatusOr<std::unique_ptr<ModelHost>> a = ModelHost::Open(o, *sa);
   ASSERT_TRUE(a.ok()) << a.status();
   const Scene scene = testing_util::TinyScans(1);
   absl::StatusOr<UploadAck> first = (*a)->AcceptScan(testing_util::UploadOf(scene, 0));
@@ -297,7 +294,7 @@ TEST_F(EtcdTest, AJobAnotherReplicaTrainsIsNotCancelledHere) {
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
   ASSERT_EQ((*a)->Info().running_job, first->job_id);
-  absl::StatusOr<std::unique_ptr<ModelHost>> b = ModelHost::Open(o, sb);  // Sees both jobs queued.
+  absl::StatusOr<std::unique_ptr<ModelHost>> b = ModelHost::Open(o, *sb);  // Sees both jobs queued.
   ASSERT_TRUE(b.ok()) << b.status();
   (*b)->FollowReplicas(std::nullopt);
   for (const UploadAck* ack : {&*first, &*second}) {

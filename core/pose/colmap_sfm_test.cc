@@ -30,6 +30,27 @@ std::string TempDir(const std::string& name) {
   return dir;
 }
 
+// A textured orbit (the procedural backdrop scene, one test view) at
+// width x height with `views` training views, each written to `dir` as
+// photo_<i>.png, in order, into `photos`.
+absl::StatusOr<Scene> OrbitPhotos(int width, int height, int views, const std::string& dir,
+                                  std::vector<std::string>* photos) {
+  ProceduralSceneOptions po;
+  po.backdrop = true;
+  po.textured = true;
+  po.width = width;
+  po.height = height;
+  po.num_train_views = views;
+  po.num_test_views = 1;
+  absl::StatusOr<Scene> scene = GenerateProceduralScene(po);
+  if (!scene.ok()) return scene.status();
+  for (size_t i = 0; i < scene->train.size(); ++i) {
+    photos->push_back(dir + "/photo_" + std::to_string(i) + ".png");
+    if (absl::Status s = WriteImage(photos->back(), scene->train[i].image); !s.ok()) return s;
+  }
+  return scene;
+}
+
 TEST(ProcessTest, ReportsMissingProgramsAndFailures) {
   const std::string dir = TempDir("process");
   EXPECT_TRUE(absl::IsNotFound(RunProcess({"clnerf-no-such-program"}, dir + "/log")));
@@ -44,23 +65,12 @@ TEST(ProcessTest, ReportsMissingProgramsAndFailures) {
 
 TEST(ColmapSfmTest, PosesAnUnposedScanUpToASimilarity) {
   if (!ColmapInstalled()) GTEST_SKIP() << "colmap is not installed (scripts/install-deps.sh installs it)";
-  ProceduralSceneOptions po;
-  po.backdrop = true;  // An orbit of a textured object scene.
-  po.textured = true;
-  po.width = 400;
-  po.height = 300;
-  po.num_train_views = 32;
-  po.num_test_views = 1;
-  absl::StatusOr<Scene> scene = GenerateProceduralScene(po);
-  ASSERT_TRUE(scene.ok()) << scene.status();
   const std::string dir = TempDir("colmap_sfm");
   std::vector<std::string> photos;
+  absl::StatusOr<Scene> scene = OrbitPhotos(400, 300, 32, dir, &photos);
+  ASSERT_TRUE(scene.ok()) << scene.status();
   std::vector<Camera> truth;
-  for (size_t i = 0; i < scene->train.size(); ++i) {
-    photos.push_back(dir + "/photo_" + std::to_string(i) + ".png");
-    ASSERT_TRUE(WriteImage(photos.back(), scene->train[i].image).ok());
-    truth.push_back(scene->train[i].camera);
-  }
+  for (const View& v : scene->train) truth.push_back(v.camera);
   SfmOptions o;
   o.workspace = dir + "/ws";
   absl::StatusOr<SfmResult> r = ColmapSfm().Run(photos, o);
@@ -93,24 +103,13 @@ TEST(ColmapSfmTest, PosesAnUnposedScanUpToASimilarity) {
 
 // A later visit's run starts from the place's camera: COLMAP reads it as
 // its camera's starting parameters (its log prints the focal length it
-// starts from; its own guess would be 1.2 x the long side, 288 px here).
+// starts from; its own guess would be 1.2 x the long side, 384 px here).
 TEST(ColmapSfmTest, StartsFromAGivenCamera) {
   if (!ColmapInstalled()) GTEST_SKIP() << "colmap is not installed";
-  ProceduralSceneOptions po;
-  po.backdrop = true;
-  po.textured = true;
-  po.width = 320;
-  po.height = 240;
-  po.num_train_views = 20;
-  po.num_test_views = 1;
-  absl::StatusOr<Scene> scene = GenerateProceduralScene(po);
-  ASSERT_TRUE(scene.ok()) << scene.status();
   const std::string dir = TempDir("colmap_seeded");
   std::vector<std::string> photos;
-  for (size_t i = 0; i < scene->train.size(); ++i) {
-    photos.push_back(dir + "/photo_" + std::to_string(i) + ".png");
-    ASSERT_TRUE(WriteImage(photos.back(), scene->train[i].image).ok());
-  }
+  absl::StatusOr<Scene> scene = OrbitPhotos(320, 240, 20, dir, &photos);
+  ASSERT_TRUE(scene.ok()) << scene.status();
   const Intrinsics truth = scene->train[0].camera.intrinsics;
   SfmOptions o;
   o.workspace = dir + "/ws";
