@@ -1,0 +1,340 @@
+#include "core/pose/photometric_refine.h"
+
+#include <algorithm>
+#include <cmath>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "Eigen/Dense"
+#include "Eigen/Geometry"
+
+namespace clnerf {
+
+absl::Status PhotometricRefineOptions::Validate() const {
+  if (levels < 1 || levels > 6) return absl::InvalidArgumentError("photometric levels must be in [1, 6]");
+  if (max_side < 32) return absl::InvalidArgumentError("photometric max_side must be at least 32");
+  if (iterations < 1) return absl::InvalidArgumentError("photometric iterations must be at least 1");
+  if (!(min_opacity >= 0 && min_opacity <= 1)) return absl::InvalidArgumentError("min_opacity must be in [0, 1]");
+  if (!(min_gradient >= 0)) return absl::InvalidArgumentError("min_gradient must be >= 0");
+  if (!(huber_k > 0)) return absl::InvalidArgumentError("huber_k must be > 0");
+  if (!(max_rotation_deg > 0) || !(max_centre > 0)) {
+    return absl::InvalidArgumentError("photometric max_rotation_deg and max_centre must be > 0");
+  }
+  if (!(min_improvement >= 0 && min_improvement < 1)) {
+    return absl::InvalidArgumentError("photometric min_improvement must be in [0, 1)");
+  }
+  if (min_pixels < 8) return absl::InvalidArgumentError("photometric min_pixels must be at least 8");
+  return absl::OkStatus();
+}
+
+namespace {
+
+// A grey image with its central-difference gradients, sampled bilinearly at
+// continuous pixel coordinates (pixel centres at +0.5).
+struct GreyImage {
+  int w = 0, h = 0;
+  std::vector<float> v, gx, gy;
+  explicit GreyImage(const Image& im) : w(im.width), h(im.height), v(im.num_pixels()), gx(v.size()), gy(v.size()) {
+    for (size_t i = 0; i < v.size(); ++i) {
+      const float* p = im.rgb.data() + 3 * i;
+      v[i] = 0.299f * p[0] + 0.587f * p[1] + 0.114f * p[2];
+    }
+    for (int y = 0; y < h; ++y) {
+      for (int x = 0; x < w; ++x) {
+        const int xl = std::max(x - 1, 0), xr = std::min(x + 1, w - 1);
+        const int yu = std::max(y - 1, 0), yd = std::min(y + 1, h - 1);
+        gx[size_t(y) * w + x] = (v[size_t(y) * w + xr] - v[size_t(y) * w + xl]) / float(std::max(xr - xl, 1));
+        gy[size_t(y) * w + x] = (v[size_t(yd) * w + x] - v[size_t(yu) * w + x]) / float(std::max(yd - yu, 1));
+      }
+    }
+  }
+  // False when (u, v) is too close to the border to interpolate.
+  bool Sample(double u, double vv, float* value, float* dx, float* dy) const {
+    const double x = u - 0.5, y = vv - 0.5;
+    if (!(x >= 0 && y >= 0 && x < w - 1 && y < h - 1)) return false;
+    const int x0 = int(x), y0 = int(y);
+    const float fx = float(x - x0), fy = float(y - y0);
+    auto lerp = [&](const std::vector<float>& a) {
+      const size_t i = size_t(y0) * w + x0;
+      const float top = a[i] * (1 - fx) + a[i + 1] * fx;
+      const float bot = a[i + w] * (1 - fx) + a[i + w + 1] * fx;
+      return top * (1 - fy) + bot * fy;
+    };
+    *value = lerp(v);
+    *dx = lerp(gx);
+    *dy = lerp(gy);
+    return true;
+  }
+};
+
+// The map's solid, textured pixels lifted into the world, with their grey
+// values: the keyframe the photo is aligned to.
+struct Keyframe {
+  std::vector<Eigen::Vector3d> points;
+  std::vector<float> grey;
+};
+
+absl::StatusOr<Keyframe> RenderKeyframe(const PlaceMap& map, const Camera& camera,
+                                        const PhotometricRefineOptions& o) {
+  absl::StatusOr<MapView> view = map.Render(camera);
+  if (!view.ok()) return view.status();
+  const GreyImage g(view->rgb);
+  Keyframe k;
+  for (int y = 0; y < g.h; ++y) {
+    for (int x = 0; x < g.w; ++x) {
+      const size_t i = size_t(y) * g.w + x;
+      const float d = view->depth[i];
+      if (!(view->opacity[i] >= o.min_opacity) || !std::isfinite(d) || d <= 0) continue;
+      if (std::hypot(g.gx[i], g.gy[i]) < o.min_gradient) continue;
+      Eigen::Vector3f origin, dir;
+      camera.Ray(x + 0.5f, y + 0.5f, &origin, &dir);
+      k.points.push_back((origin + d * dir).cast<double>());
+      k.grey.push_back(g.v[i]);
+    }
+  }
+  return k;
+}
+
+// World-to-camera rigid transform in doubles.
+struct W2C {
+  Eigen::Matrix3d r;
+  Eigen::Vector3d t;
+  static W2C FromPose(const Pose& c2w) {
+    W2C w;
+    const Eigen::Matrix3d rc = c2w.leftCols<3>().cast<double>();
+    w.r = rc.transpose();
+    w.t = -w.r * c2w.col(3).cast<double>();
+    return w;
+  }
+  Pose ToPose() const {
+    Pose p;
+    p.leftCols<3>() = r.transpose().cast<float>();
+    p.col(3) = (-r.transpose() * t).cast<float>();
+    return p;
+  }
+  // exp(xi) * this, xi = (rotation vector, translation), small.
+  W2C Moved(const Eigen::Matrix<double, 6, 1>& xi) const {
+    const Eigen::Vector3d w = xi.head<3>();
+    const double angle = w.norm();
+    const Eigen::Matrix3d dr =
+        angle > 0 ? Eigen::AngleAxisd(angle, w / angle).toRotationMatrix() : Eigen::Matrix3d::Identity();
+    W2C m;
+    m.r = dr * r;
+    m.t = dr * t + xi.tail<3>();
+    return m;
+  }
+};
+
+// Projects a world point; false when behind the camera. `jac` (2 x 3):
+// d(pixel) / d(camera-space point).
+bool Project(const Intrinsics& in, const Eigen::Vector3d& xc, Eigen::Vector2d* px,
+             Eigen::Matrix<double, 2, 3>* jac) {
+  if (xc.z() <= 1e-9) return false;
+  const double iz = 1.0 / xc.z();
+  const Eigen::Vector2f n(float(xc.x() * iz), float(xc.y() * iz));
+  Eigen::Matrix2d dd = Eigen::Matrix2d::Identity();
+  Eigen::Vector2f d = n;
+  if (in.has_distortion()) {
+    d = Distort(in, n);
+    const float e = 1e-4f;
+    dd.col(0) = ((Distort(in, n + Eigen::Vector2f(e, 0)) - Distort(in, n - Eigen::Vector2f(e, 0))) / (2 * e))
+                    .cast<double>();
+    dd.col(1) = ((Distort(in, n + Eigen::Vector2f(0, e)) - Distort(in, n - Eigen::Vector2f(0, e))) / (2 * e))
+                    .cast<double>();
+  }
+  *px = Eigen::Vector2d(in.fx * double(d.x()) + in.cx, in.fy * double(d.y()) + in.cy);
+  Eigen::Matrix<double, 2, 3> dn;
+  dn << iz, 0, -xc.x() * iz * iz, 0, iz, -xc.y() * iz * iz;
+  *jac = Eigen::DiagonalMatrix<double, 2>(in.fx, in.fy) * dd * dn;
+  return true;
+}
+
+using Vec8 = Eigen::Matrix<double, 8, 1>;
+using Mat8 = Eigen::Matrix<double, 8, 8>;
+
+struct Residuals {
+  std::vector<double> r;                  // Per point; NaN where unusable.
+  std::vector<Eigen::Matrix<double, 1, 8>> j;  // Filled when asked.
+  int used = 0;
+};
+
+// Photo residuals gain x photo(projection) + bias - keyframe grey, and their
+// Jacobian over (rotation, translation, gain, bias) when `with_jacobian`.
+Residuals Evaluate(const Keyframe& k, const GreyImage& photo, const Intrinsics& in, const W2C& pose, double gain,
+                   double bias, bool with_jacobian) {
+  Residuals out;
+  out.r.assign(k.points.size(), std::nan(""));
+  if (with_jacobian) out.j.resize(k.points.size());
+  for (size_t i = 0; i < k.points.size(); ++i) {
+    const Eigen::Vector3d xc = pose.r * k.points[i] + pose.t;
+    Eigen::Vector2d px;
+    Eigen::Matrix<double, 2, 3> dpx;
+    if (!Project(in, xc, &px, &dpx)) continue;
+    float value, dx, dy;
+    if (!photo.Sample(px.x(), px.y(), &value, &dx, &dy)) continue;
+    out.r[i] = gain * value + bias - k.grey[i];
+    ++out.used;
+    if (!with_jacobian) continue;
+    // d(camera point)/d(rotation w) = w x xc, so a . (w x xc) = w . (xc x a).
+    const Eigen::Vector3d a = gain * (double(dx) * dpx.row(0) + double(dy) * dpx.row(1)).transpose();
+    const Eigen::Vector3d rot = xc.cross(a);
+    out.j[i] << rot.x(), rot.y(), rot.z(), a.x(), a.y(), a.z(), double(value), 1.0;
+  }
+  return out;
+}
+
+// Robust scale: 1.4826 x the median absolute residual (floored).
+double RobustSigma(const std::vector<double>& r) {
+  std::vector<double> a;
+  for (double x : r) {
+    if (std::isfinite(x)) a.push_back(std::abs(x));
+  }
+  if (a.empty()) return 1e-3;
+  std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
+  return std::max(1.4826 * a[a.size() / 2], 1e-3);
+}
+
+double HuberCost(const std::vector<double>& r, double delta) {
+  double sum = 0;
+  int n = 0;
+  for (double x : r) {
+    if (!std::isfinite(x)) continue;
+    const double a = std::abs(x);
+    sum += a <= delta ? 0.5 * x * x : delta * (a - 0.5 * delta);
+    ++n;
+  }
+  return n > 0 ? sum / n : std::numeric_limits<double>::infinity();
+}
+
+struct AlignState {
+  W2C pose;
+  double gain = 1, bias = 0;
+};
+
+// Levenberg-Marquardt on the keyframe; `pose_free` false fits only gain and
+// bias. Returns the final mean Huber cost at the scale `delta` (computed at
+// the start when delta <= 0, and written back).
+double Align(const Keyframe& k, const GreyImage& photo, const Intrinsics& in, int iterations, bool pose_free,
+             double huber_k, double* delta, AlignState* s) {
+  Residuals res = Evaluate(k, photo, in, s->pose, s->gain, s->bias, true);
+  if (*delta <= 0) *delta = huber_k * RobustSigma(res.r);
+  double cost = HuberCost(res.r, *delta);
+  double lambda = 1e-3;
+  for (int it = 0; it < iterations; ++it) {
+    Mat8 h = Mat8::Zero();
+    Vec8 g = Vec8::Zero();
+    for (size_t i = 0; i < res.r.size(); ++i) {
+      const double r = res.r[i];
+      if (!std::isfinite(r)) continue;
+      const double w = std::abs(r) <= *delta ? 1.0 : *delta / std::abs(r);
+      h.noalias() += w * res.j[i].transpose() * res.j[i];
+      g.noalias() += w * r * res.j[i].transpose();
+    }
+    if (!pose_free) {
+      h.topRows<6>().setZero();
+      h.leftCols<6>().setZero();
+      h.topLeftCorner<6, 6>().setIdentity();
+      g.head<6>().setZero();
+    }
+    bool improved = false;
+    for (int tries = 0; tries < 6 && !improved; ++tries) {
+      Mat8 damped = h;
+      damped.diagonal() += lambda * h.diagonal().cwiseMax(1e-9);
+      const Vec8 step = -damped.ldlt().solve(g);
+      if (!step.allFinite()) break;
+      AlignState next = *s;
+      next.pose = s->pose.Moved(step.head<6>());
+      next.gain = s->gain + step(6);
+      next.bias = s->bias + step(7);
+      Residuals cand = Evaluate(k, photo, in, next.pose, next.gain, next.bias, true);
+      const double c = HuberCost(cand.r, *delta);
+      // Fewer usable points would fake a lower cost: require most to stay.
+      if (c < cost && cand.used >= res.used * 0.95) {
+        *s = next;
+        res = std::move(cand);
+        cost = c;
+        lambda = std::max(lambda * 0.5, 1e-6);
+        improved = true;
+      } else {
+        lambda *= 4;
+      }
+    }
+    if (!improved) break;
+  }
+  return cost;
+}
+
+Camera AtSize(const Camera& c, int w, int h) {
+  Camera out = c;
+  out.intrinsics = c.intrinsics.Scaled(w, h);
+  return out;
+}
+
+}  // namespace
+
+absl::StatusOr<PhotometricRefinement> RefinePosePhotometric(const PlaceMap& map, const Image& photo,
+                                                            const Camera& camera, double extent,
+                                                            const PhotometricRefineOptions& o) {
+  if (absl::Status s = o.Validate(); !s.ok()) return s;
+  if (photo.width != camera.intrinsics.width || photo.height != camera.intrinsics.height || photo.empty()) {
+    return absl::InvalidArgumentError(absl::StrFormat("the photo is %dx%d but its camera %dx%d", photo.width,
+                                                      photo.height, camera.intrinsics.width,
+                                                      camera.intrinsics.height));
+  }
+  const double shrink = std::min(1.0, double(o.max_side) / std::max(photo.width, photo.height));
+  const int w0 = std::max(8, int(std::lround(photo.width * shrink)));
+  const int h0 = std::max(8, int(std::lround(photo.height * shrink)));
+  PhotometricRefinement out;
+  out.c2w = camera.c2w;
+  AlignState s{W2C::FromPose(camera.c2w)};
+  for (int level = o.levels - 1; level >= 1; --level) {
+    const int w = std::max(8, w0 >> level), h = std::max(8, h0 >> level);
+    Camera c = AtSize(camera, w, h);
+    c.c2w = s.pose.ToPose();
+    absl::StatusOr<Keyframe> k = RenderKeyframe(map, c, o);
+    if (!k.ok()) return k.status();
+    if (int(k->points.size()) < o.min_pixels / 4) continue;
+    double delta = 0;
+    Align(*k, GreyImage(ResizeImage(photo, w, h)), c.intrinsics, o.iterations, true, o.huber_k, &delta, &s);
+  }
+  // The finest level, keyed at the pose the coarse levels found. The photo
+  // at the input pose and at the refined one is scored against the same
+  // keyframe, each with its own exposure fit.
+  Camera fine = AtSize(camera, w0, h0);
+  fine.c2w = s.pose.ToPose();
+  const GreyImage grey(ResizeImage(photo, w0, h0));
+  absl::StatusOr<Keyframe> k = RenderKeyframe(map, fine, o);
+  if (!k.ok()) return k.status();
+  out.pixels = int(k->points.size());
+  if (out.pixels < o.min_pixels) {
+    out.why = absl::StrCat("only ", out.pixels, " solid, textured pixels (", o.min_pixels, " needed)");
+    return out;
+  }
+  // Gain and bias alone are a linear fit: given enough steps to converge, so
+  // that before and after compare poses, not how far the fit got.
+  const int exposure_steps = 4 * o.iterations;
+  double delta = 0;
+  AlignState before{W2C::FromPose(camera.c2w)};
+  out.cost_before = Align(*k, grey, fine.intrinsics, exposure_steps, false, o.huber_k, &delta, &before);
+  Align(*k, grey, fine.intrinsics, o.iterations, true, o.huber_k, &delta, &s);
+  out.cost_after = Align(*k, grey, fine.intrinsics, exposure_steps, false, o.huber_k, &delta, &s);
+  Camera moved = fine;
+  moved.c2w = s.pose.ToPose();
+  out.gain = s.gain;
+  out.bias = s.bias;
+  const Eigen::Matrix3d dr = W2C::FromPose(camera.c2w).r * s.pose.r.transpose();
+  out.rotation_deg = Eigen::AngleAxisd(dr).angle() * 180.0 / M_PI;
+  out.centre = (moved.position() - camera.position()).cast<double>().norm() / std::max(extent, 1e-12);
+  if (!(out.cost_after < out.cost_before * (1 - o.min_improvement))) {
+    out.why = absl::StrFormat("no better: robust cost %.3g -> %.3g", out.cost_before, out.cost_after);
+  } else if (out.rotation_deg > o.max_rotation_deg || out.centre > o.max_centre) {
+    out.why = absl::StrFormat("moved too far (%.2f deg, %.2f%% of the place)", out.rotation_deg, 100 * out.centre);
+  } else {
+    out.accepted = true;
+    out.c2w = moved.c2w;
+  }
+  return out;
+}
+
+}  // namespace clnerf
