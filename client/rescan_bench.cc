@@ -9,7 +9,8 @@
 //                   place's camera, registered, its camera and poses refined
 //                   against the place (as the service does;
 //                   "unposed-unseeded" starts COLMAP from its own guess,
-//                   "unposed-unrefined" also skips the refinement);
+//                   "unposed-unrefined" also skips the refinement,
+//                   "unposed-nophoto" skips only the photometric alignment);
 //   unposed-first   visit A's photos only, posed by COLMAP, as the place's
 //                   first scan, against visit A posed (scored at matched
 //                   poses: the held-out views posed in the same COLMAP run,
@@ -33,7 +34,9 @@
 #include "client/visit_split.h"
 #include "core/data/image.h"
 #include "core/data/stopwatch.h"
+#include "core/pose/photometric_refine.h"
 #include "core/pose/place_map.h"
+#include "core/pose/registration.h"
 #include "core/pose/sfm.h"
 #include "nlohmann/json.hpp"
 
@@ -114,6 +117,44 @@ struct CaseRow {
   std::string line;
 };
 
+// As the update worker does for a scan it posed: the shared camera and the
+// poses refined against the place's points, then each frame aligned
+// photometrically to the place's renders ("unposed-nophoto" skips that).
+void RefineLikeTheService(const NgpModel& model, const RegistrationReport& r, double extent, const std::string& which,
+                          const std::vector<View>& truth, Scene* scan, nlohmann::json* row) {
+  double rms = 0;
+  Intrinsics in;
+  absl::Status rs = RefineAgainstPlace(r, scan, &rms, &in);
+  if (!rs.ok()) {
+    std::printf("  %s: refinement failed: %s\n", which.c_str(), std::string(rs.message()).c_str());
+    return;
+  }
+  const PoseErrors re = FrameErrors(scan->train, truth, extent);
+  (*row)["refined_fx"] = in.fx;
+  (*row)["refined_k1"] = in.k1;
+  (*row)["refine_rms_px"] = rms;
+  (*row)["refined_centre_error_pct_median"] = re.centre_median;
+  (*row)["refined_rotation_error_deg_median"] = re.rotation_median;
+  std::printf("  %s: refined camera fx %.2f k1 %.4f (rms %.2f px); poses %.2f%% / %.2f deg from the known\n",
+              which.c_str(), in.fx, in.k1, rms, re.centre_median, re.rotation_median);
+  if (which == "unposed-nophoto") return;
+  absl::StatusOr<ScanPhotometricReport> pr =
+      RefineScanPhotometric(ModelPlaceMap(model, RenderOptions()), scan, extent, PhotometricRefineOptions());
+  if (!pr.ok()) {
+    std::printf("  %s: photometric refinement failed: %s\n", which.c_str(), std::string(pr.status().message()).c_str());
+    return;
+  }
+  const PoseErrors pe = FrameErrors(scan->train, truth, extent);
+  (*row)["photometric_seconds"] = pr->seconds;
+  (*row)["photometric_accepted"] = pr->accepted;
+  (*row)["photometric_centre_error_pct_median"] = pe.centre_median;
+  (*row)["photometric_rotation_error_deg_median"] = pe.rotation_median;
+  std::printf("  %s: aligned to the place's renders, %d of %d frames moved (median %.3f deg) in %.1f s; poses "
+              "%.2f%% / %.2f deg from the known\n",
+              which.c_str(), pr->accepted, pr->frames, pr->median_rotation_deg, pr->seconds, pe.centre_median,
+              pe.rotation_median);
+}
+
 }  // namespace
 
 CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
@@ -125,7 +166,7 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--first-iters", a->first_iterations, "Training steps of visit A (the first scan)")
       ->capture_default_str();
   c->add_option("--iters", a->update.train.iterations, "Training steps of visit B's update")->capture_default_str();
-  c->add_option("--cases", a->cases, "Comma-separated: place, own, unposed, unposed-unseeded, unposed-unrefined, unposed-first")->capture_default_str();
+  c->add_option("--cases", a->cases, "Comma-separated: place, own, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first")->capture_default_str();
   c->add_option("--rotation", a->rotation_deg, "Visit B's own frame: rotation (degrees)")->capture_default_str();
   c->add_option("--scale", a->scale, "... and scale")->capture_default_str();
   c->add_option("--seed", a->seed, "Seed of its axis and shift")->capture_default_str();
@@ -150,11 +191,11 @@ int RunBenchRescan(const BenchRescanArgs& a) {
   visit_a.val.clear();
   const std::vector<std::string> cases = absl::StrSplit(a.cases, ',', absl::SkipEmpty());
   for (const std::string& c : cases) {
-    static const std::set<std::string> kCases = {"place", "own", "unposed", "unposed-unseeded", "unposed-unrefined",
+    static const std::set<std::string> kCases = {"place", "own", "unposed", "unposed-unseeded", "unposed-unrefined", "unposed-nophoto",
                                                  "unposed-first"};
     if (!kCases.count(c)) {
       return Fail(absl::InvalidArgumentError(absl::StrCat(
-          "unknown case '", c, "' (place, own, unposed, unposed-unseeded, unposed-unrefined, unposed-first)")));
+          "unknown case '", c, "' (place, own, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first)")));
     }
   }
   std::fprintf(stderr, "bench rescan: %s, visit A %zu frames (%d iterations), visit B %zu frames (%d), %zu held out\n",
@@ -188,9 +229,9 @@ int RunBenchRescan(const BenchRescanArgs& a) {
     // place after registration ("unposed-unrefined": without, to compare).
     // A later visit's COLMAP run starts from the place's camera, as the
     // service's does ("unposed-unseeded": from COLMAP's own guess).
-    const bool refine = which == "unposed" || which == "unposed-unseeded";
+    const bool refine = which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto";
     const std::optional<Intrinsics> seed =
-        which == "unposed" ? std::optional<Intrinsics>(place.back().intrinsics) : std::nullopt;
+        which == "unposed" || which == "unposed-nophoto" ? std::optional<Intrinsics>(place.back().intrinsics) : std::nullopt;
     if (refine || which == "unposed-unrefined" || first_scan) {
       t0 = std::chrono::steady_clock::now();
       absl::StatusOr<SfmResult> sfm =
@@ -269,21 +310,7 @@ int RunBenchRescan(const BenchRescanArgs& a) {
                     pnp.size());
       }
       if (refine && r.status.ok()) {  // The shared camera and poses refined against the place.
-        double rms = 0;
-        Intrinsics in;
-        absl::Status rs = RefineAgainstPlace(r, &scan, &rms, &in);
-        if (rs.ok()) {
-          const PoseErrors re = FrameErrors(scan.train, posed_truth, extent);
-          row["refined_fx"] = in.fx;
-          row["refined_k1"] = in.k1;
-          row["refine_rms_px"] = rms;
-          row["refined_centre_error_pct_median"] = re.centre_median;
-          row["refined_rotation_error_deg_median"] = re.rotation_median;
-          std::printf("  %s: refined camera fx %.2f k1 %.4f (rms %.2f px); poses %.2f%% / %.2f deg from the known\n",
-                      which.c_str(), in.fx, in.k1, rms, re.centre_median, re.rotation_median);
-        } else {
-          std::printf("  %s: refinement failed: %s\n", which.c_str(), std::string(rs.message()).c_str());
-        }
+        RefineLikeTheService(*state_a->model, r, extent, which, posed_truth, &scan, &row);
       }
       row["centre_error_pct_median"] = e.centre_median;
       row["centre_error_pct_max"] = e.centre_max;

@@ -275,6 +275,43 @@ bool UpdateWorker::PoseScan(const std::string& job_id, const ScanRecord& scan, c
   return false;
 }
 
+// Each frame of a scan the service posed aligned photometrically to the
+// place's renders (photometric_refine.h), with progress in the REGISTERING
+// phase. False when the job ended (cancelled); a render error only skips it.
+bool UpdateWorker::AlignToPlace(const std::string& job_id, const std::string& scan_id, const PlaceMap& map, const std::vector<Camera>& place,
+                                const Servable& prev, Scene* scene, std::map<std::string, double>* metrics) {
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<ScanPhotometricReport> r = RefineScanPhotometric(
+      map, scene, PlaceExtent(place, prev.model().normalization()), options_.registration.photometric_options,
+      [&](int done, int total) {
+        jobs_->Update(job_id, [&](JobStatus* j) {
+          j->iteration = done;
+          j->total_iterations = total;
+          j->elapsed_seconds = SecondsSince(t0);
+          j->eta_seconds = done > 0 ? j->elapsed_seconds * (total - done) / done : 0;
+        });
+      },
+      &cancel_);
+  if (absl::IsCancelled(r.status())) {
+    if (stopping_) {
+      Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
+    } else {
+      Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled by request", true);
+    }
+    return false;
+  }
+  if (!r.ok()) {
+    spdlog::warn("job {}: photometric alignment skipped: {}", job_id, r.status().ToString());
+    return true;
+  }
+  (*metrics)["registration_photometric_frames"] = r->accepted;
+  (*metrics)["registration_photometric_rotation_deg"] = r->median_rotation_deg;
+  (*metrics)["registration_photometric_seconds"] = r->seconds;
+  spdlog::info("job {}: aligned {} of {} frames to the place's renders (median move {:.3f} deg) in {:.1f} s", job_id,
+               r->accepted, r->frames, r->median_rotation_deg, r->seconds);
+  return true;
+}
+
 bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,
                                      Scene* scene, std::map<std::string, double>* metrics) {
   const std::string frame = PoseFrameOf(*scans_, scan_id);
@@ -323,6 +360,7 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
       } else {
         spdlog::warn("job {}: camera refinement skipped: {}", job_id, s.ToString());
       }
+      if (options_.registration.photometric && !AlignToPlace(job_id, scan_id, map, place, prev, scene, metrics)) return false;
     }
     spdlog::info("job {}: registered into the place's frame: {}", job_id, r.Summary());
     return true;

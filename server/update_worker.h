@@ -110,6 +110,12 @@ class UpdateWorker {
                 std::map<std::string, double>* metrics);
   bool RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,
                          Scene* scene, std::map<std::string, double>* metrics);
+  // After RegisterIntoPlace placed a scan the service posed: each frame
+  // aligned photometrically to `map` (RefineScanPhotometric). False when the
+  // job ended (cancelled).
+  bool AlignToPlace(const std::string& job_id, const std::string& scan_id, const PlaceMap& map,
+                    const std::vector<Camera>& place, const Servable& prev, Scene* scene,
+                    std::map<std::string, double>* metrics);
 
   const ServerOptions options_;
   ScanStore* const scans_;

@@ -6,6 +6,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "core/data/stopwatch.h"
 #include "Eigen/Dense"
 #include "Eigen/Geometry"
 
@@ -335,6 +336,39 @@ absl::StatusOr<PhotometricRefinement> RefinePosePhotometric(const PlaceMap& map,
     out.c2w = moved.c2w;
   }
   return out;
+}
+
+absl::StatusOr<ScanPhotometricReport> RefineScanPhotometric(const PlaceMap& map, Scene* scene, double extent,
+                                                            const PhotometricRefineOptions& options,
+                                                            const PhotometricProgressFn& progress,
+                                                            const std::atomic<bool>* cancel) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  const auto t0 = std::chrono::steady_clock::now();
+  ScanPhotometricReport report;
+  report.frames = int(scene->train.size());
+  std::vector<double> rotations, centres;
+  for (size_t i = 0; i < scene->train.size(); ++i) {
+    if (cancel != nullptr && cancel->load()) return absl::CancelledError("photometric refinement cancelled");
+    View& v = scene->train[i];
+    absl::StatusOr<PhotometricRefinement> r = RefinePosePhotometric(map, v.image, v.camera, extent, options);
+    if (!r.ok()) return r.status();
+    if (r->accepted) {
+      v.camera.c2w = r->c2w;
+      ++report.accepted;
+      rotations.push_back(r->rotation_deg);
+      centres.push_back(r->centre);
+    }
+    if (progress) progress(int(i) + 1, report.frames);
+  }
+  auto median = [](std::vector<double> a) {
+    if (a.empty()) return 0.0;
+    std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
+    return a[a.size() / 2];
+  };
+  report.median_rotation_deg = median(rotations);
+  report.median_centre = median(centres);
+  report.seconds = SecondsSince(t0);
+  return report;
 }
 
 }  // namespace clnerf

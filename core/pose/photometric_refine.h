@@ -22,12 +22,15 @@
 #ifndef CLNERF_CORE_POSE_PHOTOMETRIC_REFINE_H_
 #define CLNERF_CORE_POSE_PHOTOMETRIC_REFINE_H_
 
+#include <atomic>
+#include <functional>
 #include <string>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "core/data/camera.h"
 #include "core/data/image.h"
+#include "core/data/scene.h"
 #include "core/pose/place_map.h"
 
 namespace clnerf {
@@ -77,6 +80,27 @@ struct PhotometricRefinement {
 absl::StatusOr<PhotometricRefinement> RefinePosePhotometric(const PlaceMap& map, const Image& photo,
                                                             const Camera& camera, double extent,
                                                             const PhotometricRefineOptions& options = {});
+
+struct ScanPhotometricReport {
+  int frames = 0;     // Train frames tried.
+  int accepted = 0;   // Whose refined pose was taken.
+  double median_rotation_deg = 0;  // Of the accepted moves.
+  double median_centre = 0;        // Fraction of extent.
+  double seconds = 0;
+};
+
+// (done, total) frames refined so far.
+using PhotometricProgressFn = std::function<void(int done, int total)>;
+
+// RefinePosePhotometric for every train view of `scene` (already in the
+// place's frame), taking each accepted pose. Frames run one after another,
+// each render using the calling context's threads. CANCELLED when `cancel`
+// was set (frames done so far keep their refined poses); errors of the map's
+// renders pass through.
+absl::StatusOr<ScanPhotometricReport> RefineScanPhotometric(const PlaceMap& map, Scene* scene, double extent,
+                                                            const PhotometricRefineOptions& options = {},
+                                                            const PhotometricProgressFn& progress = {},
+                                                            const std::atomic<bool>* cancel = nullptr);
 
 }  // namespace clnerf
 
