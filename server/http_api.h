@@ -3,7 +3,7 @@
 // the ModelHost of the request's place (?place=NAME on every /api route;
 // absent = "default"), the same service layer the gRPC service calls: there is no
 // second implementation of rendering, versions or jobs, and no hop through
-// gRPC. Routes (README "The web viewer" has curl examples):
+// gRPC. Routes (docs/service.md "The web viewer" has curl examples):
 //
 //   GET  /api/places                  every place with its deployed version
 //   GET  /api/info                    server state (deployed version, queue)

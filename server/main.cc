@@ -52,7 +52,7 @@ int main(int argc, char** argv) {
                  "A name the HTTP front end answers to besides IP addresses and localhost (repeatable; '*' = any)");
   app.add_option("--store", o.store_dir, "Store directory (scans, versions, manifest)")->capture_default_str();
   app.add_option("--token", o.token, "Bearer token required for mutating calls (default: $CLNERF_TOKEN; empty = no auth)");
-  app.add_option("--config", config, "JSON config file (keys: README 'The service' > Operation, server/server_options.h); flags override it");
+  app.add_option("--config", config, "JSON config file (keys: docs/service.md > Operation, server/server_options.h); flags override it");
   app.add_option("--tls-cert", o.tls_cert, "PEM certificate chain (enables TLS with --tls-key)");
   app.add_option("--tls-key", o.tls_key, "PEM private key");
   app.add_option("--iters", iters, "Training iterations per update (default 300)");

@@ -61,7 +61,7 @@ struct ServerOptions {
   // Nice value (0-19) of the update worker and its training threads: renders
   // get the cores first and training the cycles they leave. 0 = same
   // priority as renders. Measured on fox_8 in the viewer (bench/viewer.sh):
-  // see README "The web viewer".
+  // see docs/service.md "The web viewer".
   int train_nice = 10;
   int grpc_threads = 16;                // Upper bound on gRPC's sync-server threads.
   int max_message_bytes = 4 << 20;      // Per gRPC message (upload chunks are <= 1 MiB).
@@ -119,7 +119,7 @@ struct ServerOptions {
   std::string colmap_binary = "colmap";  // Looked up on PATH.
 
   // CLNeRF with warm start, offline replay, 300 iterations per update
-  // (a lego_100 task in ~35 s on 2 cores; see README).
+  // (a lego_100 task in ~35 s on 2 cores; see docs/benchmarks.md).
   static UpdateOptions DefaultUpdateOptions();
   absl::Status Validate() const;
   // The limits ScanAssembler checks for each upload.

@@ -57,7 +57,7 @@ const char* ReplayModeName(ReplayMode m);
 struct UpdateOptions {
   ContinualMethod method = ContinualMethod::kCLNeRF;
   // Warm start (from θ_{t-1}) is our default: on lego_100 it reaches higher
-  // PSNR per second than re-init, the paper's default (see README). Re-init
+  // PSNR per second than re-init, the paper's default (see docs/method.md). Re-init
   // is kept for the paper's protocol.
   InitMode init = InitMode::kWarm;
   ReplayMode replay = ReplayMode::kOffline;

@@ -23,7 +23,7 @@ struct CapacityOptions {
   // Table entries per level ~= table_factor * finest_resolution^2 (surfaces
   // grow with the square of resolution), rounded up to a power of two.
   // Measured: on lego 2^14 matches 2^16 within 0.2 dB at a third of the
-  // bytes (README, capacity sweep), hence 1/16 rather than upstream's ~1/4.
+  // bytes (docs/method.md, capacity sweep), hence 1/16 rather than upstream's ~1/4.
   float table_factor = 0.0625f;
   int min_log2_table_size = 14;
   int max_log2_table_size = 16;
