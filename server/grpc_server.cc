@@ -9,7 +9,7 @@
 #include "grpcpp/resource_quota.h"
 #include "grpcpp/security/server_credentials.h"
 #include "grpcpp/server_builder.h"
-#include "server/http_server.h"
+#include "server/frontends/http_server.h"
 #include "spdlog/spdlog.h"
 
 namespace clnerf {

@@ -19,10 +19,10 @@
 
 #include "absl/status/statusor.h"
 #include "grpcpp/server.h"
-#include "server/grpc_service.h"
-#include "server/http_server.h"
-#include "server/model_host.h"
-#include "server/places.h"
+#include "server/frontends/grpc_service.h"
+#include "server/frontends/http_server.h"
+#include "server/places/model_host.h"
+#include "server/places/places.h"
 #include "server/server_options.h"
 
 namespace clnerf {

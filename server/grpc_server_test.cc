@@ -14,9 +14,9 @@
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "grpcpp/create_channel.h"
 #include "gtest/gtest.h"
-#include "server/server_fixture.h"
-#include "server/server_test_util.h"
-#include "server/version_store.h"
+#include "server/testing/server_fixture.h"
+#include "server/testing/server_test_util.h"
+#include "server/store/version_store.h"
 
 namespace clnerf {
 namespace {

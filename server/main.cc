@@ -15,7 +15,7 @@
 #include "CLI/CLI.hpp"
 #include "nlohmann/json.hpp"
 #include "server/grpc_server.h"
-#include "server/log_setup.h"
+#include "server/common/log_setup.h"
 #include "spdlog/spdlog.h"
 
 namespace {

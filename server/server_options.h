@@ -24,7 +24,7 @@
 #include "core/continual/deployment_gate.h"
 #include "core/pose/registration.h"
 #include "core/pose/sfm.h"
-#include "server/scan_assembler.h"
+#include "server/store/scan_assembler.h"
 
 namespace clnerf {
 

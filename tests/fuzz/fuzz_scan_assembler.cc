@@ -7,7 +7,7 @@
 #include <cstdint>
 #include <string>
 
-#include "server/scan_assembler.h"
+#include "server/store/scan_assembler.h"
 
 namespace {
 

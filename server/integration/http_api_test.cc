@@ -1,0 +1,368 @@
+// The HTTP API against the real server in-process (gRPC and HTTP on
+// localhost:0), through cpp-httplib's client: the same model as gRPC, the
+// status codes of bad requests, the token, and cancellation of stale renders.
+#include "server/frontends/http_api.h"
+
+#include <chrono>
+#include <future>
+#include <map>
+#include <regex>
+#include <sstream>
+#include <string>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_join.h"
+#include "core/data/image.h"
+#include "httplib.h"
+#include "nlohmann/json.hpp"
+#include "server/testing/prometheus_text_test_util.h"
+#include "server/testing/server_fixture.h"
+
+namespace clnerf {
+namespace {
+
+using json = nlohmann::json;
+using testing_util::ServerFixture;
+using testing_util::TempDir;
+using testing_util::TinyScans;
+using testing_util::TinyServerOptions;
+
+class HttpApiTest : public ServerFixture {
+ protected:
+  json Json(const httplib::Result& r) {
+    EXPECT_TRUE(r) << "no HTTP response";
+    if (!r) return json();
+    EXPECT_EQ(r->get_header_value("Content-Type"), "application/json") << r->body;
+    return json::parse(r->body, nullptr, false);
+  }
+  // A render query for `cam` in the c2w + pixel-intrinsics form.
+  static std::string RenderPath(const Camera& cam, const std::string& extra = "") {
+    std::vector<std::string> m;
+    for (int i = 0; i < 3; ++i) {
+      for (int j = 0; j < 4; ++j) m.push_back(absl::StrCat(cam.c2w(i, j)));
+    }
+    const Intrinsics& in = cam.intrinsics;
+    return absl::StrCat("/api/render?width=", in.width, "&height=", in.height, "&c2w=", absl::StrJoin(m, ","),
+                        "&fx=", in.fx, "&fy=", in.fy, "&cx=", in.cx, "&cy=", in.cy, extra);
+  }
+};
+
+double MeanAbsDiff(const Image& a, const Image& b) {
+  double d = 0;
+  for (size_t i = 0; i < a.rgb.size(); ++i) d += std::abs(a.rgb[i] - b.rgb[i]);
+  return d / double(a.rgb.size());
+}
+
+TEST_F(HttpApiTest, ServesTheSameModelsVersionsAndJobsAsGrpc) {
+  StartHttp(TinyServerOptions(TempDir("srv_http")));
+  const Scene scene = TinyScans(2);
+  const v1::Job j0 = UploadAndWait(scene, 0);
+  ASSERT_EQ(j0.phase(), v1::JOB_PHASE_DONE) << j0.error();
+  const v1::Job j1 = UploadAndWait(scene, 1);
+  ASSERT_EQ(j1.phase(), v1::JOB_PHASE_DONE) << j1.error();
+
+  json s = Json(http_->Get("/api/scene"));
+  EXPECT_EQ(s["version"], 2);
+  EXPECT_EQ(s["deployed_version"], 2);
+  EXPECT_EQ(s["time_steps"], 2);
+  ASSERT_EQ(s["scans"].size(), 2u);
+  EXPECT_EQ(s["versions"].size(), 2u);
+  EXPECT_EQ(s["default_camera"]["time_step"], 1);
+  // The procedural scene's cameras look at its centre from a sphere.
+  EXPECT_LT(Eigen::Vector3f(s["focus"][0], s["focus"][1], s["focus"][2]).norm(), 0.2f);
+  EXPECT_EQ(Json(http_->Get("/api/scene?version=1"))["time_steps"], 1);
+
+  // The same camera through HTTP (PNG) and gRPC gives the same image.
+  const Camera cam = scene.test[0].camera;
+  for (int t : {0, 1}) {
+    auto r = http_->Get(RenderPath(cam, absl::StrCat("&format=png&time=", t)));
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 200) << r->body;
+    EXPECT_EQ(r->get_header_value("Content-Type"), "image/png");
+    EXPECT_EQ(r->get_header_value("X-Clnerf-Version"), "2");
+    EXPECT_EQ(r->get_header_value("X-Clnerf-Time-Step"), std::to_string(t));
+    absl::StatusOr<Image> via_http = DecodeImage(r->body, "r.png");
+    ASSERT_TRUE(via_http.ok()) << via_http.status();
+    v1::RenderResponse g;
+    ASSERT_TRUE(Render(cam, t, 0, &g).ok());
+    absl::StatusOr<Image> via_grpc = DecodeImage(g.image(), "g.png");
+    ASSERT_TRUE(via_grpc.ok());
+    EXPECT_LT(MeanAbsDiff(*via_http, *via_grpc), 1.0 / 255);
+  }
+  // JPEG by default; the look-at form of the scan's own camera works too.
+  const json& c = s["scans"][0];
+  auto jpg = http_->Get(absl::StrCat("/api/render?width=40&height=30&time=0&fov=", c["fov"].get<double>(),
+                                     "&eye=", c["eye"][0].get<double>(), ",", c["eye"][1].get<double>(), ",",
+                                     c["eye"][2].get<double>(), "&target=", c["target"][0].get<double>(), ",",
+                                     c["target"][1].get<double>(), ",", c["target"][2].get<double>(),
+                                     "&up=", c["up"][0].get<double>(), ",", c["up"][1].get<double>(), ",",
+                                     c["up"][2].get<double>()));
+  ASSERT_TRUE(jpg);
+  ASSERT_EQ(jpg->status, 200) << jpg->body;
+  EXPECT_EQ(jpg->get_header_value("Content-Type"), "image/jpeg");
+  absl::StatusOr<Image> small = DecodeImage(jpg->body, "r.jpg");
+  ASSERT_TRUE(small.ok());
+  EXPECT_EQ(small->width, 40);
+  EXPECT_EQ(small->height, 30);
+
+  // Versions and jobs: the same records gRPC has.
+  json v = Json(http_->Get("/api/versions"));
+  EXPECT_EQ(v["deployed_version"], 2);
+  ASSERT_EQ(v["versions"].size(), 2u);
+  json jobs = Json(http_->Get("/api/jobs"));
+  EXPECT_EQ(jobs["total"], 2);
+  ASSERT_EQ(jobs["jobs"].size(), 2u);
+  EXPECT_EQ(jobs["jobs"][0]["job_id"], j1.job_id()) << "newest first";
+  json oldest = Json(http_->Get("/api/jobs?order=oldest&limit=1"));
+  ASSERT_EQ(oldest["jobs"].size(), 1u);
+  EXPECT_EQ(oldest["jobs"][0]["job_id"], j0.job_id());
+  json second = Json(http_->Get("/api/jobs?limit=1&offset=1"));
+  ASSERT_EQ(second["jobs"].size(), 1u);
+  EXPECT_EQ(second["jobs"][0]["job_id"], j0.job_id());
+  json one = Json(http_->Get("/api/jobs/" + j1.job_id()));
+  EXPECT_EQ(one["phase"], "done");
+  EXPECT_EQ(one["version"], 2);
+  EXPECT_EQ(one["done"], true);
+  EXPECT_EQ(Json(http_->Get("/api/info"))["deployed_version"], 2);
+
+  // The page and its files are served.
+  auto page = http_->Get("/");
+  ASSERT_TRUE(page);
+  EXPECT_EQ(page->status, 200);
+  EXPECT_NE(page->get_header_value("Content-Type").find("text/html"), std::string::npos);
+  auto js = http_->Get("/viewer.js");
+  ASSERT_TRUE(js);
+  EXPECT_EQ(js->status, 200);
+}
+
+TEST_F(HttpApiTest, MetricsAreValidPrometheusTextAndHealthEndpointsAnswer) {
+  StartHttp(TinyServerOptions(TempDir("srv_metrics")));
+  auto live = http_->Get("/healthz");
+  ASSERT_TRUE(live);
+  EXPECT_EQ(live->status, 200);
+  auto ready = http_->Get("/readyz");
+  ASSERT_TRUE(ready);
+  EXPECT_EQ(ready->status, 200);  // Ready before any version: it takes uploads.
+  EXPECT_EQ(Json(ready)["ready"], true);
+
+  const Scene scene = TinyScans(1);
+  const v1::Job j0 = UploadAndWait(scene, 0);
+  ASSERT_EQ(j0.phase(), v1::JOB_PHASE_DONE) << j0.error();
+  const Camera cam = scene.test[0].camera;
+  for (int i = 0; i < 3; ++i) {
+    auto r = http_->Get(RenderPath(cam, "&format=png"));
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 200) << r->body;
+  }
+  auto bad = http_->Get(RenderPath(cam, "&time=7"));  // No such time step.
+  ASSERT_TRUE(bad);
+  EXPECT_EQ(bad->status, 400);
+
+  auto m = http_->Get("/metrics");
+  ASSERT_TRUE(m);
+  ASSERT_EQ(m->status, 200);
+  EXPECT_NE(m->get_header_value("Content-Type").find("text/plain"), std::string::npos);
+  std::map<std::string, double> samples;
+  const std::string err = testing_util::ParsePrometheusText(m->body, &samples);
+  ASSERT_EQ(err, "") << m->body;
+  EXPECT_EQ(samples["clnerf_renders_total{code=\"OK\"}"], 3) << m->body;
+  EXPECT_EQ(samples["clnerf_renders_total{code=\"INVALID_ARGUMENT\"}"], 1) << m->body;
+  EXPECT_EQ(samples["clnerf_render_seconds_count"], 3) << m->body;
+  EXPECT_EQ(samples["clnerf_uploads_total{code=\"OK\"}"], 1) << m->body;
+  EXPECT_GT(samples["clnerf_upload_bytes_total"], 0) << m->body;
+  EXPECT_EQ(samples["clnerf_updates_total{outcome=\"published\"}"], 1) << m->body;
+  EXPECT_GT(samples["clnerf_model_bytes"], 0) << m->body;
+  // No per-place (or other unbounded) labels.
+  EXPECT_EQ(m->body.find("place="), std::string::npos);
+  // The reader is strict: a malformed line is caught.
+  EXPECT_NE(testing_util::ParsePrometheusText(m->body + "clnerf_x{a=b} 1\n", &samples), "");
+}
+
+TEST_F(HttpApiTest, BadRequestsGetTheirStatusAndAMessage) {
+  ServerOptions o = TinyServerOptions(TempDir("srv_http_bad"));
+  o.token = "s3cret";
+  o.render_concurrency = 1;
+  o.render_pixel_budget = 256 * 256;
+  StartHttp(o);
+  const Scene scene = TinyScans(1);
+  const Camera cam = scene.test[0].camera;
+
+  // Nothing deployed yet: 409 (FAILED_PRECONDITION), as gRPC.
+  auto none = http_->Get(RenderPath(cam));
+  ASSERT_TRUE(none);
+  EXPECT_EQ(none->status, 409);
+  EXPECT_EQ(Json(none)["code"], "FAILED_PRECONDITION");
+  EXPECT_EQ(Json(http_->Get("/api/scene"))["code"], "FAILED_PRECONDITION");
+
+  v1::UploadScanResponse ack;
+  ASSERT_TRUE(Upload(testing_util::UploadMessages(testing_util::UploadOf(scene, 0)), &ack, "s3cret").ok());
+  ASSERT_EQ(Watch(ack.job_id()).phase(), v1::JOB_PHASE_DONE);
+
+  struct Case {
+    std::string path;
+    int status;
+    std::string says;
+  };
+  const Case cases[] = {
+      {RenderPath(cam, "&widht=3"), 400, "unknown parameter 'widht'"},
+      {RenderPath(cam, "&time=abc"), 400, "parameter 'time'"},
+      {RenderPath(cam, "&time=5"), 400, "out of range"},
+      {RenderPath(cam, "&quality=0"), 400, "parameter 'quality'"},
+      {"/api/render?width=10", 400, "parameter 'height'"},
+      {RenderPath(cam, "&version=99"), 404, "99"},
+      {"/api/scene?version=99", 404, "99"},
+      {"/api/scene?version=-1", 400, "parameter 'version'"},
+      {"/api/jobs/job-999999", 404, "job-999999"},
+      {"/api/jobs?limit=0", 400, "parameter 'limit'"},
+      {"/api/jobs?order=random", 400, "parameter 'order'"},
+      {"/api/no/such/route", 404, "no route"},
+  };
+  for (const Case& c : cases) {
+    auto r = http_->Get(c.path);
+    ASSERT_TRUE(r) << c.path;
+    EXPECT_EQ(r->status, c.status) << c.path << " -> " << r->body;
+    json body = Json(r);
+    ASSERT_TRUE(body.contains("error")) << r->body;
+    EXPECT_NE(body["error"].get<std::string>().find(c.says), std::string::npos) << c.path << " -> " << r->body;
+  }
+  // An oversized render is refused before any work: 400 naming the limit.
+  Camera big = cam;
+  big.intrinsics = cam.intrinsics.Scaled(300, 300);
+  auto huge = http_->Get(RenderPath(big));
+  ASSERT_TRUE(huge);
+  EXPECT_EQ(huge->status, 400);
+  EXPECT_NE(Json(huge)["error"].get<std::string>().find("exceeds the per-request limit"), std::string::npos);
+
+  // Mutations need the token; reads do not.
+  auto no_token = http_->Post("/api/deploy?version=1");
+  ASSERT_TRUE(no_token);
+  EXPECT_EQ(no_token->status, 401);
+  EXPECT_EQ(Json(no_token)["code"], "UNAUTHENTICATED");
+  auto wrong = http_->Post("/api/deploy?version=1", httplib::Headers{{"Authorization", "Bearer nope"}}, "",
+                           "text/plain");
+  ASSERT_TRUE(wrong);
+  EXPECT_EQ(wrong->status, 401);
+  auto cancel = http_->Post("/api/jobs/" + ack.job_id() + "/cancel");
+  ASSERT_TRUE(cancel);
+  EXPECT_EQ(cancel->status, 401);
+  const httplib::Headers auth{{"Authorization", "Bearer s3cret"}};
+  auto ok = http_->Post("/api/deploy?version=1", auth, "", "text/plain");
+  ASSERT_TRUE(ok);
+  EXPECT_EQ(ok->status, 200) << ok->body;
+  auto unknown = http_->Post("/api/deploy?version=7", auth, "", "text/plain");
+  ASSERT_TRUE(unknown);
+  EXPECT_EQ(unknown->status, 404) << unknown->body;
+  // A body over the cap is refused.
+  auto fat = http_->Post("/api/deploy?version=1", auth, std::string(100 << 10, 'x'), "text/plain");
+  ASSERT_TRUE(fat);
+  EXPECT_EQ(fat->status, 413);
+  EXPECT_EQ(Json(http_->Get("/api/info"))["deployed_version"], 1);
+}
+
+// Without --token (the default), other web sites must still not drive the
+// server through a visitor's browser: a cross-origin POST (a form on
+// evil.example) and a request by a rebound name are refused with 403
+// before any handler runs; the page's own requests and tools pass.
+TEST_F(HttpApiTest, OtherSitesCannotDeployOrReadThroughAVisitorsBrowser) {
+  ServerOptions o = TinyServerOptions(TempDir("srv_http_origin"));
+  o.http_allowed_hosts = {"nerf.example.org"};
+  StartHttp(o);
+  const std::string self = absl::StrCat("127.0.0.1:", server_->http_port());
+  auto forged = http_->Post("/api/deploy?version=1", httplib::Headers{{"Origin", "http://evil.example"}},
+                            "version=1", "application/x-www-form-urlencoded");
+  ASSERT_TRUE(forged);
+  EXPECT_EQ(forged->status, 403) << forged->body;
+  EXPECT_EQ(Json(forged)["code"], "PERMISSION_DENIED");
+  auto sandboxed = http_->Post("/api/jobs/job-000001/cancel", httplib::Headers{{"Origin", "null"}}, "", "text/plain");
+  ASSERT_TRUE(sandboxed);
+  EXPECT_EQ(sandboxed->status, 403);
+  // Same origin (the viewer's own fetch) and no Origin (curl) reach the API:
+  // nothing is deployed yet, so 404 for version 1.
+  for (const httplib::Headers& h : {httplib::Headers{{"Origin", "http://" + self}}, httplib::Headers{}}) {
+    auto r = http_->Post("/api/deploy?version=1", h, "", "text/plain");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 404) << r->body;
+  }
+  // DNS rebinding: the Host header names another site.
+  auto rebound = http_->Get("/api/info", httplib::Headers{{"Host", "evil.example"}});
+  ASSERT_TRUE(rebound);
+  EXPECT_EQ(rebound->status, 403);
+  EXPECT_NE(Json(rebound)["error"].get<std::string>().find("--http-allowed-host"), std::string::npos);
+  auto named = http_->Get("/api/info", httplib::Headers{{"Host", "nerf.example.org"}});
+  ASSERT_TRUE(named);
+  EXPECT_EQ(named->status, 200) << named->body;
+  EXPECT_EQ(http_->Get("/api/info")->status, 200);
+}
+
+// No route takes a parameter twice: a repeat is refused even with the same
+// value (cpp-httplib would merge it), and a request line too long to read
+// says so.
+TEST_F(HttpApiTest, RepeatedParametersAndOverlongRequestLinesAreRefused) {
+  StartHttp(TinyServerOptions(TempDir("srv_http_repeat")));
+  for (const char* path : {"/api/info?place=a&place=b", "/api/info?place=default&place=default",
+                           "/api/render?width=8&width=8&height=8", "/api/jobs?limit=1&li%6Dit=1"}) {
+    auto r = http_->Get(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, 400) << path;
+    EXPECT_NE(Json(r)["error"].get<std::string>().find("is given more than once"), std::string::npos) << path;
+  }
+  EXPECT_EQ(http_->Get("/api/info?place=default")->status, 200);
+  auto long_line = http_->Get("/api/info?x=" + std::string(9000, 'a'));
+  ASSERT_TRUE(long_line);
+  EXPECT_EQ(long_line->status, 414);
+  EXPECT_NE(Json(long_line)["error"].get<std::string>().find("request line too long"), std::string::npos)
+      << long_line->body;
+}
+
+TEST_F(HttpApiTest, ANewerRenderOfTheSameViewCancelsTheStaleOneAndDeadlinesHold) {
+  ServerOptions o = TinyServerOptions(TempDir("srv_http_cancel"));
+  o.render_concurrency = 1;
+  o.render_threads = 1;
+  o.render_pixel_budget = int64_t(512) * 512;
+  StartHttp(o);
+  const Scene scene = TinyScans(1);
+  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
+  Camera big = scene.test[0].camera;
+  big.intrinsics = big.intrinsics.Scaled(512, 512);
+  const Camera small = scene.test[0].camera;
+
+  // A big render of view "left" that takes seconds on one thread...
+  const auto t0 = std::chrono::steady_clock::now();
+  auto stale = std::async(std::launch::async, [&] {
+    httplib::Client c("127.0.0.1", server_->http_port());
+    c.set_read_timeout(std::chrono::seconds(60));
+    return c.Get(RenderPath(big, "&view=left&timeout_ms=300000"));
+  });
+  std::this_thread::sleep_for(std::chrono::milliseconds(300));
+  // ...is cancelled by a newer render of the same view, which succeeds.
+  auto fresh = http_->Get(RenderPath(small, "&view=left"));
+  ASSERT_TRUE(fresh);
+  EXPECT_EQ(fresh->status, 200) << fresh->body;
+  auto old = stale.get();
+  const double stale_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  ASSERT_TRUE(old);
+  EXPECT_EQ(old->status, 499) << old->body;
+  EXPECT_NE(Json(old)["error"].get<std::string>().find("superseded"), std::string::npos);
+  // The same render left alone takes far longer than the stale one lived.
+  const auto t1 = std::chrono::steady_clock::now();
+  auto full = http_->Get(RenderPath(big, "&format=png&timeout_ms=300000"));
+  ASSERT_TRUE(full);
+  EXPECT_EQ(full->status, 200);
+  const double full_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  EXPECT_LT(stale_s, full_s) << "the stale render should stop early";
+
+  // Deadlines: a render that cannot finish in timeout_ms is stopped (504).
+  auto late = http_->Get(RenderPath(big, "&timeout_ms=20"));
+  ASSERT_TRUE(late);
+  EXPECT_EQ(late->status, 504) << late->body;
+  EXPECT_EQ(Json(late)["code"], "DEADLINE_EXCEEDED");
+  // The metrics count it as what it was.
+  auto m = http_->Get("/metrics");
+  ASSERT_TRUE(m);
+  std::map<std::string, double> samples;
+  ASSERT_EQ(testing_util::ParsePrometheusText(m->body, &samples), "") << m->body;
+  EXPECT_EQ(samples["clnerf_renders_total{code=\"DEADLINE_EXCEEDED\"}"], 1) << m->body;
+}
+
+}  // namespace
+}  // namespace clnerf
