@@ -36,16 +36,21 @@ int RunVersions(const ListArgs& a) {
     std::printf("no versions yet (upload a scan first)\n");
     return 0;
   }
-  TextTable table({"", "VERSION", "PARENT", "TIME STEPS", "SIZE", "CREATED", "SCAN", "METRICS"});
+  // SIZE: the stored checkpoint; MODEL + REPLAY: what it holds (parameters,
+  // and the replay memory's cameras and 8-bit buffer images).
+  TextTable table({"", "VERSION", "PARENT", "TIME STEPS", "SIZE", "MODEL + REPLAY", "CREATED", "SCAN", "METRICS"});
   for (const clnerf::v1::Version& v : response.versions()) {
     const bool deployed = v.deployed() || v.version() == response.deployed_version();
     if (!v.unavailable().empty()) {
-      table.AddRow({deployed ? "*" : "", absl::StrCat(v.version()), "-", "-", "-", "-", "-",
+      table.AddRow({deployed ? "*" : "", absl::StrCat(v.version()), "-", "-", "-", "-", "-", "-",
                     "UNAVAILABLE: " + v.unavailable()});
       continue;
     }
     table.AddRow({deployed ? "*" : "", absl::StrCat(v.version()), v.parent() > 0 ? absl::StrCat(v.parent()) : "-",
-                  absl::StrCat(v.time_steps()), FormatBytes(v.size_bytes()), FormatUnixMs(v.created_unix_ms()),
+                  absl::StrCat(v.time_steps()), FormatBytes(v.size_bytes()),
+                  v.model_bytes() > 0 ? absl::StrCat(FormatBytes(v.model_bytes()), " + ", FormatBytes(v.replay_bytes()))
+                                      : "-",
+                  FormatUnixMs(v.created_unix_ms()),
                   v.scan_id().empty() ? "-" : v.scan_id(), FormatMetrics(v.metrics())});
   }
   table.Print();

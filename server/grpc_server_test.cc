@@ -186,9 +186,11 @@ TEST_F(ServerFixture, RollbackRedeploysAnOlderVersion) {
 }
 
 // One optimiser across the sequence in the service: with carry_optimizer
-// each version stores θ's Adam state (optimizer.bin) and the next update
-// resumes it, across a restart; a corrupt state only costs the resume (the
-// update starts a fresh optimiser and still publishes).
+// the place keeps the newest version's Adam state (one optimizer.bin beside
+// the versions, not one per version) and the next update resumes it, across
+// a restart; an older version has none (a rollback starts fresh); a corrupt
+// state only costs the resume (the update starts a fresh optimiser and still
+// publishes).
 TEST_F(ServerFixture, CarriedOptimizerTravelsWithItsVersionAcrossARestart) {
   const std::string store = TempDir("srv_optimizer");
   ServerOptions o = TinyServerOptions(store);
@@ -209,8 +211,12 @@ TEST_F(ServerFixture, CarriedOptimizerTravelsWithItsVersionAcrossARestart) {
   opt = (*versions)->LoadOptimizer(2);
   ASSERT_TRUE(opt.ok() && *opt != nullptr) << opt.status();
   EXPECT_EQ((*opt)->step, 2 * iters);  // Resumed from version 1's.
-  // Corrupt version 2's state: the next update starts fresh and publishes.
-  ASSERT_TRUE(AtomicWriteFile(store + "/versions/000002/optimizer.bin", "garbage").ok());
+  opt = (*versions)->LoadOptimizer(1);  // Replaced: only the newest version's is kept.
+  ASSERT_TRUE(opt.ok()) << opt.status();
+  EXPECT_EQ(*opt, nullptr);
+  EXPECT_FALSE(std::filesystem::exists(store + "/versions/000002/optimizer.bin"));
+  // Corrupt the place's state: the next update starts fresh and publishes.
+  ASSERT_TRUE(AtomicWriteFile(store + "/optimizer.bin", "garbage").ok());
   EXPECT_EQ((*versions)->LoadOptimizer(2).status().code(), absl::StatusCode::kDataLoss);
   ASSERT_EQ(UploadAndWait(scene, 2).phase(), v1::JOB_PHASE_DONE);
   opt = (*versions)->LoadOptimizer(3);

@@ -18,7 +18,32 @@ bool SameIntrinsics(const Intrinsics& a, const Intrinsics& b) {
 }
 
 constexpr char kMagic[4] = {'C', 'L', 'R', 'M'};
-constexpr uint32_t kVersion = 1;
+// 2: buffered images as 8-bit PNG (as CLNeRF's own code keeps them); 1:
+// float32 pixels (still read).
+constexpr uint32_t kVersion = 2;
+constexpr uint32_t kOldestVersion = 1;
+
+// One buffered image's pixels: float32 (version 1) or a PNG (version 2) of
+// exactly w x h.
+absl::Status ReadBufferPixels(ByteReader* r, uint32_t version, int32_t w, int32_t h, Image* image) {
+  const auto corrupt = [](const std::string& what) {
+    return absl::DataLossError(absl::StrCat("replay memory is corrupt: ", what));
+  };
+  if (version == 1) {
+    if (uint64_t(w) * uint64_t(h) * 12 > r->remaining()) return corrupt("bad buffer image");
+    *image = Image(w, h);
+    if (!r->Array(uint64_t(w) * h * 3, &image->rgb)) return corrupt("truncated buffer image");
+    return absl::OkStatus();
+  }
+  uint64_t n = 0;
+  std::string_view png;
+  if (!r->Get(&n) || n > r->remaining() || !r->Bytes(size_t(n), &png)) return corrupt("truncated buffer image");
+  absl::StatusOr<Image> decoded = DecodeImage(std::string(png), "buffer.png");
+  if (!decoded.ok()) return corrupt(absl::StrCat("buffer image: ", decoded.status().message()));
+  if (decoded->width != w || decoded->height != h) return corrupt("buffer image size does not match");
+  *image = *std::move(decoded);
+  return absl::OkStatus();
+}
 
 }  // namespace
 
@@ -98,7 +123,9 @@ size_t ReplayMemory::buffer_bytes() const {
 //   "CLRM" | u32 version | i32 capacity | u64 seen
 //   u64 n | n x (i32 w, i32 h, f32 fx fy cx cy k1 k2 p1 p2)
 //   u64 m | m x (f32 rotation[3], f32 translation[3], u16 intrinsics, u16 time step)
-//   u64 k | k x (u32 camera, i32 w, i32 h, f32 rgb[w*h*3], u8 has_mask, [u8 keep[w*h]])
+//   u64 k | k x (u32 camera, i32 w, i32 h, u64 png_bytes, u8 png[png_bytes],
+//                u8 has_mask, [u8 keep[w*h]])
+// (version 1 held f32 rgb[w*h*3] where version 2 holds the PNG.)
 std::string ReplayMemory::Serialize() const {
   std::string out;
   ByteWriter w(&out);
@@ -124,7 +151,10 @@ std::string ReplayMemory::Serialize() const {
     w.Put(b.camera);
     w.Put(int32_t(b.image.width));
     w.Put(int32_t(b.image.height));
-    w.Array(b.image.rgb);
+    absl::StatusOr<std::string> png = EncodePng(b.image);
+    const std::string bytes = png.ok() ? *std::move(png) : std::string();  // Encoding in memory cannot fail.
+    w.Put(uint64_t(bytes.size()));
+    w.Bytes(bytes);
     w.Put(uint8_t(b.mask.empty() ? 0 : 1));
     if (!b.mask.empty()) w.Array(b.mask.keep);
   }
@@ -140,9 +170,10 @@ absl::StatusOr<ReplayMemory> ReplayMemory::Deserialize(const std::string& bytes)
   uint32_t version = 0;
   if (!r.Bytes(4, &magic) || std::memcmp(magic.data(), kMagic, 4) != 0) return corrupt("bad magic");
   if (!r.Get(&version)) return corrupt("truncated header");
-  if (version != kVersion) {
-    return absl::FailedPreconditionError(
-        absl::StrCat("replay memory format version ", version, " is not supported (this build reads ", kVersion, ")"));
+  if (version < kOldestVersion || version > kVersion) {
+    return absl::FailedPreconditionError(absl::StrCat("replay memory format version ", version,
+                                                      " is not supported (this build reads ", kOldestVersion, " to ",
+                                                      kVersion, ")"));
   }
   int32_t capacity = 0;
   uint64_t seen = 0, n = 0;
@@ -186,12 +217,9 @@ absl::StatusOr<ReplayMemory> ReplayMemory::Deserialize(const std::string& bytes)
     int32_t w = 0, h = 0;
     uint8_t has_mask = 0;
     if (!r.Get(&b.camera) || !r.Get(&w) || !r.Get(&h)) return corrupt("truncated buffer image");
-    if (w <= 0 || h <= 0 || b.camera >= m.cameras_.size() ||
-        uint64_t(w) * uint64_t(h) * 12 > r.remaining()) {
-      return corrupt("bad buffer image");
-    }
-    b.image = Image(w, h);
-    if (!r.Array(uint64_t(w) * h * 3, &b.image.rgb) || !r.Get(&has_mask)) return corrupt("truncated buffer image");
+    if (w <= 0 || h <= 0 || b.camera >= m.cameras_.size()) return corrupt("bad buffer image");
+    if (absl::Status s = ReadBufferPixels(&r, version, w, h, &b.image); !s.ok()) return s;
+    if (!r.Get(&has_mask)) return corrupt("truncated buffer image");
     if (has_mask > 1) return corrupt("bad mask flag");
     if (has_mask) {
       b.mask.width = w;

@@ -72,8 +72,10 @@ class ReplayMemory {
   size_t buffer_bytes() const;
   double bytes_per_camera() const { return cameras_.empty() ? 0.0 : double(camera_bytes()) / cameras_.size(); }
 
-  // Binary form (stored as a checkpoint extra section). Images are stored as
-  // float32 pixels so replay is lossless.
+  // Binary form (stored as a checkpoint extra section). Buffered images are
+  // stored as 8-bit PNGs, as CLNeRF's code keeps them (photos are 8-bit, so
+  // a decoded photo comes back exactly; other values to within 1/510);
+  // masks raw. Reads the float32 form of format version 1 too.
   std::string Serialize() const;
   static absl::StatusOr<ReplayMemory> Deserialize(const std::string& bytes);
 

@@ -1,5 +1,7 @@
 #include "core/continual/replay_memory.h"
 
+#include "core/io/byte_io.h"
+
 #include <cmath>
 #include <random>
 
@@ -108,7 +110,11 @@ TEST(ReplayMemoryTest, SerializeRoundTrip) {
   EXPECT_EQ(back->intrinsics().size(), 2u);
   ASSERT_EQ(back->buffer().size(), m.buffer().size());
   for (size_t i = 0; i < m.buffer().size(); ++i) {
-    EXPECT_EQ(back->buffer()[i].image.rgb, m.buffer()[i].image.rgb);
+    // Stored as 8 bits: within half a step of 1/255.
+    ASSERT_EQ(back->buffer()[i].image.rgb.size(), m.buffer()[i].image.rgb.size());
+    for (size_t j = 0; j < m.buffer()[i].image.rgb.size(); ++j) {
+      EXPECT_NEAR(back->buffer()[i].image.rgb[j], m.buffer()[i].image.rgb[j], 0.5f / 255 + 1e-6f);
+    }
     EXPECT_EQ(back->buffer()[i].mask.keep, m.buffer()[i].mask.keep);
   }
   // Every truncation is detected.
@@ -118,6 +124,62 @@ TEST(ReplayMemoryTest, SerializeRoundTrip) {
   std::string bad = bytes;
   bad[0] = 'X';
   EXPECT_EQ(ReplayMemory::Deserialize(bad).status().code(), absl::StatusCode::kDataLoss);
+}
+
+// A photo (8-bit values) comes back with the same values, and its pixels take less room
+// than 8-bit raw, a quarter of the float32 form of version 1.
+TEST(ReplayMemoryTest, BufferedPhotosAreStoredAsCompact8BitImages) {
+  std::mt19937_64 rng(3);
+  ReplayMemory m(1);
+  const uint32_t k = m.AddCamera(RandomCamera(&rng, 0));
+  Image photo(64, 48);
+  for (int y = 0; y < photo.height; ++y) {
+    for (int x = 0; x < photo.width; ++x) {
+      float* p = photo.pixel(x, y);
+      p[0] = float((x * 4) % 256) / 255;
+      p[1] = float((y * 5) % 256) / 255;
+      p[2] = float(((x + y) * 3) % 256) / 255;
+    }
+  }
+  ASSERT_TRUE(m.OfferReservoir(k, photo, Mask(), &rng));
+  const std::string bytes = m.Serialize();
+  EXPECT_LT(bytes.size(), size_t(photo.width) * photo.height * 3);
+  absl::StatusOr<ReplayMemory> back = ReplayMemory::Deserialize(bytes);
+  ASSERT_TRUE(back.ok()) << back.status();
+  ASSERT_EQ(back->buffer().size(), 1u);
+  ASSERT_EQ(back->buffer()[0].image.rgb.size(), photo.rgb.size());
+  for (size_t j = 0; j < photo.rgb.size(); ++j) {
+    EXPECT_NEAR(back->buffer()[0].image.rgb[j], photo.rgb[j], 1e-6f) << j;  // The same 8-bit value.
+  }
+}
+
+// Memories written by earlier builds (format 1: float32 pixels) still load.
+TEST(ReplayMemoryTest, ReadsTheFloatFormatOfVersion1) {
+  std::string v1;
+  ByteWriter w(&v1);
+  w.Bytes(std::string_view("CLRM", 4));
+  w.Put(uint32_t(1));
+  w.Put(int32_t(4));    // capacity
+  w.Put(uint64_t(1));   // seen
+  w.Put(uint64_t(1));   // intrinsics
+  w.Put(int32_t(2));
+  w.Put(int32_t(1));
+  for (float f : {100.f, 100.f, 1.f, 0.5f, 0.f, 0.f, 0.f, 0.f}) w.Put(f);
+  w.Put(uint64_t(1));   // cameras
+  for (float f : {0.f, 0.f, 0.f, 1.f, 2.f, 3.f}) w.Put(f);
+  w.Put(uint16_t(0));
+  w.Put(uint16_t(0));
+  w.Put(uint64_t(1));   // buffered images
+  w.Put(uint32_t(0));
+  w.Put(int32_t(2));
+  w.Put(int32_t(1));
+  w.Array(std::vector<float>{0.1f, 0.2f, 0.3f, 0.4f, 0.5f, 0.6f});
+  w.Put(uint8_t(0));
+  absl::StatusOr<ReplayMemory> m = ReplayMemory::Deserialize(v1);
+  ASSERT_TRUE(m.ok()) << m.status();
+  ASSERT_EQ(m->buffer().size(), 1u);
+  EXPECT_EQ(m->buffer()[0].image.rgb, (std::vector<float>{0.1f, 0.2f, 0.3f, 0.4f, 0.5f, 0.6f}));
+  EXPECT_EQ(m->GetCamera(0).position(), Eigen::Vector3f(1, 2, 3));
 }
 
 }  // namespace

@@ -91,7 +91,8 @@ json CameraJson(const Camera& c, const SceneSummary& s) {
 json VersionJson(const VersionInfo& v, int64_t deployed) {
   return json{{"version", v.version},         {"parent", v.parent},
               {"time_steps", v.time_steps},   {"size_bytes", v.size_bytes},
-              {"model_bytes", v.model_bytes}, {"created_unix_ms", v.created_unix_ms},
+              {"model_bytes", v.model_bytes}, {"replay_bytes", v.replay_bytes},
+              {"created_unix_ms", v.created_unix_ms},
               {"scan_id", v.scan_id},         {"metrics", v.metrics},
               {"deployed", v.version == deployed}, {"unavailable", v.unavailable}};
 }

@@ -133,6 +133,8 @@ v1::Version ToProto(const VersionInfo& v, int64_t deployed_version) {
   p.set_parent(v.parent);
   p.set_time_steps(v.time_steps);
   p.set_size_bytes(v.size_bytes);
+  p.set_model_bytes(v.model_bytes);
+  p.set_replay_bytes(v.replay_bytes);
   p.set_created_unix_ms(v.created_unix_ms);
   p.set_scan_id(v.scan_id);
   p.set_deployed(v.version == deployed_version);

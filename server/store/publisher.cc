@@ -262,7 +262,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
   info.frame_names = origin.frame_names;
   info.metrics = metrics;
   if (replicated_) return PublishReplicatedLocked(state, info, *fence);
-  absl::StatusOr<VersionInfo> written = versions_->Write(*state.model, state.memory, info, state.optimizer.get());
+  absl::StatusOr<VersionInfo> written = versions_->Write(*state.model, state.memory, info);
   if (!written.ok()) {
     // Nothing was left behind; the caller may publish the same state again
     // once Retry() succeeds.
@@ -284,6 +284,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
   }
   CrashPoint("publish:manifest-written");
   manifest_ = m;
+  StoreOptimizerLocked(state, info.version);
   PruneLocked();
   return *written;
 }
@@ -291,8 +292,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
 absl::StatusOr<VersionInfo> Publisher::PublishReplicatedLocked(const ContinualState& state, const VersionInfo& info,
                                                                const PlaceHead& fence) {
   versions_->RemoveStaged(info.version, replica_tag_);  // A leftover of this process's earlier attempt.
-  absl::StatusOr<VersionInfo> written = versions_->WriteStaged(*state.model, state.memory, info, replica_tag_,
-                                                                  state.optimizer.get());
+  absl::StatusOr<VersionInfo> written = versions_->WriteStaged(*state.model, state.memory, info, replica_tag_);
   if (!written.ok()) {
     SetErrorLocked(written.status());
     return written.status();
@@ -324,8 +324,17 @@ absl::StatusOr<VersionInfo> Publisher::PublishReplicatedLocked(const ContinualSt
   } else {
     spdlog::warn("version {} is published; the manifest copy was not updated: {}", info.version, s.ToString());
   }
+  StoreOptimizerLocked(state, info.version);
   PruneLocked();
   return *written;
+}
+
+void Publisher::StoreOptimizerLocked(const ContinualState& state, int64_t version) {
+  if (state.optimizer == nullptr) return;
+  if (absl::Status s = versions_->WriteOptimizer(version, *state.optimizer); !s.ok()) {
+    spdlog::warn("version {} is published; its optimiser state was not stored (the next update starts a fresh "
+                 "one): {}", version, s.ToString());
+  }
 }
 
 absl::Status Publisher::FinishCommittedLocked(const PlaceHead& head) {

@@ -130,6 +130,9 @@ class Publisher {
   // Promotes the staged directory `head` was committed from, if version
   // head.version is not on disk yet. Caller holds mu_.
   absl::Status FinishCommittedLocked(const PlaceHead& head);
+  // After a publish: `state`'s optimiser (if it carries one) becomes the
+  // place's, tagged with `version` (a failure only costs the next resume).
+  void StoreOptimizerLocked(const ContinualState& state, int64_t version);
   absl::StatusOr<VersionInfo> PublishReplicatedLocked(const ContinualState& state, const VersionInfo& info,
                                                       const PlaceHead& fence);
   absl::Status RetryLocked();

@@ -6,6 +6,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "core/io/byte_io.h"
 #include "core/io/checkpoint.h"
 #include "core/io/durable_file.h"
 #include "nlohmann/json.hpp"
@@ -18,14 +19,16 @@ namespace {
 
 constexpr char kMemorySection[] = "replay_memory";
 constexpr char kOptimizerFile[] = "optimizer.bin";
+constexpr char kOptimizerMagic[] = "CLNOPT01";  // 8 bytes, then the version (i64) it belongs to.
 
-// version.json: "file_bytes" (the checkpoint on disk) and "model_bytes" (the
-// parameters) are reported as by `clnerf train --json`; "size_bytes" repeats
+// version.json: "file_bytes" (the checkpoint on disk), "model_bytes" (the
+// parameters) and "replay_bytes" (the replay memory as stored) are reported as by `clnerf train --json`; "size_bytes" repeats
 // file_bytes for readers of the original layout.
 nlohmann::json InfoToJson(const VersionInfo& v) {
   return {{"version", v.version},       {"parent", v.parent},
           {"time_steps", v.time_steps}, {"size_bytes", v.size_bytes},
-          {"file_bytes", v.size_bytes}, {"model_bytes", v.model_bytes}, {"memory_bytes", v.memory_bytes},
+          {"file_bytes", v.size_bytes}, {"model_bytes", v.model_bytes}, {"replay_bytes", v.replay_bytes},
+          {"memory_bytes", v.memory_bytes},
           {"created_unix_ms", v.created_unix_ms}, {"scan_id", v.scan_id},
           {"job_id", v.job_id},         {"scan_name", v.scan_name},
           {"metrics", v.metrics},       {"frame_names", v.frame_names}};
@@ -40,6 +43,7 @@ absl::StatusOr<VersionInfo> InfoFromJson(const std::string& text, const std::str
     v.time_steps = j.at("time_steps");
     v.size_bytes = j.at("size_bytes");
     v.model_bytes = j.value("model_bytes", int64_t(0));  // Absent in older stores.
+    v.replay_bytes = j.value("replay_bytes", int64_t(0));
     v.memory_bytes = j.value("memory_bytes", int64_t(0));
     v.created_unix_ms = j.at("created_unix_ms");
     v.scan_id = j.at("scan_id");
@@ -69,8 +73,8 @@ std::string VersionStore::VersionDir(int64_t v) const {
 }
 
 absl::StatusOr<VersionInfo> VersionStore::Write(const NgpModel& model, const ReplayMemory& memory,
-                                                VersionInfo info, const OptimizerState* optimizer) {
-  return WriteInto(VersionDir(info.version), model, memory, optimizer, std::move(info));
+                                                VersionInfo info) {
+  return WriteInto(VersionDir(info.version), model, memory, std::move(info));
 }
 
 namespace {
@@ -80,10 +84,9 @@ std::string StagedName(int64_t version, const std::string& tag) {
 }  // namespace
 
 absl::StatusOr<VersionInfo> VersionStore::WriteStaged(const NgpModel& model, const ReplayMemory& memory,
-                                                      VersionInfo info, const std::string& tag,
-                                                      const OptimizerState* optimizer) {
+                                                      VersionInfo info, const std::string& tag) {
   const std::string dir = (fs::path(dir_) / StagedName(info.version, tag)).string();
-  return WriteInto(dir, model, memory, optimizer, std::move(info));
+  return WriteInto(dir, model, memory, std::move(info));
 }
 
 absl::Status VersionStore::PromoteStaged(int64_t version, const std::string& tag) {
@@ -113,21 +116,20 @@ std::vector<std::string> VersionStore::StagedTags(int64_t version) const {
 }
 
 absl::StatusOr<VersionInfo> VersionStore::WriteInto(const std::string& dir, const NgpModel& model,
-                                                    const ReplayMemory& memory, const OptimizerState* optimizer,
-                                                    VersionInfo info) {
+                                                    const ReplayMemory& memory, VersionInfo info) {
   CheckpointExtras extras;
   extras.metadata["version"] = absl::StrCat(info.version);
   extras.metadata["parent"] = absl::StrCat(info.parent);
-  extras.sections.emplace_back(kMemorySection, memory.Serialize());
+  std::string replay = memory.Serialize();
+  info.replay_bytes = int64_t(replay.size());
+  extras.sections.emplace_back(kMemorySection, std::move(replay));
   absl::StatusOr<std::string> bytes = SerializeCheckpoint(model, extras);
   if (!bytes.ok()) return bytes.status();
   info.size_bytes = int64_t(bytes->size());
   info.model_bytes = int64_t(model.num_bytes());
   info.memory_bytes = int64_t(model.resident_bytes());
   const std::string json = InfoToJson(info).dump(1);
-  const std::string optimizer_bytes = optimizer != nullptr ? optimizer->Serialize() : std::string();
   std::vector<std::pair<std::string, std::string_view>> files = {{"model.ckpt", *bytes}, {"version.json", json}};
-  if (optimizer != nullptr) files.emplace_back(kOptimizerFile, optimizer_bytes);
   absl::Status s = WriteDirectoryAtomically(dir, files);
   if (!s.ok()) return absl::Status(s.code(), absl::StrCat("cannot publish version ", info.version, ": ", s.message()));
   return info;
@@ -166,13 +168,42 @@ absl::StatusOr<LoadedVersion> VersionStore::Load(int64_t version) const {
   return LoadedVersion{*std::move(info), std::move(ck->model), *std::move(memory)};
 }
 
-absl::StatusOr<std::shared_ptr<const OptimizerState>> VersionStore::LoadOptimizer(int64_t version) const {
-  const std::string path = VersionDir(version) + "/" + kOptimizerFile;
+absl::Status VersionStore::WriteOptimizer(int64_t version, const OptimizerState& state) {
+  std::string bytes(kOptimizerMagic, 8);
+  ByteWriter w(&bytes);
+  w.Put(int64_t(version));
+  bytes += state.Serialize();
+  if (absl::Status s = AtomicWriteFile((fs::path(root_) / kOptimizerFile).string(), bytes); !s.ok()) return s;
+  // Stores written before the state moved out of the versions held one per
+  // version: only this one is ever read again.
   std::error_code ec;
-  if (!fs::exists(path, ec)) return std::shared_ptr<const OptimizerState>();
+  for (const auto& e : fs::directory_iterator(dir_, ec)) fs::remove(e.path() / kOptimizerFile, ec);
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::shared_ptr<const OptimizerState>> VersionStore::LoadOptimizer(int64_t version) const {
+  std::error_code ec;
+  std::string path = (fs::path(root_) / kOptimizerFile).string();
+  bool tagged = true;
+  if (!fs::exists(path, ec)) {  // A store written by an older build: the state inside the version.
+    path = VersionDir(version) + "/" + kOptimizerFile;
+    tagged = false;
+    if (!fs::exists(path, ec)) return std::shared_ptr<const OptimizerState>();
+  }
   absl::StatusOr<std::string> bytes = ReadFileToString(path, "optimizer state");
   if (!bytes.ok()) return bytes.status();
-  absl::StatusOr<OptimizerState> s = OptimizerState::Deserialize(*bytes);
+  std::string_view payload = *bytes;
+  if (tagged) {
+    ByteReader r(payload);
+    std::string_view magic;
+    int64_t of = 0;
+    if (!r.Bytes(8, &magic) || magic != std::string_view(kOptimizerMagic, 8) || !r.Get(&of)) {
+      return absl::DataLossError("the place's optimizer state is corrupt (bad header)");
+    }
+    if (of != version) return std::shared_ptr<const OptimizerState>();  // Another version's (e.g. after a rollback).
+    payload.remove_prefix(16);
+  }
+  absl::StatusOr<OptimizerState> s = OptimizerState::Deserialize(std::string(payload));
   if (!s.ok()) return absl::DataLossError(absl::StrCat("version ", version, ": ", s.status().message()));
   return std::make_shared<const OptimizerState>(*std::move(s));
 }

@@ -2,10 +2,16 @@
 //
 //   <store>/versions/<000007>/model.ckpt   θ (checkpoint) + replay memory M
 //   <store>/versions/<000007>/version.json metadata (parent, metrics, ...)
-//   <store>/versions/<000007>/optimizer.bin θ's Adam state (optional: only
-//                                          with UpdateOptions::carry_optimizer;
-//                                          read by the next update, never
-//                                          by serving)
+//   <store>/optimizer.bin                  the Adam state of the newest
+//                                          published version's training
+//                                          (with UpdateOptions::carry_optimizer),
+//                                          tagged with that version: one per
+//                                          place, not one per version, since
+//                                          an update only ever starts from the
+//                                          deployed version. After a rollback
+//                                          the tag differs and the next update
+//                                          starts a fresh optimiser. Never read
+//                                          by serving.
 //   <store>/manifest.json                  deployed version and id counters
 //
 // A version is written into versions/.tmp-<n>/ (files fsync'd), renamed to
@@ -38,6 +44,7 @@ struct VersionInfo {
   int time_steps = 0;
   int64_t size_bytes = 0;   // Checkpoint size on disk (file bytes).
   int64_t model_bytes = 0;  // The model's parameter bytes (NgpModel::num_bytes()).
+  int64_t replay_bytes = 0; // The replay memory as stored (cameras + 8-bit PNG buffer; 0 = not recorded).
   int64_t memory_bytes = 0; // What it holds in memory once loaded (NgpModel::resident_bytes(); 0 = not recorded).
   int64_t created_unix_ms = 0;
   std::string scan_id;  // The scan this version was trained on.
@@ -75,20 +82,22 @@ class VersionStore {
   // replicas may be writing into the same store right now).
   static absl::StatusOr<std::unique_ptr<VersionStore>> Open(const std::string& root, bool clean_temps = true);
 
-  // Writes version `info.version` durably; fills info.size_bytes and
-  // info.model_bytes.
-  // `optimizer` (optional) is stored beside the model as optimizer.bin.
-  absl::StatusOr<VersionInfo> Write(const NgpModel& model, const ReplayMemory& memory, VersionInfo info,
-                                    const OptimizerState* optimizer = nullptr);
+  // Writes version `info.version` durably; fills info.size_bytes,
+  // info.model_bytes and info.replay_bytes.
+  absl::StatusOr<VersionInfo> Write(const NgpModel& model, const ReplayMemory& memory, VersionInfo info);
   // Write()'s bytes into `dir`.
   absl::StatusOr<VersionInfo> WriteInto(const std::string& dir, const NgpModel& model, const ReplayMemory& memory,
-                                        const OptimizerState* optimizer,
                                         VersionInfo info);
+  // Replaces the place's optimiser state with `state`, the training state of
+  // version `version` (atomically), and removes the per-version copies older
+  // builds kept.
+  absl::Status WriteOptimizer(int64_t version, const OptimizerState& state);
   // NOT_FOUND for a version that does not exist.
   absl::StatusOr<LoadedVersion> Load(int64_t version) const;
-  // The optimiser state stored with `version`; null when it has none (a
-  // version written without carry_optimizer, or by an older build).
-  // DATA_LOSS when the file is corrupt.
+  // The optimiser state of `version`'s training; null when the place's state
+  // belongs to another version (a rollback, a crash before it was written),
+  // or there is none (carry_optimizer off). Reads the per-version file of
+  // stores written by older builds. DATA_LOSS when the file is corrupt.
   absl::StatusOr<std::shared_ptr<const OptimizerState>> LoadOptimizer(int64_t version) const;
   absl::StatusOr<VersionInfo> Info(int64_t version) const;
   // All versions, ascending. A version whose version.json cannot be read is
@@ -103,7 +112,7 @@ class VersionStore {
   // hidden directory versions/.staged-N-TAG, which List and Load ignore until
   // PromoteStaged renames it to versions/N once the publish is committed.
   absl::StatusOr<VersionInfo> WriteStaged(const NgpModel& model, const ReplayMemory& memory, VersionInfo info,
-                                          const std::string& tag, const OptimizerState* optimizer = nullptr);
+                                          const std::string& tag);
   // ALREADY_EXISTS if versions/N exists; NOT_FOUND if the staged one does not.
   absl::Status PromoteStaged(int64_t version, const std::string& tag);
   void RemoveStaged(int64_t version, const std::string& tag);

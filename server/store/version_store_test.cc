@@ -1,6 +1,8 @@
 #include "server/store/version_store.h"
 
+#include <cstdio>
 #include <filesystem>
+#include <random>
 
 #include "core/io/durable_file.h"
 #include "gtest/gtest.h"
@@ -46,6 +48,39 @@ TEST(VersionStoreTest, AMemoryThatDoesNotMatchItsModelIsDataLoss) {
   auto loaded = (*store)->Load(1);
   EXPECT_EQ(loaded.status().code(), absl::StatusCode::kDataLoss) << loaded.status();
   EXPECT_NE(loaded.status().message().find("does not match its model"), std::string::npos) << loaded.status();
+}
+
+// Model no more than a scene needs, on disk too: a version with a full
+// replay buffer of photos is stored within 1.25x its model plus its buffer
+// as stored (8-bit PNGs), and reports both.
+TEST(VersionStoreTest, AVersionIsStoredWithinAQuarterOverItsModelAndBuffer) {
+  const std::string root = testing_util::TempDir("versions_size");
+  auto store = VersionStore::Open(root);
+  ASSERT_TRUE(store.ok());
+  const NgpModel model = TinyModel(1);
+  const Scene scans = testing_util::TinyScans(1, 48, 12, 1);
+  ReplayMemory memory(10);
+  std::mt19937_64 rng(1);
+  for (const View& v : scans.train) {
+    Camera c = v.camera;
+    c.time_step = 1;
+    memory.OfferReservoir(memory.AddCamera(c), v.image, Mask(), &rng);
+  }
+  ASSERT_EQ(memory.buffer().size(), 10u);
+  VersionInfo info;
+  info.version = 1;
+  info.time_steps = 2;
+  absl::StatusOr<VersionInfo> written = (*store)->Write(model, memory, info);
+  ASSERT_TRUE(written.ok()) << written.status();
+  EXPECT_GT(written->replay_bytes, 0);
+  EXPECT_LT(written->replay_bytes, int64_t(memory.buffer_bytes() / 4));  // Float pixels in memory, 8-bit stored.
+  EXPECT_LE(double(written->size_bytes), 1.25 * double(written->model_bytes + written->replay_bytes));
+  std::printf("version: %lld bytes stored, model %lld + replay %lld (buffer %zu bytes in memory)\n",
+              (long long)written->size_bytes, (long long)written->model_bytes, (long long)written->replay_bytes,
+              memory.buffer_bytes());
+  absl::StatusOr<VersionInfo> listed = (*store)->Info(1);
+  ASSERT_TRUE(listed.ok());
+  EXPECT_EQ(listed->replay_bytes, written->replay_bytes);
 }
 
 TEST(VersionStoreTest, WriteLoadListAndManifest) {
