@@ -2,6 +2,9 @@
 
 #include <fstream>
 #include <sstream>
+#include <string_view>
+#include <thread>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "grpcpp/ext/proto_server_reflection_plugin.h"
@@ -9,6 +12,7 @@
 #include "grpcpp/resource_quota.h"
 #include "grpcpp/security/server_credentials.h"
 #include "grpcpp/server_builder.h"
+#include "grpcpp/support/server_interceptor.h"
 #include "server/frontends/http_server.h"
 #include "spdlog/spdlog.h"
 
@@ -23,6 +27,31 @@ absl::StatusOr<std::string> ReadPem(const std::string& path) {
   ss << in.rdbuf();
   return ss.str();
 }
+
+// Counts the ClnerfService calls in flight: one interceptor lives exactly as
+// long as its call.
+class CallCounter final : public grpc::experimental::Interceptor {
+ public:
+  explicit CallCounter(std::shared_ptr<std::atomic<int>> n) : n_(std::move(n)) { n_->fetch_add(1); }
+  ~CallCounter() override { n_->fetch_sub(1); }
+  void Intercept(grpc::experimental::InterceptorBatchMethods* methods) override { methods->Proceed(); }
+
+ private:
+  const std::shared_ptr<std::atomic<int>> n_;
+};
+
+class CallCounterFactory final : public grpc::experimental::ServerInterceptorFactoryInterface {
+ public:
+  explicit CallCounterFactory(std::shared_ptr<std::atomic<int>> n) : n_(std::move(n)) {}
+  grpc::experimental::Interceptor* CreateServerInterceptor(grpc::experimental::ServerRpcInfo* info) override {
+    const std::string_view method = info->method() != nullptr ? info->method() : "";
+    if (method.rfind("/clnerf.v1.", 0) != 0) return nullptr;  // Health, reflection: long streams, not work.
+    return new CallCounter(n_);
+  }
+
+ private:
+  const std::shared_ptr<std::atomic<int>> n_;
+};
 
 }  // namespace
 
@@ -54,6 +83,9 @@ absl::StatusOr<std::unique_ptr<GrpcServer>> GrpcServer::Start(const ServerOption
   grpc::ResourceQuota quota("clnerf-server");
   quota.SetMaxThreads(options.grpc_threads);
   builder.SetResourceQuota(quota);
+  std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> interceptors;
+  interceptors.push_back(std::make_unique<CallCounterFactory>(srv->in_flight_));
+  builder.experimental().SetInterceptorCreators(std::move(interceptors));
   srv->server_ = builder.BuildAndStart();
   if (!srv->server_ || srv->port_ == 0) {
     return absl::UnavailableError(absl::StrCat("cannot listen on ", options.listen, " (address in use or invalid?)"));
@@ -86,9 +118,14 @@ bool GrpcServer::Shutdown() {
     // Stop training first so long WatchJob streams and the worker end
     // promptly; new uploads and renders are refused (UNAVAILABLE).
     clean_ = places_->Shutdown();
-    const auto deadline = std::chrono::system_clock::now() +
-                          std::chrono::milliseconds(int64_t(places_->options().shutdown_grace_seconds * 1000));
-    server_->Shutdown(deadline);
+    // In-flight calls get the grace; then (or once none is left) the server
+    // stops at once, without waiting on idle client channels.
+    const auto grace_end = std::chrono::steady_clock::now() +
+                           std::chrono::milliseconds(int64_t(places_->options().shutdown_grace_seconds * 1000));
+    while (in_flight_->load() > 0 && std::chrono::steady_clock::now() < grace_end) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(10));
+    }
+    server_->Shutdown(std::chrono::system_clock::now());
     spdlog::info(clean_ ? "shutdown complete" : "shutdown incomplete: the update worker is still running");
   });
   return clean_;

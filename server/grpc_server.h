@@ -7,13 +7,18 @@
 //
 // Shutdown: health goes NOT_SERVING, new calls get UNAVAILABLE, in-flight
 // calls get `shutdown_grace_seconds` to finish, then the update worker is
-// cancelled (its scan stays stored and is retrained on the next start).
+// cancelled (its scan stays stored and is retrained on the next start). The
+// server stops as soon as no ClnerfService call is in flight (counted by an
+// interceptor), not at the end of the grace: gRPC's own Shutdown(deadline)
+// also waited for idle client channels to answer its GOAWAY ping, 5 s each
+// time a client held one.
 //
 // Thread-safety: Start/Shutdown/Wait from one controlling thread;
 // Shutdown() may also be called from another thread while Wait() blocks.
 #ifndef CLNERF_SERVER_GRPC_SERVER_H_
 #define CLNERF_SERVER_GRPC_SERVER_H_
 
+#include <atomic>
 #include <memory>
 #include <mutex>
 
@@ -52,6 +57,8 @@ class GrpcServer {
   std::unique_ptr<HttpServer> http_;  // Destroyed before places_.
   int port_ = 0;
   std::once_flag shutdown_once_;
+  // ClnerfService calls in flight (health and reflection streams not counted).
+  std::shared_ptr<std::atomic<int>> in_flight_ = std::make_shared<std::atomic<int>>(0);
 };
 
 }  // namespace clnerf

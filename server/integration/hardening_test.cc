@@ -311,6 +311,28 @@ TEST_F(ServerFixture, AJobCrashedAtAnyPublishStepIsKnownAfterRestart) {
   }
 }
 
+// SIGTERM while a client holds an idle gRPC channel (one call made, then
+// nothing: its process does not poll the channel, so it never answers the
+// server's GOAWAY ping) exits promptly: it took 5.0 s on the old code, 0.03 s
+// without the channel.
+TEST_F(ServerFixture, SigtermWithAnIdleClientChannelExitsPromptly) {
+  const std::string store = TempDir("srv_idle_channel");
+  const std::string log = store + ".log";
+  ServerProcess proc("", absl::StrFormat("--store %s --listen 127.0.0.1:0", store), log);
+  ASSERT_GT(proc.port(), 0) << "the server did not start; see " << log;
+  auto stub = proc.Stub();
+  grpc::ClientContext ctx;
+  v1::GetServerInfoRequest req;
+  v1::ServerInfo info;
+  ASSERT_TRUE(stub->GetServerInfo(&ctx, req, &info).ok());
+  const auto t0 = std::chrono::steady_clock::now();
+  ASSERT_EQ(kill(proc.pid(), SIGTERM), 0);
+  const int status = proc.Wait();
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0) << status;
+  EXPECT_LT(seconds, 2.0) << "see " << log;
+}
+
 // Issue 21: with --log-format json a client could make the server print
 // lines that are not JSON: libpng's "IDAT: incorrect data check" for a PNG
 // whose compressed data is damaged, and a "[libprotobuf ERROR ...]" line for a
