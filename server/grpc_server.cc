@@ -98,8 +98,11 @@ absl::StatusOr<std::unique_ptr<GrpcServer>> GrpcServer::Start(const ServerOption
   spdlog::info("clnerf-server listening on port {} (store {}, auth {}, tls {})", srv->port_, options.store_dir,
                options.token.empty() ? "off" : "on", options.tls_cert.empty() ? "off" : "on");
   if (!options.http_listen.empty()) {
-    absl::StatusOr<std::unique_ptr<HttpServer>> http = HttpServer::Start(options.http_listen, srv->places_.get(),
-                                                                         options.token, options.http_allowed_hosts);
+    HttpGuardOptions door;
+    door.max_head_bytes = size_t(options.http_max_head_bytes);
+    door.head_timeout_seconds = options.http_head_timeout_seconds;
+    absl::StatusOr<std::unique_ptr<HttpServer>> http = HttpServer::Start(
+        options.http_listen, srv->places_.get(), options.token, options.http_allowed_hosts, door);
     if (!http.ok()) return http.status();
     srv->http_ = *std::move(http);
   }

@@ -50,6 +50,12 @@ int main(int argc, char** argv) {
                  "HOST:PORT for the web viewer and its JSON API (port 0 = any free port; default off)");
   app.add_option("--http-allowed-host", o.http_allowed_hosts,
                  "A name the HTTP front end answers to besides IP addresses and localhost (repeatable; '*' = any)");
+  app.add_option("--http-head-timeout", o.http_head_timeout_seconds,
+                 "Seconds a client has from connecting to the end of its request's headers (beyond: 408)")
+      ->capture_default_str();
+  app.add_option("--http-max-head-bytes", o.http_max_head_bytes,
+                 "Largest request line + headers accepted (beyond: 431)")
+      ->capture_default_str();
   app.add_option("--store", o.store_dir, "Store directory (scans, versions, manifest)")->capture_default_str();
   app.add_option("--token", o.token, "Bearer token required for mutating calls (default: $CLNERF_TOKEN; empty = no auth)");
   app.add_option("--config", config, "JSON config file (keys: docs/service.md > Operation, server/server_options.h); flags override it");

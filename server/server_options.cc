@@ -37,6 +37,8 @@ absl::Status ServerOptions::Validate() const {
   if (listen.empty() || listen.find(':') == std::string::npos) {
     return absl::InvalidArgumentError(absl::StrCat("listen address '", listen, "' is not HOST:PORT"));
   }
+  if (http_max_head_bytes < 1024) return absl::InvalidArgumentError("http_max_head_bytes must be at least 1024");
+  if (!(http_head_timeout_seconds > 0)) return absl::InvalidArgumentError("http_head_timeout_seconds must be > 0");
   if (!http_listen.empty() && http_listen.find(':') == std::string::npos) {
     return absl::InvalidArgumentError(absl::StrCat("http address '", http_listen, "' is not HOST:PORT"));
   }
@@ -173,6 +175,8 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     if (k == "listen") s = Get(*it, "listen", &o->listen);
     else if (k == "http") s = Get(*it, "http", &o->http_listen);
     else if (k == "http_allowed_hosts") s = Get(*it, "http_allowed_hosts", &o->http_allowed_hosts);
+    else if (k == "http_max_head_bytes") s = Get(*it, "http_max_head_bytes", &o->http_max_head_bytes);
+    else if (k == "http_head_timeout_seconds") s = Get(*it, "http_head_timeout_seconds", &o->http_head_timeout_seconds);
     else if (k == "store") s = Get(*it, "store", &o->store_dir);
     else if (k == "token") s = Get(*it, "token", &o->token);
     else if (k == "tls_cert") s = Get(*it, "tls_cert", &o->tls_cert);

@@ -38,6 +38,11 @@ struct ServerOptions {
   // (the Host header; guards against DNS rebinding, http_origin_guard.h),
   // e.g. "nerf.example.org"; "*" = any name.
   std::vector<std::string> http_allowed_hosts;
+  // The HTTP port's limits on a request's head (request line + headers;
+  // frontends/http_connection_guard.h): its bytes (beyond: 431) and the time
+  // from connecting to its end (beyond: 408).
+  int http_max_head_bytes = 32 * 1024;
+  double http_head_timeout_seconds = 10;
   std::string store_dir = "clnerf-store";
   std::string token;     // Bearer token for mutating calls ("" = no auth).
   std::string tls_cert;  // PEM certificate chain; with tls_key enables TLS.

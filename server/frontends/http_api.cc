@@ -333,11 +333,13 @@ void HttpApi::Register(httplib::Server* server) {
     if (!r.ok()) return SendError(res, r.status());
     const ViewSessions::Ticket ticket = views_.Begin(r->view_id);
     const auto deadline = std::chrono::steady_clock::now() + std::chrono::milliseconds(r->timeout_ms);
+    auto client_left = [&] { return client_gone_ && client_gone_(req.remote_port); };
     auto stop = [&] {
       return ticket.superseded() || stopping_.load() || host->shutting_down() ||
-             std::chrono::steady_clock::now() >= deadline;
+             std::chrono::steady_clock::now() >= deadline || client_left();
     };
     auto why = [&]() -> absl::Status {
+      if (client_left()) return absl::CancelledError("the client went away");
       if (ticket.superseded()) {
         return absl::CancelledError(absl::StrCat("superseded by a newer render of view '", r->view_id, "'"));
       }

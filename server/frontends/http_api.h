@@ -38,6 +38,7 @@
 #define CLNERF_SERVER_HTTP_API_H_
 
 #include <atomic>
+#include <functional>
 #include <string>
 
 #include "absl/status/status.h"
@@ -62,11 +63,16 @@ class HttpApi {
   void Register(httplib::Server* server);
   // Makes renders in flight stop (server shutdown).
   void Stop() { stopping_.store(true); }
+  // Tells renders whether their client left (by the request's remote port,
+  // HttpConnectionGuard::ClientGone); such a render stops and frees its
+  // slot. Set before serving.
+  void SetClientGone(std::function<bool(int remote_port)> gone) { client_gone_ = std::move(gone); }
 
  private:
   Places* const places_;
   const std::string token_;
   ViewSessions views_;
+  std::function<bool(int)> client_gone_;
   std::atomic<bool> stopping_{false};
 };
 

@@ -55,7 +55,8 @@ void SendJsonError(httplib::Response& res, int status, const std::string& code, 
 
 absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string& listen, Places* places,
                                                               const std::string& token,
-                                                              const std::vector<std::string>& allowed_hosts) {
+                                                              const std::vector<std::string>& allowed_hosts,
+                                                              const HttpGuardOptions& door) {
   const size_t colon = listen.rfind(':');
   int port = -1;
   if (colon == std::string::npos || !absl::SimpleAtoi(listen.substr(colon + 1), &port) || port < 0 || port > 65535) {
@@ -156,15 +157,20 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string&
     spdlog::debug("http {} {} -> {}", req.method, EscapeForLog(req.path, 128), res.status);
   });
 
-  if (port == 0) {
-    port = srv.bind_to_any_port(bind_host);
-  } else if (!srv.bind_to_port(bind_host, port)) {
-    port = -1;
-  }
-  if (port <= 0) {
+  // One request per connection, so that every request passes the door
+  // (http_connection_guard.h) that stands on the public port.
+  srv.set_keep_alive_max_count(1);
+  const int backend = srv.bind_to_any_port("127.0.0.1");
+  if (backend <= 0) return absl::UnavailableError("cannot listen for HTTP on a loopback port");
+  absl::StatusOr<std::unique_ptr<HttpConnectionGuard>> guard =
+      HttpConnectionGuard::Start(bind_host, port, backend, door);
+  if (!guard.ok()) {
     return absl::UnavailableError(absl::StrCat("cannot listen for HTTP on ", EscapeForLog(listen, 64),
                                                " (address in use or not available)"));
   }
+  s->guard_ = *std::move(guard);
+  s->api_->SetClientGone([g = s->guard_.get()](int port) { return g->ClientGone(port); });
+  port = s->guard_->port();
   s->port_ = port;
   s->thread_ = std::thread([srv = s->server_.get()] { srv->listen_after_bind(); });
   // Stop() is only safe once the loop runs (httplib ignores an earlier stop).
@@ -178,6 +184,7 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string&
 
 void HttpServer::Stop() {
   if (!server_) return;
+  if (guard_) guard_->Stop();  // No new requests; heads still arriving and requests in flight closed.
   api_->Stop();
   server_->stop();
   if (thread_.joinable()) thread_.join();

@@ -23,6 +23,7 @@
 
 #include "absl/status/statusor.h"
 #include "server/frontends/http_api.h"
+#include "server/frontends/http_connection_guard.h"
 #include "server/places/model_host.h"
 
 namespace httplib {
@@ -35,10 +36,12 @@ class HttpServer {
  public:
   // Binds `listen` ("HOST:PORT"; port 0 = any free port) and starts serving.
   // `allowed_hosts`: names it answers to besides IP addresses and localhost
-  // (http_origin_guard.h).
+  // (http_origin_guard.h). `door`: the limits on request heads
+  // (http_connection_guard.h).
   static absl::StatusOr<std::unique_ptr<HttpServer>> Start(const std::string& listen, Places* places,
                                                            const std::string& token,
-                                                           const std::vector<std::string>& allowed_hosts = {});
+                                                           const std::vector<std::string>& allowed_hosts = {},
+                                                           const HttpGuardOptions& door = {});
   ~HttpServer();
   HttpServer(const HttpServer&) = delete;
   HttpServer& operator=(const HttpServer&) = delete;
@@ -52,6 +55,9 @@ class HttpServer {
   std::unique_ptr<httplib::Server> server_;
   std::unique_ptr<HttpApi> api_;
   std::thread thread_;
+  // The public port's door (limits on request heads); httplib listens on
+  // loopback behind it.
+  std::unique_ptr<HttpConnectionGuard> guard_;
   int port_ = 0;
 };
 
