@@ -39,6 +39,7 @@
 
 #include <atomic>
 #include <functional>
+#include <optional>
 #include <string>
 
 #include "absl/status/status.h"
@@ -63,6 +64,10 @@ class HttpApi {
   void Register(httplib::Server* server);
   // Makes renders in flight stop (server shutdown).
   void Stop() { stopping_.store(true); }
+  // The health probes, answered without a worker of the HTTP library (the
+  // door calls it: HttpGuardOptions::answer): a complete HTTP response for
+  // GET /healthz and GET /readyz, nothing for anything else. Thread-safe.
+  std::optional<std::string> AnswerProbe(const std::string& method, const std::string& target) const;
   // Tells renders whether their client left (by the request's remote port,
   // HttpConnectionGuard::ClientGone); such a render stops and frees its
   // slot. Set before serving.
@@ -71,6 +76,7 @@ class HttpApi {
  private:
   Places* const places_;
   const std::string token_;
+  bool Ready() const;
   ViewSessions views_;
   std::function<bool(int)> client_gone_;
   std::atomic<bool> stopping_{false};

@@ -179,7 +179,7 @@ void HttpConnectionGuard::DoorLoop() {
       if (gone) {
         close(fd);
       } else if (done && w.bytes.find("\r\n\r\n") + 4 <= options_.max_head_bytes) {
-        Hand(fd, std::move(w.bytes));
+        if (!AnswerAtTheDoor(fd, w.bytes)) Hand(fd, std::move(w.bytes));
       } else if (w.bytes.size() > options_.max_head_bytes) {
         Refuse(fd, 431, "Request Header Fields Too Large",
                absl::StrCat("the request line and headers exceed ", options_.max_head_bytes, " bytes"));
@@ -192,6 +192,22 @@ void HttpConnectionGuard::DoorLoop() {
     }
   }
   for (const auto& [fd, w] : waiting) close(fd);
+}
+
+bool HttpConnectionGuard::AnswerAtTheDoor(int fd, const std::string& head) {
+  if (!options_.answer) return false;
+  const size_t sp1 = head.find(' ');
+  const size_t sp2 = sp1 == std::string::npos ? sp1 : head.find(' ', sp1 + 1);
+  const size_t eol = head.find("\r\n");
+  if (sp2 == std::string::npos || sp2 > eol) return false;
+  std::optional<std::string> reply = options_.answer(head.substr(0, sp1), head.substr(sp1 + 1, sp2 - sp1 - 1));
+  if (!reply) return false;
+  SetNonBlocking(fd, false);
+  timeval tv{1, 0};  // A probe's reply is small; never let a stuck reader hold the door.
+  setsockopt(fd, SOL_SOCKET, SO_SNDTIMEO, &tv, sizeof(tv));
+  (void)SendAll(fd, reply->data(), reply->size());
+  close(fd);
+  return true;
 }
 
 void HttpConnectionGuard::Hand(int fd, std::string head) {

@@ -25,7 +25,9 @@
 
 #include <atomic>
 #include <condition_variable>
+#include <functional>
 #include <memory>
+#include <optional>
 #include <mutex>
 #include <set>
 #include <string>
@@ -40,6 +42,11 @@ struct HttpGuardOptions {
   double head_timeout_seconds = 10;    // From accept to the end of the head.
   int max_waiting = 512;               // Connections still sending their head.
   int max_active = 128;                // Requests being served (spliced).
+  // Requests the door answers itself, without a worker of the HTTP library
+  // (health probes must answer while every worker waits for a render slot):
+  // given the request line's method and target, a complete HTTP response,
+  // or nothing to pass the request on. Must be fast and thread-safe.
+  std::function<std::optional<std::string>(const std::string& method, const std::string& target)> answer;
   absl::Status Validate() const;
 };
 
@@ -66,6 +73,8 @@ class HttpConnectionGuard {
  private:
   HttpConnectionGuard(const HttpGuardOptions& o, int listen_fd, int port, int backend_port);
   void DoorLoop();
+  // Answers a complete head itself when options_.answer does; false: pass on.
+  bool AnswerAtTheDoor(int fd, const std::string& head);
   // A complete head (and what followed it) on `fd`: serve it on a thread.
   void Hand(int fd, std::string head);
   void Splice(int client, std::string pending);

@@ -162,8 +162,12 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string&
   srv.set_keep_alive_max_count(1);
   const int backend = srv.bind_to_any_port("127.0.0.1");
   if (backend <= 0) return absl::UnavailableError("cannot listen for HTTP on a loopback port");
+  HttpGuardOptions door_options = door;
+  door_options.answer = [api = s->api_.get()](const std::string& method, const std::string& target) {
+    return api->AnswerProbe(method, target);
+  };
   absl::StatusOr<std::unique_ptr<HttpConnectionGuard>> guard =
-      HttpConnectionGuard::Start(bind_host, port, backend, door);
+      HttpConnectionGuard::Start(bind_host, port, backend, door_options);
   if (!guard.ok()) {
     return absl::UnavailableError(absl::StrCat("cannot listen for HTTP on ", EscapeForLog(listen, 64),
                                                " (address in use or not available)"));

@@ -400,5 +400,42 @@ TEST_F(HttpApiTest, ARenderWhoseClientLeftStopsAndFreesItsSlot) {
   EXPECT_LT(next_s, 1.5 * full_s) << "the abandoned renders kept the slot";
 }
 
+// Health probes answer while every HTTP worker waits for a render slot
+// (before, twelve big renders queued on one slot took /healthz down with
+// them): the door answers them itself.
+TEST_F(HttpApiTest, ProbesAnswerWhileRendersHoldEveryWorker) {
+  ServerOptions o = TinyServerOptions(TempDir("srv_http_probes"));
+  o.render_concurrency = 1;
+  o.render_threads = 1;
+  o.render_pixel_budget = int64_t(512) * 512;
+  o.render_wait_seconds = 30;
+  StartHttp(o);
+  const Scene scene = TinyScans(1);
+  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
+  Camera big = scene.test[0].camera;
+  big.intrinsics = big.intrinsics.Scaled(512, 512);
+  std::vector<std::future<void>> renders;
+  for (int i = 0; i < 12; ++i) {  // More than cpp-httplib's 8 workers; each client leaves after 3 s.
+    renders.push_back(std::async(std::launch::async, [&] {
+      httplib::Client c("127.0.0.1", server_->http_port());
+      c.set_read_timeout(std::chrono::seconds(3));
+      (void)c.Get(RenderPath(big, "&timeout_ms=300000"));
+    }));
+  }
+  std::this_thread::sleep_for(std::chrono::milliseconds(500));
+  for (const char* path : {"/healthz", "/readyz"}) {
+    httplib::Client c("127.0.0.1", server_->http_port());
+    c.set_read_timeout(std::chrono::seconds(2));
+    const auto t0 = std::chrono::steady_clock::now();
+    auto r = c.Get(path);
+    const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    ASSERT_TRUE(r) << path << " did not answer within 2 s";
+    EXPECT_EQ(r->status, 200) << path;
+    EXPECT_LT(s, 1.0) << path;
+    std::printf("%s answered in %.3f s\n", path, s);
+  }
+  for (auto& f : renders) f.get();
+}
+
 }  // namespace
 }  // namespace clnerf
