@@ -210,6 +210,25 @@ void UpdateWorker::Finish(const std::string& job_id, const std::string& scan_id,
 
 const char* UpdateWorker::StoppedWhy() const { return place_deleted_ ? kPlaceDeleted : kKeptForRestart; }
 
+void UpdateWorker::FinishCancelled(const std::string& job_id, const std::string& scan_id) {
+  if (stopping_) {
+    Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
+  } else {
+    Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled by request", true);
+  }
+}
+
+std::function<void(int, int)> UpdateWorker::StepProgress(const std::string& job_id) {
+  return [this, job_id, t0 = std::chrono::steady_clock::now()](int done, int total) {
+    jobs_->Update(job_id, [&](JobStatus* j) {
+      j->iteration = done;
+      j->total_iterations = total;
+      j->elapsed_seconds = SecondsSince(t0);
+      j->eta_seconds = done > 0 ? j->elapsed_seconds * (total - done) / done : 0;
+    });
+  };
+}
+
 bool UpdateWorker::PoseScan(const std::string& job_id, const ScanRecord& scan, const Servable* prev,
                             std::map<std::string, double>* metrics) {
   absl::StatusOr<std::vector<std::string>> photos = scans_->ImageFiles(scan.scan_id);
@@ -256,8 +275,7 @@ bool UpdateWorker::PoseScan(const std::string& job_id, const ScanRecord& scan, c
     r = s;
   }
   if (absl::IsCancelled(r.status())) {
-    Finish(job_id, scan.scan_id, JobPhase::kCancelled, stopping_ ? StoppedWhy() : "cancelled by request",
-           !stopping_);
+    FinishCancelled(job_id, scan.scan_id);
     return false;
   }
   if (absl::IsFailedPrecondition(r.status())) {  // The photos themselves: nothing to keep.
@@ -278,26 +296,13 @@ bool UpdateWorker::PoseScan(const std::string& job_id, const ScanRecord& scan, c
 // Each frame of a scan the service posed aligned photometrically to the
 // place's renders (photometric_refine.h), with progress in the REGISTERING
 // phase. False when the job ended (cancelled); a render error only skips it.
-bool UpdateWorker::AlignToPlace(const std::string& job_id, const std::string& scan_id, const PlaceMap& map, const std::vector<Camera>& place,
-                                const Servable& prev, Scene* scene, std::map<std::string, double>* metrics) {
-  const auto t0 = std::chrono::steady_clock::now();
+bool UpdateWorker::AlignToPlace(const std::string& job_id, const std::string& scan_id, const PlaceMap& map,
+                                double extent, Scene* scene, std::map<std::string, double>* metrics) {
   absl::StatusOr<ScanPhotometricReport> r = RefineScanPhotometric(
-      map, scene, PlaceExtent(place, prev.model().normalization()), options_.registration.photometric_options,
-      [&](int done, int total) {
-        jobs_->Update(job_id, [&](JobStatus* j) {
-          j->iteration = done;
-          j->total_iterations = total;
-          j->elapsed_seconds = SecondsSince(t0);
-          j->eta_seconds = done > 0 ? j->elapsed_seconds * (total - done) / done : 0;
-        });
-      },
+      map, scene, extent, options_.registration.photometric_options, StepProgress(job_id),
       &cancel_);
   if (absl::IsCancelled(r.status())) {
-    if (stopping_) {
-      Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
-    } else {
-      Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled by request", true);
-    }
+    FinishCancelled(job_id, scan_id);
     return false;
   }
   if (!r.ok()) {
@@ -325,24 +330,11 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
   RenderOptions ro;
   ro.threads = options_.train_threads;
   ModelPlaceMap map(prev.model(), ro);
-  const auto t0 = std::chrono::steady_clock::now();
-  RegistrationReport r = RegisterScan(
-      *scene, map, place, PlaceExtent(place, prev.model().normalization()), options_.registration,
-      [&](int done, int total) {
-        jobs_->Update(job_id, [&](JobStatus* j) {
-          j->iteration = done;
-          j->total_iterations = total;
-          j->elapsed_seconds = SecondsSince(t0);
-          j->eta_seconds = done > 0 ? j->elapsed_seconds * (total - done) / done : 0;
-        });
-      },
+  const double extent = PlaceExtent(place, prev.model().normalization());
+  RegistrationReport r = RegisterScan(*scene, map, place, extent, options_.registration, StepProgress(job_id),
       &cancel_);
   if (absl::IsCancelled(r.status)) {
-    if (stopping_) {
-      Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
-    } else {
-      Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled by request", true);
-    }
+    FinishCancelled(job_id, scan_id);
     return false;
   }
   r.AddMetrics(metrics);
@@ -360,7 +352,9 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
       } else {
         spdlog::warn("job {}: camera refinement skipped: {}", job_id, s.ToString());
       }
-      if (options_.registration.photometric && !AlignToPlace(job_id, scan_id, map, place, prev, scene, metrics)) return false;
+      if (options_.registration.photometric && !AlignToPlace(job_id, scan_id, map, extent, scene, metrics)) {
+        return false;
+      }
     }
     spdlog::info("job {}: registered into the place's frame: {}", job_id, r.Summary());
     return true;

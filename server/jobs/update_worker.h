@@ -23,6 +23,7 @@
 #include <atomic>
 #include <chrono>
 #include <condition_variable>
+#include <functional>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -113,9 +114,15 @@ class UpdateWorker {
   // After RegisterIntoPlace placed a scan the service posed: each frame
   // aligned photometrically to `map` (RefineScanPhotometric). False when the
   // job ended (cancelled).
-  bool AlignToPlace(const std::string& job_id, const std::string& scan_id, const PlaceMap& map,
-                    const std::vector<Camera>& place, const Servable& prev, Scene* scene,
-                    std::map<std::string, double>* metrics);
+  // `extent`: the place's size (PlaceExtent).
+  bool AlignToPlace(const std::string& job_id, const std::string& scan_id, const PlaceMap& map, double extent,
+                    Scene* scene, std::map<std::string, double>* metrics);
+  // Ends a job whose step saw its cancel flag: kept for a restart (or gone
+  // with its place) when the server stops, "cancelled by request" otherwise.
+  void FinishCancelled(const std::string& job_id, const std::string& scan_id);
+  // A progress callback for a step counted in (done, total) units: fills
+  // the job's iteration, total, elapsed and ETA from the step's start (now).
+  std::function<void(int, int)> StepProgress(const std::string& job_id);
 
   const ServerOptions options_;
   ScanStore* const scans_;
