@@ -23,24 +23,25 @@ constexpr char kMagic[4] = {'C', 'L', 'R', 'M'};
 constexpr uint32_t kVersion = 2;
 constexpr uint32_t kOldestVersion = 1;
 
+absl::Status Corrupt(const std::string& what) {
+  return absl::DataLossError(absl::StrCat("replay memory is corrupt: ", what));
+}
+
 // One buffered image's pixels: float32 (version 1) or a PNG (version 2) of
 // exactly w x h.
 absl::Status ReadBufferPixels(ByteReader* r, uint32_t version, int32_t w, int32_t h, Image* image) {
-  const auto corrupt = [](const std::string& what) {
-    return absl::DataLossError(absl::StrCat("replay memory is corrupt: ", what));
-  };
   if (version == 1) {
-    if (uint64_t(w) * uint64_t(h) * 12 > r->remaining()) return corrupt("bad buffer image");
+    if (uint64_t(w) * uint64_t(h) * 12 > r->remaining()) return Corrupt("bad buffer image");
     *image = Image(w, h);
-    if (!r->Array(uint64_t(w) * h * 3, &image->rgb)) return corrupt("truncated buffer image");
+    if (!r->Array(uint64_t(w) * h * 3, &image->rgb)) return Corrupt("truncated buffer image");
     return absl::OkStatus();
   }
   uint64_t n = 0;
   std::string_view png;
-  if (!r->Get(&n) || n > r->remaining() || !r->Bytes(size_t(n), &png)) return corrupt("truncated buffer image");
+  if (!r->Get(&n) || n > r->remaining() || !r->Bytes(size_t(n), &png)) return Corrupt("truncated buffer image");
   absl::StatusOr<Image> decoded = DecodeImage(std::string(png), "buffer.png");
-  if (!decoded.ok()) return corrupt(absl::StrCat("buffer image: ", decoded.status().message()));
-  if (decoded->width != w || decoded->height != h) return corrupt("buffer image size does not match");
+  if (!decoded.ok()) return Corrupt(absl::StrCat("buffer image: ", decoded.status().message()));
+  if (decoded->width != w || decoded->height != h) return Corrupt("buffer image size does not match");
   *image = *std::move(decoded);
   return absl::OkStatus();
 }
@@ -163,13 +164,10 @@ std::string ReplayMemory::Serialize() const {
 
 absl::StatusOr<ReplayMemory> ReplayMemory::Deserialize(const std::string& bytes) {
   ByteReader r(bytes);
-  const auto corrupt = [](const std::string& what) {
-    return absl::DataLossError(absl::StrCat("replay memory is corrupt: ", what));
-  };
   std::string_view magic;
   uint32_t version = 0;
-  if (!r.Bytes(4, &magic) || std::memcmp(magic.data(), kMagic, 4) != 0) return corrupt("bad magic");
-  if (!r.Get(&version)) return corrupt("truncated header");
+  if (!r.Bytes(4, &magic) || std::memcmp(magic.data(), kMagic, 4) != 0) return Corrupt("bad magic");
+  if (!r.Get(&version)) return Corrupt("truncated header");
   if (version < kOldestVersion || version > kVersion) {
     return absl::FailedPreconditionError(absl::StrCat("replay memory format version ", version,
                                                       " is not supported (this build reads ", kOldestVersion, " to ",
@@ -177,8 +175,8 @@ absl::StatusOr<ReplayMemory> ReplayMemory::Deserialize(const std::string& bytes)
   }
   int32_t capacity = 0;
   uint64_t seen = 0, n = 0;
-  if (!r.Get(&capacity) || !r.Get(&seen) || !r.Get(&n)) return corrupt("truncated header");
-  if (capacity < 0 || n > r.remaining() / 40) return corrupt("bad sizes");
+  if (!r.Get(&capacity) || !r.Get(&seen) || !r.Get(&n)) return Corrupt("truncated header");
+  if (capacity < 0 || n > r.remaining() / 40) return Corrupt("bad sizes");
   ReplayMemory m(capacity);
   m.seen_ = seen;
   for (uint64_t i = 0; i < n; ++i) {
@@ -187,48 +185,48 @@ absl::StatusOr<ReplayMemory> ReplayMemory::Deserialize(const std::string& bytes)
     float f[8];
     bool ok = r.Get(&w) && r.Get(&h);
     for (float& x : f) ok = ok && r.Get(&x);
-    if (!ok) return corrupt("truncated intrinsics");
+    if (!ok) return Corrupt("truncated intrinsics");
     in.width = w;
     in.height = h;
     in.fx = f[0], in.fy = f[1], in.cx = f[2], in.cy = f[3], in.k1 = f[4], in.k2 = f[5], in.p1 = f[6], in.p2 = f[7];
     for (float x : f) {
-      if (!std::isfinite(x)) return corrupt("non-finite intrinsics");
+      if (!std::isfinite(x)) return Corrupt("non-finite intrinsics");
     }
     m.intrinsics_.push_back(in);
   }
-  if (!r.Get(&n) || n > r.remaining() / sizeof(CameraRecord)) return corrupt("bad camera count");
+  if (!r.Get(&n) || n > r.remaining() / sizeof(CameraRecord)) return Corrupt("bad camera count");
   m.cameras_.resize(n);
   for (CameraRecord& c : m.cameras_) {
     bool ok = true;
     for (float& x : c.rotation) ok = ok && r.Get(&x);
     for (float& x : c.translation) ok = ok && r.Get(&x);
-    if (!ok || !r.Get(&c.intrinsics) || !r.Get(&c.time_step)) return corrupt("truncated cameras");
-    if (c.intrinsics >= m.intrinsics_.size()) return corrupt("camera refers to missing intrinsics");
+    if (!ok || !r.Get(&c.intrinsics) || !r.Get(&c.time_step)) return Corrupt("truncated cameras");
+    if (c.intrinsics >= m.intrinsics_.size()) return Corrupt("camera refers to missing intrinsics");
     for (float x : c.rotation) {
-      if (!std::isfinite(x)) return corrupt("non-finite camera rotation");
+      if (!std::isfinite(x)) return Corrupt("non-finite camera rotation");
     }
     for (float x : c.translation) {
-      if (!std::isfinite(x)) return corrupt("non-finite camera position");
+      if (!std::isfinite(x)) return Corrupt("non-finite camera position");
     }
   }
-  if (!r.Get(&n) || n > uint64_t(std::max(capacity, 0)) || n > r.remaining()) return corrupt("bad buffer count");
+  if (!r.Get(&n) || n > uint64_t(std::max(capacity, 0)) || n > r.remaining()) return Corrupt("bad buffer count");
   for (uint64_t i = 0; i < n; ++i) {
     BufferedImage b;
     int32_t w = 0, h = 0;
     uint8_t has_mask = 0;
-    if (!r.Get(&b.camera) || !r.Get(&w) || !r.Get(&h)) return corrupt("truncated buffer image");
-    if (w <= 0 || h <= 0 || b.camera >= m.cameras_.size()) return corrupt("bad buffer image");
+    if (!r.Get(&b.camera) || !r.Get(&w) || !r.Get(&h)) return Corrupt("truncated buffer image");
+    if (w <= 0 || h <= 0 || b.camera >= m.cameras_.size()) return Corrupt("bad buffer image");
     if (absl::Status s = ReadBufferPixels(&r, version, w, h, &b.image); !s.ok()) return s;
-    if (!r.Get(&has_mask)) return corrupt("truncated buffer image");
-    if (has_mask > 1) return corrupt("bad mask flag");
+    if (!r.Get(&has_mask)) return Corrupt("truncated buffer image");
+    if (has_mask > 1) return Corrupt("bad mask flag");
     if (has_mask) {
       b.mask.width = w;
       b.mask.height = h;
-      if (!r.Array(uint64_t(w) * h, &b.mask.keep)) return corrupt("truncated mask");
+      if (!r.Array(uint64_t(w) * h, &b.mask.keep)) return Corrupt("truncated mask");
     }
     m.buffer_.push_back(std::move(b));
   }
-  if (r.remaining() != 0) return corrupt("trailing bytes");
+  if (r.remaining() != 0) return Corrupt("trailing bytes");
   return m;
 }
 

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <cstdlib>
 #include <string>
+#include <string_view>
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
@@ -220,21 +221,19 @@ absl::StatusOr<UploadAck> AcceptMultipartScan(ModelHost& host, const httplib::Co
 
 }  // namespace
 
-bool HttpApi::Ready() const { return !places_->shutting_down() && !stopping_.load(); }
+HttpApi::ProbeReply HttpApi::Probe(bool readiness) const {
+  if (!readiness) return {200, "text/plain; charset=utf-8", "ok\n"};
+  const bool ready = !places_->shutting_down() && !stopping_.load();
+  const json body = {{"ready", ready}, {"places", places_->Names().size()}};
+  return {ready ? 200 : 503, "application/json", body.dump(-1, ' ', false, json::error_handler_t::replace)};
+}
 
 std::optional<std::string> HttpApi::AnswerProbe(const std::string& method, const std::string& target) const {
   if (method != "GET" || (target != "/healthz" && target != "/readyz")) return std::nullopt;
-  int status = 200;
-  std::string type = "text/plain; charset=utf-8", body = "ok\n";
-  if (target == "/readyz") {
-    const bool ready = Ready();
-    status = ready ? 200 : 503;
-    type = "application/json";
-    body = json{{"ready", ready}, {"places", places_->Names().size()}}.dump();
-  }
-  return absl::StrCat("HTTP/1.1 ", status, status == 200 ? " OK" : " Service Unavailable", "\r\nContent-Type: ", type,
-                      "\r\nCache-Control: no-store\r\nConnection: close\r\nContent-Length: ", body.size(),
-                      "\r\n\r\n", body);
+  const ProbeReply r = Probe(target == "/readyz");
+  return absl::StrCat("HTTP/1.1 ", r.status, r.status == 200 ? " OK" : " Service Unavailable",
+                      "\r\nContent-Type: ", r.type, "\r\nCache-Control: no-store\r\nConnection: close",
+                      "\r\nContent-Length: ", r.body.size(), "\r\n\r\n", r.body);
 }
 
 void HttpApi::Register(httplib::Server* server) {
@@ -260,13 +259,15 @@ void HttpApi::Register(httplib::Server* server) {
   });
   // Behind the door (http_connection_guard.h) these are answered by
   // AnswerProbe; the routes stay for completeness.
-  server->Get("/healthz", [](const httplib::Request&, httplib::Response& res) {
-    res.set_content("ok\n", "text/plain; charset=utf-8");
-  });
-  server->Get("/readyz", [this](const httplib::Request&, httplib::Response& res) {
-    const bool ready = Ready();
-    SendJson(res, json{{"ready", ready}, {"places", places_->Names().size()}}, ready ? 200 : 503);
-  });
+  for (const char* path : {"/healthz", "/readyz"}) {
+    const bool readiness = std::string_view(path) == "/readyz";
+    server->Get(path, [this, readiness](const httplib::Request&, httplib::Response& res) {
+      const ProbeReply r = Probe(readiness);
+      res.status = r.status;
+      res.set_header("Cache-Control", "no-store");
+      res.set_content(r.body, r.type);
+    });
+  }
   server->Get("/api/places", [this](const httplib::Request&, httplib::Response& res) {
     json list = json::array();
     for (const std::string& name : places_->Names()) {

@@ -76,7 +76,15 @@ class HttpApi {
  private:
   Places* const places_;
   const std::string token_;
-  bool Ready() const;
+  // A probe's status, content type and body: liveness, or readiness (503
+  // once shutting down). Served by AnswerProbe at the door and by the
+  // routes behind it.
+  struct ProbeReply {
+    int status;
+    const char* type;
+    std::string body;
+  };
+  ProbeReply Probe(bool readiness) const;
   ViewSessions views_;
   std::function<bool(int)> client_gone_;
   std::atomic<bool> stopping_{false};

@@ -35,13 +35,10 @@ void SetNonBlocking(int fd, bool on) {
   fcntl(fd, F_SETFL, on ? (flags | O_NONBLOCK) : (flags & ~O_NONBLOCK));
 }
 
-// Best effort: a short JSON error and close (the client may be gone).
-void Refuse(int fd, int status, const char* reason, const std::string& message) {
-  const std::string body = absl::StrCat("{\"error\":\"", message, "\",\"code\":\"", status == 408 ? "DEADLINE_EXCEEDED"
-                                                                                                  : status == 503
-                                                                                                        ? "UNAVAILABLE"
-                                                                                                        : "RESOURCE_EXHAUSTED",
-                                        "\"}");
+// Best effort: a short JSON error ({error, code}, as the API's) and close
+// (the client may be gone).
+void Refuse(int fd, int status, const char* reason, const char* code, const std::string& message) {
+  const std::string body = absl::StrCat("{\"error\":\"", message, "\",\"code\":\"", code, "\"}");
   const std::string reply = absl::StrCat("HTTP/1.1 ", status, " ", reason, "\r\nContent-Type: application/json\r\n",
                                          "Connection: close\r\nContent-Length: ", body.size(), "\r\n\r\n", body);
   (void)send(fd, reply.data(), reply.size(), MSG_NOSIGNAL | MSG_DONTWAIT);
@@ -89,6 +86,13 @@ int ConnectLoopback(int port) {
   const int one = 1;
   setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof(one));
   return fd;
+}
+
+// The local port of a connected IPv4 socket; -1 on error.
+int LocalPort(int fd) {
+  sockaddr_in a{};
+  socklen_t len = sizeof(a);
+  return getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len) == 0 ? ntohs(a.sin_port) : -1;
 }
 
 bool SendAll(int fd, const char* p, size_t n) {
@@ -157,7 +161,8 @@ void HttpConnectionGuard::DoorLoop() {
     if (fds[0].revents & POLLIN) {
       for (int c; (c = accept4(listen_fd_, nullptr, nullptr, SOCK_CLOEXEC | SOCK_NONBLOCK)) >= 0;) {
         if (int(waiting.size()) >= options_.max_waiting) {
-          Refuse(c, 503, "Service Unavailable", "too many connections are still sending their requests");
+          Refuse(c, 503, "Service Unavailable", "UNAVAILABLE",
+                 "too many connections are still sending their requests");
           continue;
         }
         waiting[c] = Waiting{std::string(), now + timeout};
@@ -181,10 +186,10 @@ void HttpConnectionGuard::DoorLoop() {
       } else if (done && w.bytes.find("\r\n\r\n") + 4 <= options_.max_head_bytes) {
         if (!AnswerAtTheDoor(fd, w.bytes)) Hand(fd, std::move(w.bytes));
       } else if (w.bytes.size() > options_.max_head_bytes) {
-        Refuse(fd, 431, "Request Header Fields Too Large",
+        Refuse(fd, 431, "Request Header Fields Too Large", "RESOURCE_EXHAUSTED",
                absl::StrCat("the request line and headers exceed ", options_.max_head_bytes, " bytes"));
       } else if (now > w.deadline) {
-        Refuse(fd, 408, "Request Timeout", "the request's headers did not arrive in time");
+        Refuse(fd, 408, "Request Timeout", "DEADLINE_EXCEEDED", "the request's headers did not arrive in time");
       } else {
         continue;
       }
@@ -214,7 +219,7 @@ void HttpConnectionGuard::Hand(int fd, std::string head) {
   {
     std::lock_guard<std::mutex> lock(mu_);
     if (active_ >= options_.max_active) {
-      Refuse(fd, 503, "Service Unavailable", "too many requests in progress");
+      Refuse(fd, 503, "Service Unavailable", "UNAVAILABLE", "too many requests in progress");
       return;
     }
     ++active_;
@@ -227,14 +232,6 @@ bool HttpConnectionGuard::ClientGone(int backend_port) const {
   std::lock_guard<std::mutex> lock(mu_);
   return gone_.count(backend_port) > 0;
 }
-
-namespace {
-int LocalPort(int fd) {
-  sockaddr_in a{};
-  socklen_t len = sizeof(a);
-  return getsockname(fd, reinterpret_cast<sockaddr*>(&a), &len) == 0 ? ntohs(a.sin_port) : -1;
-}
-}  // namespace
 
 void HttpConnectionGuard::Splice(int client, std::string pending) {
   SetNonBlocking(client, false);

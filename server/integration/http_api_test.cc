@@ -45,6 +45,20 @@ class HttpApiTest : public ServerFixture {
     return absl::StrCat("/api/render?width=", in.width, "&height=", in.height, "&c2w=", absl::StrJoin(m, ","),
                         "&fx=", in.fx, "&fy=", in.fy, "&cx=", in.cx, "&cy=", in.cy, extra);
   }
+  // A server with one render thread and one slot for big renders, with a
+  // tiny scan deployed: `scene` is that scan, `big` a 512 x 512 camera whose
+  // render takes seconds there.
+  void StartWithOneRenderSlot(const std::string& name, Scene* scene, Camera* big) {
+    ServerOptions o = TinyServerOptions(TempDir(name));
+    o.render_concurrency = 1;
+    o.render_threads = 1;
+    o.render_pixel_budget = int64_t(512) * 512;
+    StartHttp(o);
+    *scene = TinyScans(1);
+    ASSERT_EQ(UploadAndWait(*scene, 0).phase(), v1::JOB_PHASE_DONE);
+    *big = scene->test[0].camera;
+    big->intrinsics = big->intrinsics.Scaled(512, 512);
+  }
 };
 
 double MeanAbsDiff(const Image& a, const Image& b) {
@@ -315,15 +329,9 @@ TEST_F(HttpApiTest, RepeatedParametersAndOverlongRequestLinesAreRefused) {
 }
 
 TEST_F(HttpApiTest, ANewerRenderOfTheSameViewCancelsTheStaleOneAndDeadlinesHold) {
-  ServerOptions o = TinyServerOptions(TempDir("srv_http_cancel"));
-  o.render_concurrency = 1;
-  o.render_threads = 1;
-  o.render_pixel_budget = int64_t(512) * 512;
-  StartHttp(o);
-  const Scene scene = TinyScans(1);
-  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
-  Camera big = scene.test[0].camera;
-  big.intrinsics = big.intrinsics.Scaled(512, 512);
+  Scene scene;
+  Camera big;
+  ASSERT_NO_FATAL_FAILURE(StartWithOneRenderSlot("srv_http_cancel", &scene, &big));
   const Camera small = scene.test[0].camera;
 
   // A big render of view "left" that takes seconds on one thread...
@@ -369,15 +377,9 @@ TEST_F(HttpApiTest, ANewerRenderOfTheSameViewCancelsTheStaleOneAndDeadlinesHold)
 // render waited behind them (small renders never queue for slots). Measured
 // against the same big render alone.
 TEST_F(HttpApiTest, ARenderWhoseClientLeftStopsAndFreesItsSlot) {
-  ServerOptions o = TinyServerOptions(TempDir("srv_http_abandoned"));
-  o.render_concurrency = 1;
-  o.render_threads = 1;
-  o.render_pixel_budget = int64_t(512) * 512;
-  StartHttp(o);
-  const Scene scene = TinyScans(1);
-  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
-  Camera big = scene.test[0].camera;
-  big.intrinsics = big.intrinsics.Scaled(512, 512);
+  Scene scene;
+  Camera big;
+  ASSERT_NO_FATAL_FAILURE(StartWithOneRenderSlot("srv_http_abandoned", &scene, &big));
   auto t0 = std::chrono::steady_clock::now();
   auto full = http_->Get(RenderPath(big, "&timeout_ms=300000"));
   ASSERT_TRUE(full);
@@ -404,18 +406,13 @@ TEST_F(HttpApiTest, ARenderWhoseClientLeftStopsAndFreesItsSlot) {
 // (before, twelve big renders queued on one slot took /healthz down with
 // them): the door answers them itself.
 TEST_F(HttpApiTest, ProbesAnswerWhileRendersHoldEveryWorker) {
-  ServerOptions o = TinyServerOptions(TempDir("srv_http_probes"));
-  o.render_concurrency = 1;
-  o.render_threads = 1;
-  o.render_pixel_budget = int64_t(512) * 512;
-  o.render_wait_seconds = 30;
-  StartHttp(o);
-  const Scene scene = TinyScans(1);
-  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
-  Camera big = scene.test[0].camera;
-  big.intrinsics = big.intrinsics.Scaled(512, 512);
+  Scene scene;
+  Camera big;
+  ASSERT_NO_FATAL_FAILURE(StartWithOneRenderSlot("srv_http_probes", &scene, &big));
   std::vector<std::future<void>> renders;
-  for (int i = 0; i < 12; ++i) {  // More than cpp-httplib's 8 workers; each client leaves after 3 s.
+  // More than cpp-httplib's 8 workers, queued for the slot (up to
+  // render_wait_seconds, 30 by default); each client leaves after 3 s.
+  for (int i = 0; i < 12; ++i) {
     renders.push_back(std::async(std::launch::async, [&] {
       httplib::Client c("127.0.0.1", server_->http_port());
       c.set_read_timeout(std::chrono::seconds(3));
