@@ -131,6 +131,8 @@ absl::Status ApplyPosing(const nlohmann::json& g, ServerOptions* o) {
       s = Get(*it, "posing.min_registered_fraction", &o->posing.min_registered_fraction);
     } else if (k == "max_reprojection_px") {
       s = Get(*it, "posing.max_reprojection_px", &o->posing.max_reprojection_px);
+    } else if (k == "guided_matching") {
+      s = Get(*it, "posing.guided_matching", &o->posing.guided_matching);
     } else if (k == "colmap") {
       s = Get(*it, "posing.colmap", &o->colmap_binary);
     } else {

@@ -181,7 +181,8 @@ absl::StatusOr<SfmResult> ColmapSfm::Run(const std::vector<std::string>& photos,
   if (!s.ok()) return s;
   s = stage("matching",
             {o.sequential ? "sequential_matcher" : "exhaustive_matcher", "--database_path", db,
-             "--SiftMatching.use_gpu", "0", "--SiftMatching.num_threads", threads},
+             "--SiftMatching.use_gpu", "0", "--SiftMatching.num_threads", threads, "--SiftMatching.guided_matching",
+             o.guided_matching ? "1" : "0"},
             &timing.matching_seconds);
   if (!s.ok()) return s;
   const double need = o.min_registered_fraction * double(photos.size());

@@ -29,6 +29,13 @@ struct SfmOptions {
   std::string workspace;
   bool keep_workspace = false;
   int threads = 2;
+  // COLMAP's guided matching: after a pair's two-view geometry is found,
+  // its features are matched again along the epipolar lines. Measured on
+  // the 24 frames of a 320 x 240 H.264 orbit (11 runs each): 23 of 24
+  // posed, focal within 0.7 % of the truth, median rotation error
+  // 0.14-0.20 degrees; without it 20 of 24, focal 1.5 % short with a
+  // k1 of -0.04 making up for it, 0.24-0.66 degrees. Same time.
+  bool guided_matching = true;
   // The run fails unless at least this share of the photos is posed and the
   // mean reprojection error is at most max_reprojection_px.
   double min_registered_fraction = 0.5;
