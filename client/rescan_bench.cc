@@ -162,7 +162,9 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
       "rescan", "A capture split into two visits; the second as people bring it (place frame, own frame, unposed) "
                 "posed, registered, trained and scored on held-out views");
   a->update.train.iterations = 1000;
-  c->add_option("--data", a->data, "Dataset folder, or 'procedural'")->required();
+  c->add_option("--data", a->data,
+                "Dataset folder, 'procedural' (forward-facing) or 'procedural-room' (furniture moved between visits)")
+      ->required();
   c->add_option("--first-iters", a->first_iterations, "Training steps of visit A (the first scan)")
       ->capture_default_str();
   c->add_option("--iters", a->update.train.iterations, "Training steps of visit B's update")->capture_default_str();
@@ -183,7 +185,9 @@ int RunBenchRescan(const BenchRescanArgs& a) {
   if (!all.ok()) return Fail(all.status());
   Scene visit_a, visit_b;
   SplitVisits(*all, &visit_a, &visit_b);
-  const std::vector<View> test = !all->test.empty() ? all->test : all->val;
+  // Held-out views of visit A's time, and of visit B's (the same views
+  // when the capture has one time).
+  const std::vector<View> test = HeldOutAt(*all, 0), test_b = HeldOutAt(*all, 1);
   if (test.empty()) return Fail(absl::InvalidArgumentError("the capture has no held-out (test or val) views"));
   for (View& v : visit_b.train) v.camera.time_step = 1;
   for (View& v : visit_a.train) v.camera.time_step = 0;
@@ -329,7 +333,8 @@ int RunBenchRescan(const BenchRescanArgs& a) {
         ContinualUpdate(scan, first_scan ? nullptr : &*state_a, first_scan ? first : a.update, {}, nullptr, nullptr);
     if (!next.ok()) return Fail(next.status());
     const double train_seconds = SecondsSince(t0);
-    const double latest = HeldOutPsnr(*next->model, scored, first_scan ? 0 : 1, a.eval_views);
+    const double latest = first_scan ? HeldOutPsnr(*next->model, scored, 0, a.eval_views)
+                                     : HeldOutPsnr(*next->model, test_b, 1, a.eval_views);
     const double at_a = first_scan ? latest : HeldOutPsnr(*next->model, scored, 0, a.eval_views);
     row["train_seconds"] = train_seconds;
     row["psnr_latest"] = latest;

@@ -21,16 +21,26 @@ double Median(std::vector<double> v) {
 }  // namespace
 
 absl::StatusOr<Scene> LoadVisitScene(const std::string& data, const DatasetOptions& dataset) {
-  if (data != "procedural") return LoadScene(data, dataset);
+  if (data != "procedural" && data != "procedural-room") return LoadScene(data, dataset);
   ProceduralSceneOptions po;
-  po.layout = ProceduralLayout::kForwardFacing;
   po.textured = true;
   po.width = 240;
   po.height = 180;
-  po.num_train_views = 48;
-  po.num_test_views = 4;
   po.change_lighting = false;
-  po.change_geometry = false;
+  if (data == "procedural") {
+    po.layout = ProceduralLayout::kForwardFacing;
+    po.num_train_views = 48;
+    po.num_test_views = 4;
+    po.change_geometry = false;
+  } else {
+    // Two visits of a room, each walking its own loop; between them one
+    // object left, one was recoloured and a new one came.
+    po.layout = ProceduralLayout::kRoom;
+    po.num_train_views = 32;
+    po.num_test_views = 4;
+    po.num_time_steps = 2;
+    po.change_geometry = true;
+  }
   return GenerateProceduralScene(po);
 }
 
@@ -41,7 +51,25 @@ void SplitVisits(const Scene& all, Scene* a, Scene* b) {
   b->train.clear();
   b->test.clear();
   b->val.clear();
-  for (size_t i = 0; i < all.train.size(); ++i) (i % 2 == 0 ? a : b)->train.push_back(all.train[i]);
+  const bool two_times = std::any_of(all.train.begin(), all.train.end(),
+                                     [](const View& v) { return v.camera.time_step == 1; });
+  for (size_t i = 0; i < all.train.size(); ++i) {
+    const int t = all.train[i].camera.time_step;
+    if (two_times ? t == 0 : i % 2 == 0) {
+      a->train.push_back(all.train[i]);
+    } else if (two_times ? t == 1 : true) {
+      b->train.push_back(all.train[i]);
+    }
+  }
+}
+
+std::vector<View> HeldOutAt(const Scene& all, int time_step) {
+  const std::vector<View>& held = !all.test.empty() ? all.test : all.val;
+  std::vector<View> out;
+  for (const View& v : held) {
+    if (v.camera.time_step == time_step) out.push_back(v);
+  }
+  return out.empty() ? held : out;
 }
 
 Similarity OwnFrame(double rotation_deg, double scale, uint64_t seed, double extent) {

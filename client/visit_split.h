@@ -18,12 +18,18 @@
 
 namespace clnerf {
 
-// A dataset folder (LoadScene), or "procedural": a textured forward-facing
-// scene, 48 + 4 views at 240 x 180.
+// A dataset folder (LoadScene); "procedural": a textured forward-facing
+// scene, 48 + 4 views at 240 x 180; or "procedural-room": a textured room
+// walked twice, 32 + 4 views per time step at 240 x 180, with furniture
+// moved between the two (one object gone, one recoloured, one new).
 absl::StatusOr<Scene> LoadVisitScene(const std::string& data, const DatasetOptions& dataset);
-// Even training frames into `a`, odd into `b` (time steps unchanged); `a`
-// keeps the capture's held-out views, `b` none.
+// A capture of one time: even training frames into `a`, odd into `b`. A
+// capture of several: time step 0's into `a`, time step 1's into `b`
+// (time steps unchanged). `a` keeps the capture's held-out views, `b` none.
 void SplitVisits(const Scene& all, Scene* a, Scene* b);
+// The capture's held-out views (test, else val) of `time_step`; all of
+// them when none is of that time (a capture of one time).
+std::vector<View> HeldOutAt(const Scene& all, int time_step);
 // A rotation of `rotation_deg` about a random axis, `scale`, and a random
 // shift of up to `extent` per axis (seeded).
 Similarity OwnFrame(double rotation_deg, double scale, uint64_t seed, double extent);

@@ -130,6 +130,44 @@ TEST(ColmapSfmTest, StartsFromAGivenCamera) {
   fs::remove_all(dir);
 }
 
+// A later visit of a forward-facing place (cameras on a small plane, content
+// at 2 to 20 baselines), seeded with a camera 5 % off as the place's own
+// camera would be. Mapped with the camera refined from the start, COLMAP's
+// two-view start drifted the focal length to 700-40000 px and posed 3 to 5
+// of the 24 in 5 of 11 runs (all its retries share the matches, so they
+// failed together); held while mapping and refined after, 8 of 8 posed all.
+TEST(ColmapSfmTest, SeededNarrowBaselineScanIsPosedWhole) {
+  if (!ColmapInstalled()) GTEST_SKIP() << "colmap is not installed";
+  const std::string dir = TempDir("colmap_forward");
+  ProceduralSceneOptions po;
+  po.layout = ProceduralLayout::kForwardFacing;
+  po.textured = true;
+  po.width = 240;
+  po.height = 180;
+  po.num_train_views = 48;
+  po.num_test_views = 1;
+  po.change_lighting = po.change_geometry = false;
+  absl::StatusOr<Scene> scene = GenerateProceduralScene(po);
+  ASSERT_TRUE(scene.ok()) << scene.status();
+  std::vector<std::string> photos;
+  for (size_t i = 1; i < scene->train.size(); i += 2) {  // A second visit: the odd frames.
+    photos.push_back(dir + "/photo_" + std::to_string(i) + ".png");
+    ASSERT_TRUE(WriteImage(photos.back(), scene->train[i].image).ok());
+  }
+  const Intrinsics truth = scene->train[0].camera.intrinsics;
+  SfmOptions o;
+  o.workspace = dir + "/ws";
+  o.initial_camera = truth;
+  o.initial_camera->fx = o.initial_camera->fy = 1.05f * truth.fx;
+  absl::StatusOr<SfmResult> r = ColmapSfm().Run(photos, o);
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_GE(r->registered, 22) << "of 24";
+  for (const std::optional<Camera>& c : r->cameras) {
+    if (c) EXPECT_NEAR(c->intrinsics.fx, truth.fx, 0.08 * truth.fx);
+  }
+  fs::remove_all(dir);
+}
+
 TEST(ColmapSfmTest, PhotosWithNothingInCommonAreRefused) {
   if (!ColmapInstalled()) GTEST_SKIP() << "colmap is not installed";
   const std::string dir = TempDir("colmap_noise");

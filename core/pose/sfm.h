@@ -40,12 +40,15 @@ struct SfmOptions {
   // mean reprojection error is at most max_reprojection_px.
   double min_registered_fraction = 0.5;
   double max_reprojection_px = 2.0;
-  // COLMAP's incremental mapper is not deterministic on several threads: the
-  // same 24 photos of the procedural forward-facing scene came out 24 of 24
-  // posed in one run and 3 or 6 in others (the rest in smaller models). A
-  // run that poses fewer than mapper_retry_fraction of the photos is mapped
-  // again with another seed (features and matches are kept), up to
-  // mapper_attempts runs in all; the run posing the most photos is kept.
+  // COLMAP is not deterministic (its matcher's RANSAC is seeded from the
+  // clock), and on a narrow-baseline capture its mapper may start from a
+  // pair whose bundle adjustment drifts the focal length: the same 24
+  // photos of the procedural forward-facing scene came out 24 of 24 posed
+  // in one run and 3 to 6 in others. A run that poses fewer than
+  // mapper_retry_fraction of the photos is mapped again (features and
+  // matches kept), up to mapper_attempts runs in all, one of them with the
+  // camera held while mapping and refined after (colmap_sfm.cc says which
+  // comes first); the run posing the most photos is kept.
   int mapper_attempts = 3;
   double mapper_retry_fraction = 0.9;
   // A camera to start from, e.g. the place's own camera scaled to the
