@@ -6,6 +6,8 @@
 # shifted) and unposed (posed by COLMAP), is registered and trained; and
 # visit A again unposed as a first scan. Held-out PSNR after each, pose
 # errors against the known poses, seconds per stage. One JSON per capture.
+# With no arguments, also the procedural forward-facing scene and the
+# procedural capture whose objects move between visits.
 # Usage: bench/rescan.sh [DATASET_DIR ...]   (FIRST_ITERS=1000 ITERS=1000 OUT=bench/results/rescan)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -17,6 +19,7 @@ mkdir -p "$OUT"
 DATA=("$@")
 if [ ${#DATA[@]} -eq 0 ]; then
   for d in ../shared/data/*/; do [ -d "$d" ] && DATA+=("${d%/}"); done
+  DATA+=(procedural procedural-moved)  # Generated: forward-facing; objects moved between visits.
 fi
 for d in "${DATA[@]}"; do
   name=$(basename "$d")

@@ -163,7 +163,7 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
                 "posed, registered, trained and scored on held-out views");
   a->update.train.iterations = 1000;
   c->add_option("--data", a->data,
-                "Dataset folder, 'procedural' (forward-facing) or 'procedural-room' (furniture moved between visits)")
+                "Dataset folder, 'procedural' (forward-facing) or 'procedural-moved' (objects moved between visits)")
       ->required();
   c->add_option("--first-iters", a->first_iterations, "Training steps of visit A (the first scan)")
       ->capture_default_str();

@@ -21,7 +21,7 @@ double Median(std::vector<double> v) {
 }  // namespace
 
 absl::StatusOr<Scene> LoadVisitScene(const std::string& data, const DatasetOptions& dataset) {
-  if (data != "procedural" && data != "procedural-room") return LoadScene(data, dataset);
+  if (data != "procedural" && data != "procedural-moved") return LoadScene(data, dataset);
   ProceduralSceneOptions po;
   po.textured = true;
   po.width = 240;
@@ -33,9 +33,11 @@ absl::StatusOr<Scene> LoadVisitScene(const std::string& data, const DatasetOptio
     po.num_test_views = 4;
     po.change_geometry = false;
   } else {
-    // Two visits of a room, each walking its own loop; between them one
+    // Two visits of an object capture with its surroundings (ground,
+    // pillars, sky), each circling on its own path; between them one
     // object left, one was recoloured and a new one came.
-    po.layout = ProceduralLayout::kRoom;
+    po.layout = ProceduralLayout::kOrbit;
+    po.backdrop = true;
     po.num_train_views = 32;
     po.num_test_views = 4;
     po.num_time_steps = 2;

@@ -19,9 +19,10 @@
 namespace clnerf {
 
 // A dataset folder (LoadScene); "procedural": a textured forward-facing
-// scene, 48 + 4 views at 240 x 180; or "procedural-room": a textured room
-// walked twice, 32 + 4 views per time step at 240 x 180, with furniture
-// moved between the two (one object gone, one recoloured, one new).
+// scene, 48 + 4 views at 240 x 180; or "procedural-moved": a textured
+// object capture with its surroundings, orbited twice (32 + 4 views per
+// time step at 240 x 180), with objects moved between the two (one gone,
+// one recoloured, one new).
 absl::StatusOr<Scene> LoadVisitScene(const std::string& data, const DatasetOptions& dataset);
 // A capture of one time: even training frames into `a`, odd into `b`. A
 // capture of several: time step 0's into `a`, time step 1's into `b`
