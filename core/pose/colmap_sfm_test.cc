@@ -126,9 +126,11 @@ TEST(ColmapSfmTest, StartsFromAGivenCamera) {
                                                << "/colmap.log";
   // A seeded camera is held (registration refines it against the place).
   for (const std::optional<Camera>& c : r->cameras) {
-    if (c) EXPECT_NEAR(c->intrinsics.fx, 1.05 * truth.fx, 1e-3 * truth.fx);
+    if (c) {
+      EXPECT_NEAR(c->intrinsics.fx, 1.05 * truth.fx, 1e-3 * truth.fx);
+    }
   }
-  EXPECT_EQ(r->registered, 20);
+  EXPECT_GE(r->registered, 18);  // 90 %: fewer would have been mapped again.
   fs::remove_all(dir);
 }
 
@@ -165,7 +167,9 @@ TEST(ColmapSfmTest, SeededNarrowBaselineScanIsPosedWhole) {
   ASSERT_TRUE(r.ok()) << r.status();
   EXPECT_GE(r->registered, 22) << "of 24";
   for (const std::optional<Camera>& c : r->cameras) {
-    if (c) EXPECT_NEAR(c->intrinsics.fx, truth.fx, 0.08 * truth.fx);
+    if (c) {
+      EXPECT_NEAR(c->intrinsics.fx, truth.fx, 0.08 * truth.fx);
+    }
   }
   fs::remove_all(dir);
 }
