@@ -155,6 +155,210 @@ void RefineLikeTheService(const NgpModel& model, const RegistrationReport& r, do
               pe.rotation_median);
 }
 
+// What every case shares: the two visits, the held-out views of each time,
+// and visit A's model (the place).
+struct RescanContext {
+  const BenchRescanArgs* args = nullptr;
+  Scene visit_a, visit_b;
+  std::vector<View> test, test_b;  // Held out at visit A's time, at B's.
+  const ContinualState* place_state = nullptr;
+  std::vector<Camera> place;  // Visit A's cameras.
+  double extent = 0, psnr_a = 0;
+  UpdateOptions first;  // A first scan's training.
+};
+
+// One case's scan, as it goes through the stages.
+struct CaseScan {
+  Scene scan;
+  std::vector<View> truth;        // The scan's known training views.
+  std::vector<int> posed;         // Indices into `truth` of the views kept.
+  std::vector<View> posed_truth;  // truth[posed[k]].
+  std::vector<View> scored;       // Held-out views scored at visit A's time.
+  double posing_seconds = 0, register_seconds = 0, baseline = 0;
+};
+
+// COLMAP posing for the unposed cases; false (row filled) when it failed.
+bool PoseCase(const RescanContext& c, const std::string& which, CaseScan* cs, nlohmann::json* row) {
+  const bool first_scan = which == "unposed-first";
+  // A later visit's COLMAP run starts from the place's camera, as the
+  // service's does ("unposed-unseeded": from COLMAP's own guess).
+  const std::optional<Intrinsics> seed = which == "unposed" || which == "unposed-nophoto"
+                                             ? std::optional<Intrinsics>(c.place.back().intrinsics)
+                                             : std::nullopt;
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<SfmResult> sfm =
+      PoseWithColmap(&cs->scan, &cs->posed, c.args->threads, first_scan ? &cs->scored : nullptr, seed);
+  cs->posing_seconds = SecondsSince(t0);
+  (*row)["posing_seconds"] = cs->posing_seconds;
+  if (!sfm.ok()) {
+    (*row)["status"] = sfm.status().ToString();
+    std::printf("rescan %s, %s: COLMAP could not pose it: %s\n", c.args->data.c_str(), which.c_str(),
+                std::string(sfm.status().message()).c_str());
+    return false;
+  }
+  const Intrinsics got = cs->scan.train.empty() ? Intrinsics() : cs->scan.train[0].camera.intrinsics;
+  const Intrinsics& known = cs->truth[0].camera.intrinsics;
+  (*row)["posed"] = sfm->registered;
+  (*row)["colmap_fx"] = got.fx;
+  (*row)["known_fx"] = known.fx;
+  (*row)["reprojection_px"] = sfm->mean_reprojection_px;
+  std::printf("  %s: COLMAP's focal %.2f px, k1 %.4f (known: %.2f px, k1 %.4f)\n", which.c_str(), got.fx, got.k1,
+              known.fx, known.k1);
+  return true;
+}
+
+// A first scan: its poses against the known ones after one similarity (when
+// one fits), and
+// visit A posed scored on the held-out views COLMAP posed (matched poses:
+// they were posed in the same run, as the service poses an upload's test
+// frames).
+absl::Status ScoreFirstScanPoses(const RescanContext& c, CaseScan* cs, nlohmann::json* row) {
+  std::vector<View> same;
+  for (const View& v : c.test) {
+    for (const View& p : cs->scored) {
+      if (p.name == v.name) same.push_back(v);
+    }
+  }
+  cs->baseline = HeldOutPsnr(*c.place_state->model, same, 0, c.args->eval_views);
+  (*row)["held_out_posed"] = cs->scored.size();
+  (*row)["psnr_posed_baseline"] = cs->baseline;
+  std::vector<PosePair> pairs;
+  for (size_t k = 0; k < cs->posed.size(); ++k) {
+    pairs.push_back({cs->posed_truth[k].camera.c2w, cs->scan.train[k].camera.c2w});
+  }
+  absl::StatusOr<RobustSimilarity> fit = FitSimilarityRobust(pairs, c.extent, {});
+  if (!fit.ok()) {  // COLMAP's model is not the scene up to a similarity: the service would still train on it.
+    (*row)["pose_fit"] = fit.status().ToString();
+    std::printf("  unposed-first: COLMAP's poses fit no similarity to the known ones: %s\n",
+                std::string(fit.status().message()).c_str());
+    return absl::OkStatus();
+  }
+  Scene back = cs->scan;
+  ApplySimilarity(fit->transform.Inverse(), &back);
+  const PoseErrors e = FrameErrors(back.train, cs->posed_truth, c.extent);
+  (*row)["centre_error_pct_median"] = e.centre_median;
+  (*row)["rotation_error_deg_median"] = e.rotation_median;
+  return absl::OkStatus();
+}
+
+// A later visit registered into the place (and, for a scan it posed,
+// refined as the service does); false (row filled) when refused.
+bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs, nlohmann::json* row) {
+  const auto t0 = std::chrono::steady_clock::now();
+  RegistrationReport r = RegisterScan(cs->scan, ModelPlaceMap(*c.place_state->model, RenderOptions()), c.place,
+                                      c.extent, c.args->registration);
+  cs->register_seconds = SecondsSince(t0);
+  (*row)["registered"] = r.status.ok();
+  (*row)["identity"] = r.identity;
+  (*row)["status"] = r.status.ToString();
+  if (r.status.ok()) ApplySimilarity(r.transform, &cs->scan);
+  const PoseErrors e = FrameErrors(cs->scan.train, cs->posed_truth, c.extent);
+  std::vector<View> pnp, pnp_truth;  // Each placed frame's own PnP pose against the place's renders.
+  for (size_t k = 0; k < r.tried.size(); ++k) {
+    if (!r.localized[k].placed) continue;
+    View v = cs->scan.train[size_t(r.tried[k])];
+    v.camera.c2w = r.localized[k].c2w;
+    pnp.push_back(v);
+    pnp_truth.push_back(cs->posed_truth[size_t(r.tried[k])]);
+  }
+  const PoseErrors pe = FrameErrors(pnp, pnp_truth, c.extent);
+  (*row)["pnp_centre_error_pct_median"] = pe.centre_median;
+  (*row)["pnp_rotation_error_deg_median"] = pe.rotation_median;
+  std::printf("  %s: registered poses %.2f%% / %.2f deg from the known; per-frame PnP poses %.2f%% / %.2f deg "
+              "(%zu frames)\n",
+              which.c_str(), e.centre_median, e.rotation_median, pe.centre_median, pe.rotation_median, pnp.size());
+  // As the service: a scan it posed has its camera refined against the
+  // place after registration ("unposed-unrefined": without, to compare).
+  const bool refine = which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto";
+  if (refine && r.status.ok()) RefineLikeTheService(*c.place_state->model, r, c.extent, which, cs->posed_truth, &cs->scan, row);
+  (*row)["centre_error_pct_median"] = e.centre_median;
+  (*row)["centre_error_pct_max"] = e.centre_max;
+  (*row)["rotation_error_deg_median"] = e.rotation_median;
+  (*row)["rotation_error_deg_max"] = e.rotation_max;
+  if (!r.status.ok() && which != "place") {
+    std::printf("rescan %s, %s: refused: %s\n", c.args->data.c_str(), which.c_str(),
+                std::string(r.status.message()).c_str());
+    return false;
+  }
+  return true;
+}
+
+// Test-time alignment (as BARF and nerfstudio evaluate with pose
+// optimisation): a first scan's held-out views, posed by the same COLMAP
+// run, aligned photometrically to the trained model before scoring.
+void ScoreTestAligned(const RescanContext& c, const std::string& which, const NgpModel& model, const CaseScan& cs,
+                      nlohmann::json* row) {
+  Scene held = cs.scan;
+  held.train = cs.scored;
+  std::vector<Camera> own;  // The extent in COLMAP's frame, where the model is.
+  for (const View& v : cs.scan.train) own.push_back(v.camera);
+  absl::StatusOr<ScanPhotometricReport> pr = RefineScanPhotometric(
+      ModelPlaceMap(model, RenderOptions()), &held, PlaceExtent(own, model.normalization()), PhotometricRefineOptions());
+  if (!pr.ok()) return;
+  (*row)["psnr_test_aligned"] = HeldOutPsnr(model, held.train, 0, c.args->eval_views);
+  std::printf("  %s: held-out views aligned to the model (%d of %d moved): %.2f dB\n", which.c_str(), pr->accepted,
+              pr->frames, (*row)["psnr_test_aligned"].get<double>());
+}
+
+// One case, start to end: its JSON row (an error only for a broken bench).
+absl::StatusOr<nlohmann::json> RunCase(const RescanContext& c, const std::string& which) {
+  const BenchRescanArgs& a = *c.args;
+  nlohmann::json row = {{"case", which}};
+  const bool first_scan = which == "unposed-first";
+  CaseScan cs;
+  cs.scan = first_scan ? c.visit_a : c.visit_b;
+  cs.truth = cs.scan.train;
+  cs.scored = c.test;
+  cs.baseline = c.psnr_a;
+  if (which == "own") ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, c.extent), &cs.scan);
+  if (which != "place" && which != "own") {
+    if (!PoseCase(c, which, &cs, &row)) return row;
+  } else {
+    for (size_t i = 0; i < cs.scan.train.size(); ++i) cs.posed.push_back(int(i));
+  }
+  for (int i : cs.posed) cs.posed_truth.push_back(cs.truth[size_t(i)]);
+  if (first_scan) {
+    if (absl::Status s = ScoreFirstScanPoses(c, &cs, &row); !s.ok()) return s;
+  } else if (!RegisterCase(c, which, &cs, &row)) {
+    return row;
+  }
+  row["register_seconds"] = cs.register_seconds;
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<ContinualState> next = ContinualUpdate(cs.scan, first_scan ? nullptr : c.place_state,
+                                                        first_scan ? c.first : a.update, {}, nullptr, nullptr);
+  if (!next.ok()) return next.status();
+  const double train_seconds = SecondsSince(t0);
+  const double latest = first_scan ? HeldOutPsnr(*next->model, cs.scored, 0, a.eval_views)
+                                   : HeldOutPsnr(*next->model, c.test_b, 1, a.eval_views);
+  const double at_a = first_scan ? latest : HeldOutPsnr(*next->model, cs.scored, 0, a.eval_views);
+  if (first_scan) ScoreTestAligned(c, which, *next->model, cs, &row);
+  row["train_seconds"] = train_seconds;
+  row["psnr_latest"] = latest;
+  row["psnr_at_a"] = at_a;
+  std::printf("rescan %s, %-13s: %zu/%zu frames posed | pose error median %.2f%% / %.2f deg | pose %.1f s, "
+              "register %.1f s, train %.1f s | held-out PSNR latest %.2f dB, at visit A's time %.2f dB%s\n",
+              a.data.c_str(), which.c_str(), cs.posed.size(), cs.truth.size(), row.value("centre_error_pct_median", 0.0),
+              row.value("rotation_error_deg_median", 0.0), cs.posing_seconds, cs.register_seconds, train_seconds,
+              latest, at_a,
+              first_scan ? absl::StrFormat(" (visit A posed, same %zu views: %.2f dB)", cs.scored.size(), cs.baseline).c_str()
+                         : "");
+  std::fflush(stdout);
+  return row;
+}
+
+absl::Status CheckCases(const std::vector<std::string>& cases) {
+  static const std::set<std::string> kCases = {"place", "own", "unposed", "unposed-unseeded", "unposed-unrefined",
+                                               "unposed-nophoto", "unposed-first"};
+  for (const std::string& c : cases) {
+    if (!kCases.count(c)) {
+      return absl::InvalidArgumentError(absl::StrCat(
+          "unknown case '", c,
+          "' (place, own, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first)"));
+    }
+  }
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
@@ -183,188 +387,42 @@ int RunBenchRescan(const BenchRescanArgs& a) {
   SetThreads(a.threads);
   absl::StatusOr<Scene> all = LoadVisitScene(a.data, a.dataset);
   if (!all.ok()) return Fail(all.status());
-  Scene visit_a, visit_b;
-  SplitVisits(*all, &visit_a, &visit_b);
+  RescanContext c;
+  c.args = &a;
+  SplitVisits(*all, &c.visit_a, &c.visit_b);
   // Held-out views of visit A's time, and of visit B's (the same views
   // when the capture has one time).
-  const std::vector<View> test = HeldOutAt(*all, 0), test_b = HeldOutAt(*all, 1);
-  if (test.empty()) return Fail(absl::InvalidArgumentError("the capture has no held-out (test or val) views"));
-  for (View& v : visit_b.train) v.camera.time_step = 1;
-  for (View& v : visit_a.train) v.camera.time_step = 0;
-  visit_a.test.clear();
-  visit_a.val.clear();
+  c.test = HeldOutAt(*all, 0);
+  c.test_b = HeldOutAt(*all, 1);
+  if (c.test.empty()) return Fail(absl::InvalidArgumentError("the capture has no held-out (test or val) views"));
+  for (View& v : c.visit_b.train) v.camera.time_step = 1;
+  for (View& v : c.visit_a.train) v.camera.time_step = 0;
+  c.visit_a.test.clear();
+  c.visit_a.val.clear();
   const std::vector<std::string> cases = absl::StrSplit(a.cases, ',', absl::SkipEmpty());
-  for (const std::string& c : cases) {
-    static const std::set<std::string> kCases = {"place", "own", "unposed", "unposed-unseeded", "unposed-unrefined", "unposed-nophoto",
-                                                 "unposed-first"};
-    if (!kCases.count(c)) {
-      return Fail(absl::InvalidArgumentError(absl::StrCat(
-          "unknown case '", c, "' (place, own, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first)")));
-    }
-  }
+  if (absl::Status s = CheckCases(cases); !s.ok()) return Fail(s);
   std::fprintf(stderr, "bench rescan: %s, visit A %zu frames (%d iterations), visit B %zu frames (%d), %zu held out\n",
-               a.data.c_str(), visit_a.train.size(), a.first_iterations, visit_b.train.size(),
-               a.update.train.iterations, test.size());
-  UpdateOptions first = a.update;
-  first.train.iterations = a.first_iterations;
-  auto t0 = std::chrono::steady_clock::now();
-  absl::StatusOr<ContinualState> state_a = ContinualUpdate(visit_a, nullptr, first, {}, nullptr, nullptr);
+               a.data.c_str(), c.visit_a.train.size(), a.first_iterations, c.visit_b.train.size(),
+               a.update.train.iterations, c.test.size());
+  c.first = a.update;
+  c.first.train.iterations = a.first_iterations;
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<ContinualState> state_a = ContinualUpdate(c.visit_a, nullptr, c.first, {}, nullptr, nullptr);
   if (!state_a.ok()) return Fail(state_a.status());
+  c.place_state = &*state_a;
   const double train_a = SecondsSince(t0);
-  const double psnr_a = HeldOutPsnr(*state_a->model, test, 0, a.eval_views);
-  std::printf("rescan %s: visit A trained in %.1f s, held-out PSNR %.2f dB\n", a.data.c_str(), train_a, psnr_a);
-  std::vector<Camera> place;
-  for (const View& v : visit_a.train) place.push_back(v.camera);
-  const double extent = PlaceExtent(place, state_a->model->normalization());
-  nlohmann::json out = {{"data", a.data}, {"frames_a", visit_a.train.size()}, {"frames_b", visit_b.train.size()},
-                        {"held_out", test.size()}, {"first_iterations", a.first_iterations},
+  c.psnr_a = HeldOutPsnr(*state_a->model, c.test, 0, a.eval_views);
+  std::printf("rescan %s: visit A trained in %.1f s, held-out PSNR %.2f dB\n", a.data.c_str(), train_a, c.psnr_a);
+  for (const View& v : c.visit_a.train) c.place.push_back(v.camera);
+  c.extent = PlaceExtent(c.place, state_a->model->normalization());
+  nlohmann::json out = {{"data", a.data}, {"frames_a", c.visit_a.train.size()}, {"frames_b", c.visit_b.train.size()},
+                        {"held_out", c.test.size()}, {"first_iterations", a.first_iterations},
                         {"iterations", a.update.train.iterations}, {"train_a_seconds", train_a},
-                        {"psnr_a", psnr_a}, {"cases", nlohmann::json::array()}};
+                        {"psnr_a", c.psnr_a}, {"cases", nlohmann::json::array()}};
   for (const std::string& which : cases) {
-    nlohmann::json row = {{"case", which}};
-    const bool first_scan = which == "unposed-first";
-    Scene scan = first_scan ? visit_a : visit_b;
-    const std::vector<View> truth = scan.train;
-    std::vector<int> posed;
-    std::vector<View> scored = test;
-    double posing_seconds = 0;
-    if (which == "own") ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, extent), &scan);
-    // As the service: a scan it posed has its camera refined against the
-    // place after registration ("unposed-unrefined": without, to compare).
-    // A later visit's COLMAP run starts from the place's camera, as the
-    // service's does ("unposed-unseeded": from COLMAP's own guess).
-    const bool refine = which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto";
-    const std::optional<Intrinsics> seed =
-        which == "unposed" || which == "unposed-nophoto" ? std::optional<Intrinsics>(place.back().intrinsics) : std::nullopt;
-    if (refine || which == "unposed-unrefined" || first_scan) {
-      t0 = std::chrono::steady_clock::now();
-      absl::StatusOr<SfmResult> sfm =
-          PoseWithColmap(&scan, &posed, a.threads, first_scan ? &scored : nullptr, seed);
-      posing_seconds = SecondsSince(t0);
-      row["posing_seconds"] = posing_seconds;
-      if (!sfm.ok()) {
-        row["status"] = sfm.status().ToString();
-        std::printf("rescan %s, %s: COLMAP could not pose it: %s\n", a.data.c_str(), which.c_str(),
-                    std::string(sfm.status().message()).c_str());
-        out["cases"].push_back(row);
-        continue;
-      }
-      row["posed"] = sfm->registered;
-      row["colmap_fx"] = scan.train.empty() ? 0.0 : scan.train[0].camera.intrinsics.fx;
-      row["known_fx"] = truth[0].camera.intrinsics.fx;
-      std::printf("  %s: COLMAP's focal %.2f px, k1 %.4f (known: %.2f px, k1 %.4f)\n", which.c_str(),
-                  scan.train.empty() ? 0.0 : scan.train[0].camera.intrinsics.fx,
-                  scan.train.empty() ? 0.0 : scan.train[0].camera.intrinsics.k1, truth[0].camera.intrinsics.fx,
-                  truth[0].camera.intrinsics.k1);
-      row["reprojection_px"] = sfm->mean_reprojection_px;
-    } else {
-      for (size_t i = 0; i < scan.train.size(); ++i) posed.push_back(int(i));
-    }
-    std::vector<View> posed_truth;
-    for (int i : posed) posed_truth.push_back(truth[size_t(i)]);
-    double register_seconds = 0;
-    double baseline = psnr_a;
-    if (first_scan) {
-      // Matched poses: the held-out views were posed in the same COLMAP run
-      // (as the service poses an upload's test frames); visit A posed is
-      // scored on the same views for the comparison.
-      std::vector<View> same;
-      for (const View& v : test) {
-        for (const View& p : scored) {
-          if (p.name == v.name) same.push_back(v);
-        }
-      }
-      baseline = HeldOutPsnr(*state_a->model, same, 0, a.eval_views);
-      row["held_out_posed"] = scored.size();
-      row["psnr_posed_baseline"] = baseline;
-      std::vector<PosePair> pairs;
-      for (size_t k = 0; k < posed.size(); ++k) pairs.push_back({posed_truth[k].camera.c2w, scan.train[k].camera.c2w});
-      absl::StatusOr<RobustSimilarity> fit = FitSimilarityRobust(pairs, extent, {});
-      if (!fit.ok()) return Fail(fit.status());
-      Scene back = scan;
-      ApplySimilarity(fit->transform.Inverse(), &back);
-      const PoseErrors e = FrameErrors(back.train, posed_truth, extent);
-      row["centre_error_pct_median"] = e.centre_median;
-      row["rotation_error_deg_median"] = e.rotation_median;
-    } else {
-      t0 = std::chrono::steady_clock::now();
-      RegistrationReport r = RegisterScan(scan, ModelPlaceMap(*state_a->model, RenderOptions()), place, extent,
-                                          a.registration);
-      register_seconds = SecondsSince(t0);
-      row["registered"] = r.status.ok();
-      row["identity"] = r.identity;
-      row["status"] = r.status.ToString();
-      if (r.status.ok()) ApplySimilarity(r.transform, &scan);
-      const PoseErrors e = FrameErrors(scan.train, posed_truth, extent);
-      {  // Each placed frame's own PnP pose against the place's renders.
-        std::vector<View> pnp, pnp_truth;
-        for (size_t k = 0; k < r.tried.size(); ++k) {
-          if (!r.localized[k].placed) continue;
-          View v = scan.train[size_t(r.tried[k])];
-          v.camera.c2w = r.localized[k].c2w;
-          pnp.push_back(v);
-          pnp_truth.push_back(posed_truth[size_t(r.tried[k])]);
-        }
-        const PoseErrors pe = FrameErrors(pnp, pnp_truth, extent);
-        row["pnp_centre_error_pct_median"] = pe.centre_median;
-        row["pnp_rotation_error_deg_median"] = pe.rotation_median;
-        std::printf("  %s: registered poses %.2f%% / %.2f deg from the known; per-frame PnP poses %.2f%% / %.2f deg "
-                    "(%zu frames)\n",
-                    which.c_str(), e.centre_median, e.rotation_median, pe.centre_median, pe.rotation_median,
-                    pnp.size());
-      }
-      if (refine && r.status.ok()) {  // The shared camera and poses refined against the place.
-        RefineLikeTheService(*state_a->model, r, extent, which, posed_truth, &scan, &row);
-      }
-      row["centre_error_pct_median"] = e.centre_median;
-      row["centre_error_pct_max"] = e.centre_max;
-      row["rotation_error_deg_median"] = e.rotation_median;
-      row["rotation_error_deg_max"] = e.rotation_max;
-      if (!r.status.ok() && which != "place") {
-        std::printf("rescan %s, %s: refused: %s\n", a.data.c_str(), which.c_str(),
-                    std::string(r.status.message()).c_str());
-        out["cases"].push_back(row);
-        continue;
-      }
-    }
-    row["register_seconds"] = register_seconds;
-    t0 = std::chrono::steady_clock::now();
-    absl::StatusOr<ContinualState> next =
-        ContinualUpdate(scan, first_scan ? nullptr : &*state_a, first_scan ? first : a.update, {}, nullptr, nullptr);
-    if (!next.ok()) return Fail(next.status());
-    const double train_seconds = SecondsSince(t0);
-    const double latest = first_scan ? HeldOutPsnr(*next->model, scored, 0, a.eval_views)
-                                     : HeldOutPsnr(*next->model, test_b, 1, a.eval_views);
-    const double at_a = first_scan ? latest : HeldOutPsnr(*next->model, scored, 0, a.eval_views);
-    if (first_scan) {
-      // Test-time alignment (as BARF and nerfstudio evaluate with pose
-      // optimisation): the held-out views, posed by the same COLMAP run,
-      // aligned photometrically to the trained model before scoring.
-      Scene held = scan;
-      held.train = scored;
-      std::vector<Camera> own;  // The extent in COLMAP's frame, where the model is.
-      for (const View& v : scan.train) own.push_back(v.camera);
-      absl::StatusOr<ScanPhotometricReport> pr =
-          RefineScanPhotometric(ModelPlaceMap(*next->model, RenderOptions()), &held,
-                                PlaceExtent(own, next->model->normalization()), PhotometricRefineOptions());
-      if (pr.ok()) {
-        row["psnr_test_aligned"] = HeldOutPsnr(*next->model, held.train, 0, a.eval_views);
-        std::printf("  %s: held-out views aligned to the model (%d of %d moved): %.2f dB\n", which.c_str(),
-                    pr->accepted, pr->frames, row["psnr_test_aligned"].get<double>());
-      }
-    }
-    row["train_seconds"] = train_seconds;
-    row["psnr_latest"] = latest;
-    row["psnr_at_a"] = at_a;
-    std::printf("rescan %s, %-13s: %zu/%zu frames posed | pose error median %.2f%% / %.2f deg | pose %.1f s, "
-                "register %.1f s, train %.1f s | held-out PSNR latest %.2f dB, at visit A's time %.2f dB%s\n",
-                a.data.c_str(), which.c_str(), posed.size(), truth.size(), row.value("centre_error_pct_median", 0.0),
-                row.value("rotation_error_deg_median", 0.0), posing_seconds, register_seconds, train_seconds, latest,
-                at_a,
-                first_scan ? absl::StrFormat(" (visit A posed, same %zu views: %.2f dB)", scored.size(), baseline).c_str()
-                           : "");
-    std::fflush(stdout);
-    out["cases"].push_back(row);
+    absl::StatusOr<nlohmann::json> row = RunCase(c, which);
+    if (!row.ok()) return Fail(row.status());
+    out["cases"].push_back(*row);
   }
   if (!a.json.empty()) {
     if (absl::Status s = WriteJson(a.json, out); !s.ok()) return Fail(s);
