@@ -208,10 +208,9 @@ bool PoseCase(const RescanContext& c, const std::string& which, CaseScan* cs, nl
 }
 
 // A first scan: its poses against the known ones after one similarity (when
-// one fits), and
-// visit A posed scored on the held-out views COLMAP posed (matched poses:
-// they were posed in the same run, as the service poses an upload's test
-// frames).
+// one fits), and visit A posed scored on the held-out views COLMAP posed
+// (matched poses: they were posed in the same run, as the service poses an
+// upload's test frames).
 absl::Status ScoreFirstScanPoses(const RescanContext& c, CaseScan* cs, nlohmann::json* row) {
   std::vector<View> same;
   for (const View& v : c.test) {
@@ -270,7 +269,9 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   // As the service: a scan it posed has its camera refined against the
   // place after registration ("unposed-unrefined": without, to compare).
   const bool refine = which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto";
-  if (refine && r.status.ok()) RefineLikeTheService(*c.place_state->model, r, c.extent, which, cs->posed_truth, &cs->scan, row);
+  if (refine && r.status.ok()) {
+    RefineLikeTheService(*c.place_state->model, r, c.extent, which, cs->posed_truth, &cs->scan, row);
+  }
   (*row)["centre_error_pct_median"] = e.centre_median;
   (*row)["centre_error_pct_max"] = e.centre_max;
   (*row)["rotation_error_deg_median"] = e.rotation_median;
@@ -292,8 +293,9 @@ void ScoreTestAligned(const RescanContext& c, const std::string& which, const Ng
   held.train = cs.scored;
   std::vector<Camera> own;  // The extent in COLMAP's frame, where the model is.
   for (const View& v : cs.scan.train) own.push_back(v.camera);
-  absl::StatusOr<ScanPhotometricReport> pr = RefineScanPhotometric(
-      ModelPlaceMap(model, RenderOptions()), &held, PlaceExtent(own, model.normalization()), PhotometricRefineOptions());
+  absl::StatusOr<ScanPhotometricReport> pr =
+      RefineScanPhotometric(ModelPlaceMap(model, RenderOptions()), &held, PlaceExtent(own, model.normalization()),
+                            PhotometricRefineOptions());
   if (!pr.ok()) return;
   (*row)["psnr_test_aligned"] = HeldOutPsnr(model, held.train, 0, c.args->eval_views);
   std::printf("  %s: held-out views aligned to the model (%d of %d moved): %.2f dB\n", which.c_str(), pr->accepted,
@@ -337,11 +339,12 @@ absl::StatusOr<nlohmann::json> RunCase(const RescanContext& c, const std::string
   row["psnr_at_a"] = at_a;
   std::printf("rescan %s, %-13s: %zu/%zu frames posed | pose error median %.2f%% / %.2f deg | pose %.1f s, "
               "register %.1f s, train %.1f s | held-out PSNR latest %.2f dB, at visit A's time %.2f dB%s\n",
-              a.data.c_str(), which.c_str(), cs.posed.size(), cs.truth.size(), row.value("centre_error_pct_median", 0.0),
-              row.value("rotation_error_deg_median", 0.0), cs.posing_seconds, cs.register_seconds, train_seconds,
-              latest, at_a,
-              first_scan ? absl::StrFormat(" (visit A posed, same %zu views: %.2f dB)", cs.scored.size(), cs.baseline).c_str()
-                         : "");
+              a.data.c_str(), which.c_str(), cs.posed.size(), cs.truth.size(),
+              row.value("centre_error_pct_median", 0.0), row.value("rotation_error_deg_median", 0.0),
+              cs.posing_seconds, cs.register_seconds, train_seconds, latest, at_a,
+              first_scan
+                  ? absl::StrFormat(" (visit A posed, same %zu views: %.2f dB)", cs.scored.size(), cs.baseline).c_str()
+                  : "");
   std::fflush(stdout);
   return row;
 }

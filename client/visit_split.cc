@@ -56,12 +56,9 @@ void SplitVisits(const Scene& all, Scene* a, Scene* b) {
   const bool two_times = std::any_of(all.train.begin(), all.train.end(),
                                      [](const View& v) { return v.camera.time_step == 1; });
   for (size_t i = 0; i < all.train.size(); ++i) {
-    const int t = all.train[i].camera.time_step;
-    if (two_times ? t == 0 : i % 2 == 0) {
-      a->train.push_back(all.train[i]);
-    } else if (two_times ? t == 1 : true) {
-      b->train.push_back(all.train[i]);
-    }
+    const int visit = two_times ? all.train[i].camera.time_step : int(i % 2);  // 0: A, 1: B, else neither.
+    if (visit == 0) a->train.push_back(all.train[i]);
+    if (visit == 1) b->train.push_back(all.train[i]);
   }
 }
 
