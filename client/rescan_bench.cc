@@ -15,7 +15,9 @@
 //                   first scan, against visit A posed (scored at matched
 //                   poses: the held-out views posed in the same COLMAP run,
 //                   as the service poses an upload's test frames, and visit
-//                   A posed scored on the same views).
+//                   A posed scored on the same views), repeated over
+//                   --first-seeds training seeds, each against visit A
+//                   posed and trained with the same seed (means reported).
 // Per case: registration error against the known poses, seconds per stage
 // (posing, registering, training), held-out PSNR at the latest time and at
 // visit A's. JSON plus one human line per case.
@@ -211,14 +213,15 @@ bool PoseCase(const RescanContext& c, const std::string& which, CaseScan* cs, nl
 // one fits), and visit A posed scored on the held-out views COLMAP posed
 // (matched poses: they were posed in the same run, as the service poses an
 // upload's test frames).
-absl::Status ScoreFirstScanPoses(const RescanContext& c, CaseScan* cs, nlohmann::json* row) {
+absl::Status ScoreFirstScanPoses(const RescanContext& c, const NgpModel& posed_model, CaseScan* cs,
+                                 nlohmann::json* row) {
   std::vector<View> same;
   for (const View& v : c.test) {
     for (const View& p : cs->scored) {
       if (p.name == v.name) same.push_back(v);
     }
   }
-  cs->baseline = HeldOutPsnr(*c.place_state->model, same, 0, c.args->eval_views);
+  cs->baseline = HeldOutPsnr(posed_model, same, 0, c.args->eval_views);
   (*row)["held_out_posed"] = cs->scored.size();
   (*row)["psnr_posed_baseline"] = cs->baseline;
   std::vector<PosePair> pairs;
@@ -302,16 +305,15 @@ void ScoreTestAligned(const RescanContext& c, const std::string& which, const Ng
               pr->frames, (*row)["psnr_test_aligned"].get<double>());
 }
 
-// One case, start to end: its JSON row (an error only for a broken bench).
+// One later-visit case, start to end: its JSON row (an error only for a
+// broken bench).
 absl::StatusOr<nlohmann::json> RunCase(const RescanContext& c, const std::string& which) {
   const BenchRescanArgs& a = *c.args;
   nlohmann::json row = {{"case", which}};
-  const bool first_scan = which == "unposed-first";
   CaseScan cs;
-  cs.scan = first_scan ? c.visit_a : c.visit_b;
+  cs.scan = c.visit_b;
   cs.truth = cs.scan.train;
   cs.scored = c.test;
-  cs.baseline = c.psnr_a;
   if (which == "own") ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, c.extent), &cs.scan);
   if (which != "place" && which != "own") {
     if (!PoseCase(c, which, &cs, &row)) return row;
@@ -319,32 +321,96 @@ absl::StatusOr<nlohmann::json> RunCase(const RescanContext& c, const std::string
     for (size_t i = 0; i < cs.scan.train.size(); ++i) cs.posed.push_back(int(i));
   }
   for (int i : cs.posed) cs.posed_truth.push_back(cs.truth[size_t(i)]);
-  if (first_scan) {
-    if (absl::Status s = ScoreFirstScanPoses(c, &cs, &row); !s.ok()) return s;
-  } else if (!RegisterCase(c, which, &cs, &row)) {
-    return row;
-  }
+  if (!RegisterCase(c, which, &cs, &row)) return row;
   row["register_seconds"] = cs.register_seconds;
   const auto t0 = std::chrono::steady_clock::now();
-  absl::StatusOr<ContinualState> next = ContinualUpdate(cs.scan, first_scan ? nullptr : c.place_state,
-                                                        first_scan ? c.first : a.update, {}, nullptr, nullptr);
+  absl::StatusOr<ContinualState> next = ContinualUpdate(cs.scan, c.place_state, a.update, {}, nullptr, nullptr);
   if (!next.ok()) return next.status();
   const double train_seconds = SecondsSince(t0);
-  const double latest = first_scan ? HeldOutPsnr(*next->model, cs.scored, 0, a.eval_views)
-                                   : HeldOutPsnr(*next->model, c.test_b, 1, a.eval_views);
-  const double at_a = first_scan ? latest : HeldOutPsnr(*next->model, cs.scored, 0, a.eval_views);
-  if (first_scan) ScoreTestAligned(c, which, *next->model, cs, &row);
+  const double latest = HeldOutPsnr(*next->model, c.test_b, 1, a.eval_views);
+  const double at_a = HeldOutPsnr(*next->model, cs.scored, 0, a.eval_views);
   row["train_seconds"] = train_seconds;
   row["psnr_latest"] = latest;
   row["psnr_at_a"] = at_a;
   std::printf("rescan %s, %-13s: %zu/%zu frames posed | pose error median %.2f%% / %.2f deg | pose %.1f s, "
-              "register %.1f s, train %.1f s | held-out PSNR latest %.2f dB, at visit A's time %.2f dB%s\n",
+              "register %.1f s, train %.1f s | held-out PSNR latest %.2f dB, at visit A's time %.2f dB\n",
               a.data.c_str(), which.c_str(), cs.posed.size(), cs.truth.size(),
               row.value("centre_error_pct_median", 0.0), row.value("rotation_error_deg_median", 0.0),
-              cs.posing_seconds, cs.register_seconds, train_seconds, latest, at_a,
-              first_scan
-                  ? absl::StrFormat(" (visit A posed, same %zu views: %.2f dB)", cs.scored.size(), cs.baseline).c_str()
-                  : "");
+              cs.posing_seconds, cs.register_seconds, train_seconds, latest, at_a);
+  std::fflush(stdout);
+  return row;
+}
+
+// Visit A with its known poses, trained with `seed`: what an unposed first
+// scan trained with the same seed is compared with (the place itself for
+// the bench's own seed).
+absl::StatusOr<std::shared_ptr<const NgpModel>> PosedFirstScan(const RescanContext& c, uint64_t seed) {
+  if (seed == c.first.train.seed) return c.place_state->model;
+  UpdateOptions o = c.first;
+  o.train.seed = seed;
+  absl::StatusOr<ContinualState> s = ContinualUpdate(c.visit_a, nullptr, o, {}, nullptr, nullptr);
+  if (!s.ok()) return s.status();
+  return s->model;
+}
+
+// unposed-first with one training seed: visit A's photos posed by COLMAP
+// (with its held-out views), trained as a place's first scan, and scored
+// against visit A posed and trained with the same seed.
+absl::StatusOr<nlohmann::json> RunFirstScanSeed(const RescanContext& c, uint64_t seed) {
+  const BenchRescanArgs& a = *c.args;
+  const std::string which = "unposed-first";
+  nlohmann::json row = {{"seed", seed}};
+  CaseScan cs;
+  cs.scan = c.visit_a;
+  cs.truth = cs.scan.train;
+  cs.scored = c.test;
+  if (!PoseCase(c, which, &cs, &row)) return row;
+  for (int i : cs.posed) cs.posed_truth.push_back(cs.truth[size_t(i)]);
+  absl::StatusOr<std::shared_ptr<const NgpModel>> posed = PosedFirstScan(c, seed);
+  if (!posed.ok()) return posed.status();
+  if (absl::Status s = ScoreFirstScanPoses(c, **posed, &cs, &row); !s.ok()) return s;
+  UpdateOptions o = c.first;
+  o.train.seed = seed;
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<ContinualState> next = ContinualUpdate(cs.scan, nullptr, o, {}, nullptr, nullptr);
+  if (!next.ok()) return next.status();
+  row["train_seconds"] = SecondsSince(t0);
+  row["psnr_latest"] = HeldOutPsnr(*next->model, cs.scored, 0, a.eval_views);
+  ScoreTestAligned(c, which, *next->model, cs, &row);
+  std::printf("rescan %s, %s, seed %llu: %zu/%zu frames posed | pose error median %.2f%% / %.2f deg | pose %.1f s, "
+              "train %.1f s | held-out PSNR %.2f dB (visit A posed, same seed and %zu views: %.2f dB)\n",
+              a.data.c_str(), which.c_str(), (unsigned long long)seed, cs.posed.size(), cs.truth.size(),
+              row.value("centre_error_pct_median", 0.0), row.value("rotation_error_deg_median", 0.0),
+              cs.posing_seconds, row["train_seconds"].get<double>(), row["psnr_latest"].get<double>(),
+              cs.scored.size(), cs.baseline);
+  std::fflush(stdout);
+  return row;
+}
+
+// unposed-first over --first-seeds training seeds: the per-seed rows and
+// the means over the seeds COLMAP posed.
+absl::StatusOr<nlohmann::json> RunFirstScanCase(const RescanContext& c) {
+  nlohmann::json row = {{"case", "unposed-first"}, {"seeds", nlohmann::json::array()}};
+  double sum = 0, sum_base = 0, sum_aligned = 0;
+  int n = 0;
+  for (int k = 0; k < c.args->first_seeds; ++k) {
+    absl::StatusOr<nlohmann::json> r = RunFirstScanSeed(c, c.first.train.seed + uint64_t(k));
+    if (!r.ok()) return r.status();
+    row["seeds"].push_back(*r);
+    if (!r->contains("psnr_latest")) continue;
+    sum += (*r)["psnr_latest"].get<double>();
+    sum_base += (*r)["psnr_posed_baseline"].get<double>();
+    sum_aligned += r->value("psnr_test_aligned", (*r)["psnr_latest"].get<double>());
+    ++n;
+  }
+  row["seeds_posed"] = n;
+  if (n == 0) return row;
+  row["psnr_latest"] = sum / n;
+  row["psnr_posed_baseline"] = sum_base / n;
+  row["psnr_test_aligned"] = sum_aligned / n;
+  std::printf("rescan %s, unposed-first over %d seeds: mean held-out PSNR %.2f dB (test views aligned %.2f) against "
+              "visit A posed %.2f dB: %+.2f dB\n",
+              c.args->data.c_str(), n, sum / n, sum_aligned / n, sum_base / n, (sum - sum_base) / n);
   std::fflush(stdout);
   return row;
 }
@@ -380,6 +446,10 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--scale", a->scale, "... and scale")->capture_default_str();
   c->add_option("--seed", a->seed, "Seed of its axis and shift")->capture_default_str();
   c->add_option("--eval-views", a->eval_views, "Held-out views scored (0 = all)")->capture_default_str();
+  c->add_option("--first-seeds", a->first_seeds,
+                "unposed-first: training seeds compared (each with its own COLMAP run and posed baseline)")
+      ->capture_default_str()
+      ->check(CLI::Range(1, 100));
   BindDatasetFlags(c, &a->dataset);
   BindThreadsFlag(c, &a->threads);
   c->add_option("--json", a->json, "Write JSON here ('-' = stdout)");
@@ -423,7 +493,7 @@ int RunBenchRescan(const BenchRescanArgs& a) {
                         {"iterations", a.update.train.iterations}, {"train_a_seconds", train_a},
                         {"psnr_a", c.psnr_a}, {"cases", nlohmann::json::array()}};
   for (const std::string& which : cases) {
-    absl::StatusOr<nlohmann::json> row = RunCase(c, which);
+    absl::StatusOr<nlohmann::json> row = which == "unposed-first" ? RunFirstScanCase(c) : RunCase(c, which);
     if (!row.ok()) return Fail(row.status());
     out["cases"].push_back(*row);
   }
