@@ -248,6 +248,32 @@ TEST_F(PlacesTest, ARequestIntoADeletedPlaceIsNotFoundNotUnavailable) {
   }
 }
 
+// A place deleted while its update trains: the job says so, not that the
+// server shut down (the reason is read when the job stops, not when it
+// started).
+TEST_F(PlacesTest, AJobStoppedByItsPlacesDeletionSaysSo) {
+  const Scene scene = TinyScans(1);
+  absl::StatusOr<std::unique_ptr<ModelHost>> host =
+      ModelHost::Open(TinyServerOptions(TempDir("srv_places_deleted_job"), 100000), {}, "shop");
+  ASSERT_TRUE(host.ok()) << host.status();
+  absl::StatusOr<UploadAck> ack = (*host)->AcceptScan(UploadOf(scene, 0));
+  ASSERT_TRUE(ack.ok()) << ack.status();
+  bool training = false;
+  for (int i = 0; i < 1200 && !training; ++i) {
+    absl::StatusOr<JobStatus> j = (*host)->GetJob(ack->job_id);
+    ASSERT_TRUE(j.ok()) << j.status();
+    training = j->phase == JobPhase::kTraining && j->iteration > 0;
+    if (!training) std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  ASSERT_TRUE(training);
+  (*host)->MarkDeleted();
+  (*host)->Shutdown();
+  absl::StatusOr<JobStatus> j = (*host)->GetJob(ack->job_id);
+  ASSERT_TRUE(j.ok()) << j.status();
+  EXPECT_EQ(j->phase, JobPhase::kCancelled);
+  EXPECT_NE(j->error.find("the place was deleted"), std::string::npos) << j->error;
+}
+
 // A store the single-place server wrote (its files at the root) opens as the
 // place "default", as it is.
 TEST_F(PlacesTest, AStoreFromBeforePlacesOpensAsDefault) {

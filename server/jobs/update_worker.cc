@@ -389,12 +389,11 @@ void UpdateWorker::RunJob(const std::string& job_id) {
       return;
     }
   }
-  const std::string kept = StoppedWhy();
   if (job->cancel_requested) return Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled", true);
   // A deployed version not loaded yet is checked first: if it cannot load,
   // the store turns read-only and the job waits like any write would.
   (void)publisher_->VerifyDeployed();
-  if (!WaitForWritableStore(job_id)) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
+  if (!WaitForWritableStore(job_id)) return Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
   if (absl::StatusOr<int> a = scans_->RecordAttempt(scan_id); !a.ok()) {
     spdlog::warn("job {}: attempt not recorded: {}", job_id, a.status().ToString());
   } else if (*a > 1) {
@@ -494,8 +493,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
       &cancel_, &report);
   if (!next.ok()) {
     if (absl::IsCancelled(next.status())) {
-      if (stopping_) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
-      return Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled by request", true);
+      return FinishCancelled(job_id, scan_id);
     }
     return Finish(job_id, scan_id, JobPhase::kFailed, std::string(next.status().message()), true);
   }
@@ -516,7 +514,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   if (!gate.status.ok()) {
     return Finish(job_id, scan_id, JobPhase::kFailed, std::string(gate.status.message()), true, "refused");
   }
-  if (stopping_) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
+  if (stopping_) return Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
 
   // 4. Publish; on a store error keep the trained state and retry once the
   // store recovers (or until shutdown: the scan is then retrained).
@@ -539,12 +537,12 @@ void UpdateWorker::RunJob(const std::string& job_id) {
     if (coordinator_ != nullptr && publisher_->error().empty()) {
       // The coordinator could not be reached: the store is fine, try again.
       spdlog::warn("job {}: publishing: {}; retrying", job_id, std::string(published.status().message()));
-      if (!Pause()) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
+      if (!Pause()) return Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
       continue;
     }
     spdlog::error("job {}: publishing failed: {}; retrying when the store recovers", job_id,
                   std::string(published.status().message()));
-    if (!WaitForWritableStore(job_id)) return Finish(job_id, scan_id, JobPhase::kCancelled, kept, false);
+    if (!WaitForWritableStore(job_id)) return Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
     // Recovery may itself have deployed a version of this scan (a write whose
     // error was reported after it landed): then the job is done.
     const std::optional<DeployedSummary> now = publisher_->registry().deployed();
