@@ -4,16 +4,18 @@
 # visits by alternate frames; visit A trains the place's first model, visit B
 # comes in the place's frame, in its own (rotated 40 degrees, scaled 1.7,
 # shifted) and unposed (posed by COLMAP), is registered and trained; and
-# visit A again unposed as a first scan. Held-out PSNR after each, pose
+# visit A again unposed as a first scan (over FIRST_SEEDS training seeds,
+# each against visit A posed with the same seed). Held-out PSNR after each, pose
 # errors against the known poses, seconds per stage. One JSON per capture.
 # With no arguments, also the procedural forward-facing scene and the
 # procedural capture whose objects move between visits.
-# Usage: bench/rescan.sh [DATASET_DIR ...]   (FIRST_ITERS=1000 ITERS=1000 OUT=bench/results/rescan)
+# Usage: bench/rescan.sh [DATASET_DIR ...]   (FIRST_ITERS=1000 ITERS=1000 FIRST_SEEDS=3 OUT=bench/results/rescan)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${BIN:-./build/client/clnerf}
 FIRST_ITERS=${FIRST_ITERS:-1000}
 ITERS=${ITERS:-1000}
+FIRST_SEEDS=${FIRST_SEEDS:-3}
 OUT=${OUT:-bench/results/rescan}
 mkdir -p "$OUT"
 DATA=("$@")
@@ -25,5 +27,5 @@ for d in "${DATA[@]}"; do
   name=$(basename "$d")
   echo "== $name"
   "$BIN" --log-level warn bench rescan --data "$d" --first-iters "$FIRST_ITERS" --iters "$ITERS" \
-    --json "$OUT/$name.json" || echo "(bench rescan failed on $name)"
+    --first-seeds "$FIRST_SEEDS" --json "$OUT/$name.json" || echo "(bench rescan failed on $name)"
 done

@@ -39,10 +39,12 @@ nlohmann::json EvalJson(const EvalResult& r) {
   nlohmann::json per = nlohmann::json::array();
   for (const ViewScore& v : r.views) {
     per.push_back({{"name", v.name}, {"time_step", v.time_step}, {"psnr", v.psnr}, {"ssim", v.ssim},
-                   {"psnr_colour_corrected", v.psnr_cc}, {"render_ms", v.render_seconds * 1e3}});
+                   {"psnr_colour_corrected", v.psnr_cc}, {"speckle", v.speckle}, {"blur", v.blur},
+                   {"render_ms", v.render_seconds * 1e3}});
   }
-  return {{"psnr", r.psnr}, {"ssim", r.ssim}, {"psnr_colour_corrected", r.psnr_cc}, {"num_images", r.views.size()},
-          {"mean_render_ms", r.mean_render_seconds * 1e3}, {"images", per}};
+  return {{"psnr", r.psnr}, {"ssim", r.ssim}, {"psnr_colour_corrected", r.psnr_cc}, {"speckle", r.speckle},
+          {"blur", r.blur}, {"num_images", r.views.size()}, {"mean_render_ms", r.mean_render_seconds * 1e3},
+          {"images", per}};
 }
 
 }  // namespace
@@ -136,11 +138,14 @@ int RunTrain(const TrainArgs& a) {
     j["psnr"] = ev->psnr;
     j["ssim"] = ev->ssim;
     j["psnr_colour_corrected"] = ev->psnr_cc;
+    j["speckle"] = ev->speckle;
+    j["blur"] = ev->blur;
     j["num_images"] = ev->views.size();
     j["mean_render_ms"] = ev->mean_render_seconds * 1e3;
-    std::printf("test PSNR %.2f dB (colour-corrected %.2f), SSIM %.4f over %zu images | train %.1fs, %.0f samples/s | "
-                "model %zu bytes, file %zu bytes\n",
-                ev->psnr, ev->psnr_cc, ev->ssim, ev->views.size(), fit->train_seconds, fit->samples_per_second,
+    std::printf("test PSNR %.2f dB (colour-corrected %.2f), SSIM %.4f, speckle %.4f, blur %.4f over %zu images | "
+                "train %.1fs, %.0f samples/s | model %zu bytes, file %zu bytes\n",
+                ev->psnr, ev->psnr_cc, ev->ssim, ev->speckle, ev->blur, ev->views.size(), fit->train_seconds,
+                fit->samples_per_second,
                 fit->model->num_bytes(), *bytes);
   } else {
     std::printf("trained %d steps in %.1fs, %.0f samples/s | model %zu bytes, file %zu bytes\n", fit->iterations,
@@ -182,8 +187,10 @@ int RunEval(const EvalArgs& a) {
   j["model_bytes"] = ck->model.num_bytes();
   j["file_bytes"] = ck->num_bytes;
   j["split"] = a.split;
-  std::printf("%s: PSNR %.2f dB (colour-corrected %.2f), SSIM %.4f over %zu images, %.1f ms/image\n",
-              a.split.c_str(), ev->psnr, ev->psnr_cc, ev->ssim, ev->views.size(), ev->mean_render_seconds * 1e3);
+  std::printf("%s: PSNR %.2f dB (colour-corrected %.2f), SSIM %.4f, speckle %.4f, blur %.4f over %zu images, "
+              "%.1f ms/image\n",
+              a.split.c_str(), ev->psnr, ev->psnr_cc, ev->ssim, ev->speckle, ev->blur, ev->views.size(),
+              ev->mean_render_seconds * 1e3);
   if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
   return 0;
 }

@@ -5,6 +5,7 @@
 
 #include "absl/strings/str_format.h"
 #include "core/render/metrics.h"
+#include "core/render/speckle.h"
 
 namespace clnerf {
 
@@ -59,7 +60,10 @@ absl::StatusOr<EvalResult> EvaluateViews(const NgpModel& model, const std::vecto
     if (!r.ok()) return r.status();
     absl::StatusOr<ImageMetrics> m = ComputeImageMetrics(r->rgb, v.image);
     if (!m.ok()) return m.status();
-    result.views.push_back({v.name, v.camera.time_step, m->psnr, m->ssim, secs, m->psnr_cc});
+    absl::StatusOr<DetailScore> detail = ScoreDetail(r->rgb, v.image);
+    if (!detail.ok()) return detail.status();
+    result.views.push_back(
+        {v.name, v.camera.time_step, m->psnr, m->ssim, secs, m->psnr_cc, detail->speckle, detail->blur});
     if (!options.save_dir.empty()) {
       // "r_0" and "r_0.png" both become 0000_r_0.png (not r_0.png.png).
       const std::string stem = std::filesystem::path(v.name).stem().string();
@@ -71,12 +75,16 @@ absl::StatusOr<EvalResult> EvaluateViews(const NgpModel& model, const std::vecto
     result.psnr += s.psnr;
     result.ssim += s.ssim;
     result.psnr_cc += s.psnr_cc;
+    result.speckle += s.speckle;
+    result.blur += s.blur;
     result.mean_render_seconds += s.render_seconds;
   }
   const double n = double(result.views.size());
   result.psnr /= n;
   result.ssim /= n;
   result.psnr_cc /= n;
+  result.speckle /= n;
+  result.blur /= n;
   result.mean_render_seconds /= n;
   return result;
 }

@@ -28,6 +28,7 @@ struct ViewScore {
   double psnr = 0, ssim = 0;
   double render_seconds = 0;
   double psnr_cc = 0;  // Colour-corrected PSNR (metrics.h).
+  double speckle = 0, blur = 0;  // Fine detail the photo lacks / the render lacks (speckle.h).
 };
 
 struct EvalResult {
@@ -36,6 +37,7 @@ struct EvalResult {
   // time-step embedding (test views have no per-image embedding of their
   // own), the same for every method.
   double psnr = 0, ssim = 0, psnr_cc = 0;
+  double speckle = 0, blur = 0;  // speckle.h.
   double mean_render_seconds = 0;
   std::vector<ViewScore> views;
 };
