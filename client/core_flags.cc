@@ -38,6 +38,9 @@ void BindFitFlags(CLI::App* c, FitOptions* fo) {
   c->add_option("--near-density-fade", t.near_density_fade,
                 "Fade the occlusion penalty to 0 over this fraction of training (0 = constant)")
       ->capture_default_str();
+  c->add_option("--grid-decay", t.grid_decay,
+                "Normalised weight decay on the hash grid's features (Zip-NeRF uses 0.1; 0 = off)")
+      ->capture_default_str();
   c->add_flag("--random-background", t.random_background, "Real captures: train on random background colours");
   BindEnumFlag(c, "--sampler", &fo->model.sampler, {SamplerKind::kAuto, SamplerKind::kOccupancy, SamplerKind::kProposal},
                SamplerKindName,

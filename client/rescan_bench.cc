@@ -446,6 +446,11 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--scale", a->scale, "... and scale")->capture_default_str();
   c->add_option("--seed", a->seed, "Seed of its axis and shift")->capture_default_str();
   c->add_option("--eval-views", a->eval_views, "Held-out views scored (0 = all)")->capture_default_str();
+  c->add_option("--train-seed", a->update.train.seed, "Training seed of visit A and of every update")
+      ->capture_default_str();
+  c->add_option("--grid-decay", a->update.train.grid_decay,
+                "Normalised weight decay on the hash grid (Zip-NeRF: 0.1; 0 = off), every training")
+      ->capture_default_str();
   c->add_option("--first-seeds", a->first_seeds,
                 "unposed-first: training seeds compared (each with its own COLMAP run and posed baseline)")
       ->capture_default_str()

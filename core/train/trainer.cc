@@ -57,6 +57,9 @@ absl::Status TrainOptions::Validate() const {
   if (!(depth_weight >= 0) || !std::isfinite(depth_weight) || !(depth_sigma > 0) || !std::isfinite(depth_sigma)) {
     return absl::InvalidArgumentError("train: depth_weight must be finite and >= 0, depth_sigma finite and > 0");
   }
+  if (!(grid_decay >= 0) || !std::isfinite(grid_decay)) {
+    return absl::InvalidArgumentError("train: grid_decay must be finite and >= 0");
+  }
   if (!(view_colour_prior >= 0) || !std::isfinite(view_colour_prior) || !(view_colour_lr_scale > 0) ||
       !std::isfinite(view_colour_lr_scale)) {
     return absl::InvalidArgumentError("train: view_colour_prior must be finite and >= 0, view_colour_lr_scale finite and > 0");
@@ -562,6 +565,7 @@ float Trainer::ComputeLossAndGradients(const RayBatch& batch, const std::vector<
   batch_seed_ = 0;  // Proposal placement at bin centres: the same batch gives the same loss.
   float loss = ForwardBackward(batch, jitter.data(), /*ray_bg=*/nullptr, /*track_touched=*/false);
   if (options_.ewc != nullptr) loss += ApplyEwc(/*track_touched=*/false);
+  if (options_.grid_decay > 0) loss += ApplyGridDecay(/*touched_only=*/false);
   g->grid = grad_grid_;
   g->mlp = grad_mlp_;
   g->emb = grad_emb_;
@@ -622,6 +626,36 @@ float Trainer::ApplyEwc(bool track_touched) {
   return float(loss + grid_loss);
 }
 
+float Trainer::ApplyGridDecay(bool touched_only) {
+  const HashGrid& grid = model_->grid();
+  const std::vector<float>& v = model_->params().grid;
+  const double w = options_.grid_decay;
+  const int L = grid.num_levels();
+  double loss = 0;
+#pragma omp parallel for schedule(dynamic) reduction(+ : loss) num_threads(threads_)
+  for (int l = 0; l < L; ++l) {
+    // d/dv of w * mean(v^2) over the level's floats.
+    const double n = double(grid.level_size(l)) * HashGrid::kFeatures;
+    const float scale = float(2.0 * w / n);
+    double sum = 0;
+    auto decay = [&](size_t entry) {
+      for (int f = 0; f < HashGrid::kFeatures; ++f) {
+        const size_t i = HashGrid::kFeatures * entry + f;
+        grad_grid_[i] += scale * v[i];
+        sum += double(v[i]) * v[i];
+      }
+    };
+    if (touched_only) {
+      for (uint32_t e : touched_lists_[l]) decay(e);
+    } else {
+      const size_t begin = grid.level_offset(l), end = begin + grid.level_size(l);
+      for (size_t e = begin; e < end; ++e) decay(e);
+    }
+    loss += w * sum / n;
+  }
+  return float(loss);
+}
+
 absl::Status Trainer::Step() {
   const auto start = std::chrono::steady_clock::now();
   NgpModel& model = *model_;
@@ -643,6 +677,7 @@ absl::Status Trainer::Step() {
 
   float loss = ForwardBackward(batch, jitter.data(), ray_bg.empty() ? nullptr : ray_bg.data(), /*track_touched=*/true);
   if (options_.ewc != nullptr) loss += ApplyEwc(/*track_touched=*/true);
+  if (options_.grid_decay > 0) loss += ApplyGridDecay(/*touched_only=*/true);
   const int next = step_ + 1;
   if (next == options_.inject_nan_gradient_at_step && !grad_mlp_.empty()) grad_mlp_[0] = NAN;
 

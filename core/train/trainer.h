@@ -125,6 +125,14 @@ struct TrainOptions {
   bool view_colour = false;
   float view_colour_prior = 1e-2f;
   float view_colour_lr_scale = 0.1f;
+  // Normalised weight decay on the hash grid (Zip-NeRF): adds
+  // grid_decay * sum over levels of mean(feature^2) of the level to the
+  // loss, so features that few rays constrain shrink towards 0 instead of
+  // keeping arbitrary values (speckle in rarely seen regions). Zip-NeRF
+  // uses 0.1. In training it reaches, as the grid's lazy Adam does, only the
+  // entries the batch touched (a step's cost stays with its rays); the
+  // gradient check (ComputeLossAndGradients) takes every entry. 0 = off.
+  float grid_decay = 0.0f;
   LrSchedule lr_schedule = LrSchedule::kCosine;
   int lr_timescale = 0;           // tau of the inverse-sqrt schedules (0 = iterations).
   AdamOptions adam;
@@ -210,6 +218,9 @@ class Trainer {
   // Adds the EWC penalty's gradient (marking grid entries touched) and
   // returns its loss.
   float ApplyEwc(bool track_touched);
+  // TrainOptions::grid_decay's loss and gradient: over the touched entries
+  // (training), or over every entry (gradient checks).
+  float ApplyGridDecay(bool touched_only);
   // Zeroes the gradients and touched flags of one level's touched entries.
   void ClearLevelGradients(int level);
 

@@ -502,6 +502,66 @@ TEST(TrainerGradientTest, ContractedSceneWithViewColourTransformsMatchesFiniteDi
 // The field evaluator's two callers compute one function: the trainer's
 // composited colour of a ray (read back through its loss) equals the
 // renderer's, for bounded and contracted scenes.
+// Zip-NeRF's normalised grid decay: the decay's share of the loss (the loss
+// with it minus the loss without, same batch and model) against central
+// differences, on entries of every level, and the same share of the
+// gradient. The decay is quadratic, so a large step is exact up to the
+// float the loss is returned as.
+TEST(TrainerGradientTest, GridDecayMatchesFiniteDifferences) {
+  SerialEigen serial;
+  NgpModel model = TinyModel(3, 2, SceneKind::kBounded, SamplerKind::kOccupancy);
+  ModelParams& p = model.mutable_params();
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (float& v : p.grid) v = u(rng) - 0.5f;
+  NoSampler sampler(0);
+  TrainOptions on;
+  on.threads = 1;
+  on.grid_decay = 0.1f;
+  TrainOptions off = on;
+  off.grid_decay = 0.0f;
+  const RayBatch batch = MakeBatch(16, 5);
+  std::vector<float> jitter(batch.size(), 0.5f);
+  Trainer with(&model, &sampler, on), without(&model, &sampler, off);
+  auto decay_loss = [&]() {
+    Trainer::Gradients g;
+    return double(with.ComputeLossAndGradients(batch, jitter, &g)) -
+           double(without.ComputeLossAndGradients(batch, jitter, &g));
+  };
+  Trainer::Gradients g_on, g_off;
+  const double l_on = with.ComputeLossAndGradients(batch, jitter, &g_on);
+  const double l_off = without.ComputeLossAndGradients(batch, jitter, &g_off);
+  // Its value: 0.1 x (1/12 per level, the mean square of U(-0.5, 0.5)).
+  const HashGrid& grid = model.grid();
+  EXPECT_NEAR(l_on - l_off, 0.1 * grid.num_levels() / 12.0, 0.1 * grid.num_levels() * 0.01);
+  const double ulp = double(std::nextafter(float(l_on), 1.0f)) - l_on;
+  const float h = 0.05f;
+  int checked = 0;
+  for (int l = 0; l < grid.num_levels(); ++l) {
+    for (int k = 0; k < 4; ++k) {
+      const size_t i = 2 * (grid.level_offset(l) + rng() % grid.level_size(l)) + rng() % 2;
+      const float x0 = p.grid[i];
+      p.grid[i] = x0 + h;
+      const double lp = decay_loss();
+      p.grid[i] = x0 - h;
+      const double lm = decay_loss();
+      p.grid[i] = x0;
+      const double fd = (lp - lm) / (2.0 * h);
+      const double analytic = double(g_on.grid[i]) - g_off.grid[i];
+      EXPECT_NEAR(analytic, 2.0 * 0.1 * x0 / (2.0 * grid.level_size(l)), 1e-6 * std::abs(analytic) + 1e-12);
+      EXPECT_NEAR(analytic, fd, 8 * ulp / (2.0 * h) + 1e-3 * std::abs(fd)) << "level " << l << " entry " << i;
+      ++checked;
+    }
+  }
+  EXPECT_GE(checked, 8);
+  // Validation.
+  TrainOptions bad;
+  bad.grid_decay = -1.0f;
+  EXPECT_FALSE(bad.Validate().ok());
+  bad.grid_decay = NAN;
+  EXPECT_FALSE(bad.Validate().ok());
+}
+
 TEST(FieldCallersTest, TrainerAndRendererAgreeOnEveryRay) {
   SerialEigen serial;
   for (const auto& [kind, sampler_kind] : {std::pair{SceneKind::kBounded, SamplerKind::kOccupancy},
