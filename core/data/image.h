@@ -32,6 +32,9 @@ struct Image {
   const float* pixel(int x, int y) const { return rgb.data() + (size_t(y) * width + x) * 3; }
 };
 
+// Grey value (Rec. 601 luma) of one RGB pixel.
+inline float Luma(const float* rgb) { return 0.299f * rgb[0] + 0.587f * rgb[1] + 0.114f * rgb[2]; }
+
 // Per-pixel training mask: 1 = use the pixel, 0 = exclude it (transient).
 struct Mask {
   int width = 0;

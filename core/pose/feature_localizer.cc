@@ -5,6 +5,7 @@
 #include <map>
 
 #include "absl/strings/str_cat.h"
+#include "core/data/image.h"
 #include "Eigen/Geometry"
 #include "opencv2/calib3d.hpp"
 #include "opencv2/core.hpp"
@@ -20,8 +21,7 @@ cv::Mat ToGray(const Image& image) {
   for (int y = 0; y < image.height; ++y) {
     uint8_t* row = gray.ptr<uint8_t>(y);
     for (int x = 0; x < image.width; ++x) {
-      const float* p = image.pixel(x, y);
-      const float l = 0.299f * p[0] + 0.587f * p[1] + 0.114f * p[2];
+      const float l = Luma(image.pixel(x, y));
       row[x] = uint8_t(std::clamp(std::lround(l * 255.0f), 0l, 255l));
     }
   }

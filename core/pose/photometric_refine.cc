@@ -38,8 +38,7 @@ struct GreyImage {
   std::vector<float> v, gx, gy;
   explicit GreyImage(const Image& im) : w(im.width), h(im.height), v(im.num_pixels()), gx(v.size()), gy(v.size()) {
     for (size_t i = 0; i < v.size(); ++i) {
-      const float* p = im.rgb.data() + 3 * i;
-      v[i] = 0.299f * p[0] + 0.587f * p[1] + 0.114f * p[2];
+      v[i] = Luma(im.rgb.data() + 3 * i);
     }
     for (int y = 0; y < h; ++y) {
       for (int x = 0; x < w; ++x) {

@@ -43,10 +43,7 @@ std::vector<double> BoxValid(const std::vector<double>& in, int w, int h, int k,
 std::vector<double> LocalDetail(const Image& im, int* ow, int* oh) {
   const int w = im.width, h = im.height;
   std::vector<double> g(size_t(w) * h);
-  for (size_t i = 0; i < g.size(); ++i) {
-    const float* p = &im.rgb[3 * i];
-    g[i] = 0.299 * p[0] + 0.587 * p[1] + 0.114 * p[2];
-  }
+  for (size_t i = 0; i < g.size(); ++i) g[i] = Luma(&im.rgb[3 * i]);
   int bw = 0, bh = 0;
   const std::vector<double> blur = BoxValid(g, w, h, kSpeckleHighPass, &bw, &bh);
   const int r = kSpeckleHighPass / 2;
