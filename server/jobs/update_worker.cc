@@ -210,9 +210,13 @@ void UpdateWorker::Finish(const std::string& job_id, const std::string& scan_id,
 
 const char* UpdateWorker::StoppedWhy() const { return place_deleted_ ? kPlaceDeleted : kKeptForRestart; }
 
+void UpdateWorker::FinishStopped(const std::string& job_id, const std::string& scan_id) {
+  Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
+}
+
 void UpdateWorker::FinishCancelled(const std::string& job_id, const std::string& scan_id) {
   if (stopping_) {
-    Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
+    FinishStopped(job_id, scan_id);
   } else {
     Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled by request", true);
   }
@@ -393,7 +397,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   // A deployed version not loaded yet is checked first: if it cannot load,
   // the store turns read-only and the job waits like any write would.
   (void)publisher_->VerifyDeployed();
-  if (!WaitForWritableStore(job_id)) return Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
+  if (!WaitForWritableStore(job_id)) return FinishStopped(job_id, scan_id);
   if (absl::StatusOr<int> a = scans_->RecordAttempt(scan_id); !a.ok()) {
     spdlog::warn("job {}: attempt not recorded: {}", job_id, a.status().ToString());
   } else if (*a > 1) {
@@ -514,7 +518,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   if (!gate.status.ok()) {
     return Finish(job_id, scan_id, JobPhase::kFailed, std::string(gate.status.message()), true, "refused");
   }
-  if (stopping_) return Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
+  if (stopping_) return FinishStopped(job_id, scan_id);
 
   // 4. Publish; on a store error keep the trained state and retry once the
   // store recovers (or until shutdown: the scan is then retrained).
@@ -537,12 +541,12 @@ void UpdateWorker::RunJob(const std::string& job_id) {
     if (coordinator_ != nullptr && publisher_->error().empty()) {
       // The coordinator could not be reached: the store is fine, try again.
       spdlog::warn("job {}: publishing: {}; retrying", job_id, std::string(published.status().message()));
-      if (!Pause()) return Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
+      if (!Pause()) return FinishStopped(job_id, scan_id);
       continue;
     }
     spdlog::error("job {}: publishing failed: {}; retrying when the store recovers", job_id,
                   std::string(published.status().message()));
-    if (!WaitForWritableStore(job_id)) return Finish(job_id, scan_id, JobPhase::kCancelled, StoppedWhy(), false);
+    if (!WaitForWritableStore(job_id)) return FinishStopped(job_id, scan_id);
     // Recovery may itself have deployed a version of this scan (a write whose
     // error was reported after it landed): then the job is done.
     const std::optional<DeployedSummary> now = publisher_->registry().deployed();

@@ -120,6 +120,9 @@ class UpdateWorker {
   // Ends a job whose step saw its cancel flag: kept for a restart (or gone
   // with its place) when the server stops, "cancelled by request" otherwise.
   void FinishCancelled(const std::string& job_id, const std::string& scan_id);
+  // The job stopped with the worker (shutdown or its place's deletion): the
+  // scan is kept, the reason read now (StoppedWhy).
+  void FinishStopped(const std::string& job_id, const std::string& scan_id);
   // A progress callback for a step counted in (done, total) units: fills
   // the job's iteration, total, elapsed and ETA from the step's start (now).
   std::function<void(int, int)> StepProgress(const std::string& job_id);
