@@ -59,6 +59,7 @@ void SendJson(httplib::Response& res, const json& body, int status = 200) {
 }
 
 void SendError(httplib::Response& res, const absl::Status& s) {
+  spdlog::debug("http answer {}: {}", HttpStatusFor(s.code()), EscapeForLog(std::string(s.message()), 256));
   SendJson(res,
            json{{"error", std::string(s.message())},
                 {"code", StatusCodeName(static_cast<grpc::StatusCode>(s.code()))}},

@@ -111,6 +111,47 @@ struct Waiting {
   Clock::time_point deadline;
 };
 
+// Forwards bytes both ways until the backend's reply is complete (it closes:
+// one request per connection) or the client leaves; true when the client
+// left first. The reply is read before the request: a backend that answered
+// from the headers alone (413 for a body over the cap) and stopped reading
+// no longer takes the rest of the body, which is then dropped, so its reply
+// still reaches the client.
+bool Pump(int client, int backend) {
+  pollfd fds[2] = {{client, POLLIN, 0}, {backend, POLLIN, 0}};
+  char buf[65536];
+  bool backend_reads = true;
+  while (poll(fds, 2, -1) > 0) {
+    if (fds[1].revents & (POLLIN | POLLHUP | POLLERR)) {
+      const ssize_t n = recv(backend, buf, sizeof(buf), 0);
+      if (n <= 0) return false;
+      if (!SendAll(client, buf, size_t(n))) return true;
+    }
+    if (fds[0].revents & (POLLIN | POLLHUP | POLLERR)) {
+      const ssize_t n = recv(client, buf, sizeof(buf), 0);
+      if (n <= 0) return true;
+      if (backend_reads) backend_reads = SendAll(backend, buf, size_t(n));
+    }
+  }
+  return true;
+}
+
+// A lingering close (as Apache's lingering_close): the reply is sent, so
+// send nothing more, then read and drop what the client still sends for up
+// to 2 s or until it closes. Closing a socket with unread bytes resets the
+// connection, and a client still sending a body it was refused would lose
+// the reply (or see its write fail) before reading it.
+void LingerBeforeClosing(int fd) {
+  shutdown(fd, SHUT_WR);
+  const Clock::time_point end = Clock::now() + std::chrono::seconds(2);
+  char buf[65536];
+  for (;;) {
+    const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(end - Clock::now()).count();
+    pollfd p{fd, POLLIN, 0};
+    if (left <= 0 || poll(&p, 1, int(left)) <= 0 || recv(fd, buf, sizeof(buf), 0) <= 0) return;
+  }
+}
+
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<HttpConnectionGuard>> HttpConnectionGuard::Start(const std::string& host, int port,
@@ -243,26 +284,18 @@ void HttpConnectionGuard::Splice(int client, std::string pending) {
       std::lock_guard<std::mutex> lock(mu_);
       gone_.erase(local);  // A new request on a reused port.
     }
-    if (SendAll(backend, pending.data(), pending.size())) {
-      pollfd fds[2] = {{client, POLLIN, 0}, {backend, POLLIN, 0}};
-      char buf[65536];
-      bool open = true;
-      while (open && poll(fds, 2, -1) > 0) {
-        for (int k = 0; k < 2 && open; ++k) {
-          if (!(fds[k].revents & (POLLIN | POLLHUP | POLLERR))) continue;
-          const ssize_t n = recv(fds[k].fd, buf, sizeof(buf), 0);
-          open = n > 0 && SendAll(fds[1 - k].fd, buf, size_t(n));
-          if (!open && k == 0) client_left = true;  // Before the reply was complete.
-        }
-      }
+    client_left = SendAll(backend, pending.data(), pending.size()) && Pump(client, backend);
+  }
+  {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (client_left && local > 0) {
+      if (gone_.size() > 4096) gone_.clear();  // Bounded; a forgotten entry only lets a render finish.
+      gone_.insert(local);
     }
   }
-  std::lock_guard<std::mutex> lock(mu_);
-  if (client_left && local > 0) {
-    if (gone_.size() > 4096) gone_.clear();  // Bounded; a forgotten entry only lets a render finish.
-    gone_.insert(local);
-  }
   if (backend >= 0) close(backend);
+  if (!client_left) LingerBeforeClosing(client);
+  std::lock_guard<std::mutex> lock(mu_);
   spliced_.erase(client);
   close(client);
   --active_;

@@ -311,6 +311,25 @@ TEST_F(HttpApiTest, OtherSitesCannotDeployOrReadThroughAVisitorsBrowser) {
 // No route takes a parameter twice: a repeat is refused even with the same
 // value (cpp-httplib would merge it), and a request line too long to read
 // says so.
+// A body over a route's cap is answered 413 from its headers, while the
+// client is still sending it: the reply must reach a client that reads only
+// once it has sent everything (as cpp-httplib's and curl's do), so the
+// server drains what follows instead of resetting the connection under it.
+// 8 MiB is far more than loopback's socket buffers hold.
+TEST_F(HttpApiTest, ABodyOverTheCapGetsItsRefusalWhileTheClientIsStillSending) {
+  ServerOptions o = TinyServerOptions(TempDir("srv_http_fat"));
+  o.token = "s3cret";
+  StartHttp(o);
+  const httplib::Headers auth{{"Authorization", "Bearer s3cret"}};
+  for (int i = 0; i < 3; ++i) {
+    auto fat = http_->Post("/api/deploy?version=1", auth, std::string(8 << 20, 'x'), "text/plain");
+    ASSERT_TRUE(fat) << "no reply, try " << i << ": " << httplib::to_string(fat.error());
+    EXPECT_EQ(fat->status, 413);
+    EXPECT_NE(Json(fat)["error"].get<std::string>().find("request body over"), std::string::npos) << fat->body;
+  }
+  EXPECT_EQ(http_->Get("/api/info")->status, 200);
+}
+
 TEST_F(HttpApiTest, RepeatedParametersAndOverlongRequestLinesAreRefused) {
   StartHttp(TinyServerOptions(TempDir("srv_http_repeat")));
   for (const char* path : {"/api/info?place=a&place=b", "/api/info?place=default&place=default",

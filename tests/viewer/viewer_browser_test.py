@@ -53,7 +53,8 @@ def main():
     with open(f"{work}/config.json", "w") as f:
         f.write('{"batch_rays": 512, "target_samples": 8192}')
     server = Server(args.server, f"{work}/store", f"{args.out}/server.log",
-                    ["--iters", str(args.iters), "--config", f"{work}/config.json"])
+                    ["--iters", str(args.iters), "--config", f"{work}/config.json",
+                     "--log-level", "debug"])  # Every request and its status (and why, when refused).
     env = dict(os.environ, CLNERF_SERVER=f"127.0.0.1:{server.grpc}")
     driver = None
     try:
@@ -187,7 +188,9 @@ def main():
         errs = driver.execute_script("return window.clnerfViewer.pageErrors.concat(window.clnerfViewer.httpErrors);")
         severe = [e["message"] for e in driver.get_log("browser") if e["level"] == "SEVERE"]
         if errs or severe:
-            fail(f"page errors or HTTP 5xx: {errs} console: {severe}")
+            with open(os.path.join(args.out, "server.log")) as f:
+                refused = [line.strip() for line in f if re.search(r"http answer [45]\d\d", line)]
+            fail(f"page errors or HTTP 5xx: {errs} console: {severe}; the server refused: {refused[-10:]}")
         with open(os.path.join(args.out, "server.log")) as f:
             if re.search(r"http .* -> 5\d\d", f.read()):
                 fail("the server answered 5xx")
