@@ -161,6 +161,7 @@ struct BenchRescanArgs {
   // procedural capture, visit A with its known poses scores 23.8-28.5 dB
   // over four seeds).
   int first_seeds = 3;
+  float first_coarse_to_fine = 0.0f;  // TrainOptions::coarse_to_fine of visit A's training (from scratch).
   int threads = 0;
   std::string json;
 };

@@ -41,6 +41,10 @@ void BindFitFlags(CLI::App* c, FitOptions* fo) {
   c->add_option("--grid-decay", t.grid_decay,
                 "Normalised weight decay on the hash grid's features (Zip-NeRF uses 0.1; 0 = off)")
       ->capture_default_str();
+  c->add_option("--coarse-to-fine", t.coarse_to_fine,
+                "Switch the hash levels on coarse to fine over this fraction of training (0 = off)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1.0));
   c->add_flag("--random-background", t.random_background, "Real captures: train on random background colours");
   BindEnumFlag(c, "--sampler", &fo->model.sampler, {SamplerKind::kAuto, SamplerKind::kOccupancy, SamplerKind::kProposal},
                SamplerKindName,

@@ -451,6 +451,10 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--grid-decay", a->update.train.grid_decay,
                 "Normalised weight decay on the hash grid (Zip-NeRF: 0.1; 0 = off), every training")
       ->capture_default_str();
+  c->add_option("--coarse-to-fine", a->first_coarse_to_fine,
+                "Visit A's training (from scratch): hash levels on coarse to fine over this fraction (0 = off)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1.0));
   c->add_option("--first-seeds", a->first_seeds,
                 "unposed-first: training seeds compared (each with its own COLMAP run and posed baseline)")
       ->capture_default_str()
@@ -484,6 +488,7 @@ int RunBenchRescan(const BenchRescanArgs& a) {
                a.update.train.iterations, c.test.size());
   c.first = a.update;
   c.first.train.iterations = a.first_iterations;
+  c.first.train.coarse_to_fine = a.first_coarse_to_fine;
   const auto t0 = std::chrono::steady_clock::now();
   absl::StatusOr<ContinualState> state_a = ContinualUpdate(c.visit_a, nullptr, c.first, {}, nullptr, nullptr);
   if (!state_a.ok()) return Fail(state_a.status());
@@ -495,7 +500,9 @@ int RunBenchRescan(const BenchRescanArgs& a) {
   c.extent = PlaceExtent(c.place, state_a->model->normalization());
   nlohmann::json out = {{"data", a.data}, {"frames_a", c.visit_a.train.size()}, {"frames_b", c.visit_b.train.size()},
                         {"held_out", c.test.size()}, {"first_iterations", a.first_iterations},
-                        {"iterations", a.update.train.iterations}, {"train_a_seconds", train_a},
+                        {"iterations", a.update.train.iterations}, {"train_seed", a.update.train.seed},
+                        {"grid_decay", a.update.train.grid_decay}, {"coarse_to_fine", a.first_coarse_to_fine},
+                        {"train_a_seconds", train_a},
                         {"psnr_a", c.psnr_a}, {"cases", nlohmann::json::array()}};
   for (const std::string& which : cases) {
     absl::StatusOr<nlohmann::json> row = which == "unposed-first" ? RunFirstScanCase(c) : RunCase(c, which);

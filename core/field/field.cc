@@ -57,6 +57,7 @@ void FieldEvaluator::Density(int m, const int* seg, const int* seg_ray, int nseg
   const Network& net = model_.network();
   const int Hd = net.options().density_hidden;
   model_.grid().Encode(model_.params().grid.data(), ctx->pos.data(), m, ctx->feat.data());
+  ScaleLevels(m, ctx->feat.data());
   ctx->seg_geo.resize(size_t(Hd) * nseg);
   for (int k = 0; k < nseg; ++k) {
     const int t = ctx->ray_step[seg_ray ? seg_ray[k] : k];
@@ -108,6 +109,7 @@ void FieldEvaluator::Backward(int mk, const int* seg, const int* seg_ray, int ns
   if (mk > 0) {
     net.Backward(mlp, ctx->feat.data(), mk, seg, nseg, d_rgb, ctx->d_h0.data(), &ctx->ws, grad_mlp,
                  ctx->d_feat.data(), ctx->d_geo.data(), ctx->d_col.data());
+    ScaleLevels(mk, ctx->d_feat.data());  // d(w f)/df = w.
   }
   // Per-segment time steps and SH for folding the bias gradients back.
   ctx->seg_step.resize(nseg);
@@ -120,6 +122,19 @@ void FieldEvaluator::Backward(int mk, const int* seg, const int* seg_ray, int ns
   }
   net.BackwardBiases(mlp, model_.params().emb.data(), nseg, ctx->seg_step.data(), ctx->seg_sh.data(),
                      ctx->d_geo.data(), ctx->d_col.data(), grad_mlp, grad_emb);
+}
+
+void FieldEvaluator::ScaleLevels(int m, float* feat) const {
+  if (level_weights_ == nullptr) return;
+  const int L = model_.grid().num_levels(), F = HashGrid::kFeatures, Dg = model_.grid().output_dim();
+  for (int l = 0; l < L; ++l) {
+    const float w = level_weights_[l];
+    if (w == 1.0f) continue;
+    for (int j = 0; j < m; ++j) {
+      float* f = feat + size_t(j) * Dg + size_t(l) * F;
+      for (int k = 0; k < F; ++k) f[k] *= w;
+    }
+  }
 }
 
 void FieldEvaluator::DensityAt(const float* points, int n, int time_step, float* sigma) const {

@@ -93,6 +93,13 @@ class FieldEvaluator {
   void Backward(int mk, const int* seg, const int* seg_ray, int nseg, const float* d_rgb, const float* d_sigma,
                 FieldContext* ctx, float* grad_mlp, float* grad_emb) const;
 
+  // Coarse-to-fine training (TrainOptions::coarse_to_fine): one weight per
+  // hash level that scales the level's features in Density and their
+  // gradient in Backward (0: the level is off; its d_feat is 0). nullptr
+  // (the default) = every level at 1. The array must outlive the evaluator's
+  // use. DensityAt ignores it (occupancy refreshes see the whole field).
+  void SetLevelWeights(const float* w) { level_weights_ = w; }
+
   // Density at n points in the occupancy grid's space for one time step
   // (occupancy refreshes). Parallel over points (OpenMP).
   void DensityAt(const float* field_points, int n, int time_step, float* sigma) const;
@@ -103,6 +110,9 @@ class FieldEvaluator {
   float bound_;
   Eigen::MatrixXf geo_bias_;  // Hd x T: geometry embedding's first-layer product per step.
   Eigen::MatrixXf app_bias_;  // Hc x T.
+  const float* level_weights_ = nullptr;
+  // Multiplies each level's features of m samples (Dg x m) by its weight.
+  void ScaleLevels(int m, float* feat) const;
 };
 
 }  // namespace clnerf

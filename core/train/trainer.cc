@@ -60,6 +60,9 @@ absl::Status TrainOptions::Validate() const {
   if (!(grid_decay >= 0) || !std::isfinite(grid_decay)) {
     return absl::InvalidArgumentError("train: grid_decay must be finite and >= 0");
   }
+  if (!(coarse_to_fine >= 0 && coarse_to_fine <= 1)) {
+    return absl::InvalidArgumentError("train: coarse_to_fine must be in [0, 1]");
+  }
   if (!(view_colour_prior >= 0) || !std::isfinite(view_colour_prior) || !(view_colour_lr_scale > 0) ||
       !std::isfinite(view_colour_lr_scale)) {
     return absl::InvalidArgumentError("train: view_colour_prior must be finite and >= 0, view_colour_lr_scale finite and > 0");
@@ -188,10 +191,29 @@ float Trainer::ProposalAnneal() const {
   return kSlope * x / ((kSlope - 1.0f) * x + 1.0f);
 }
 
+bool Trainer::LevelWeights() {
+  const int L = model_->grid().num_levels();
+  const float span = options_.coarse_to_fine * float(options_.iterations);
+  if (!(span > 0) || float(step_) >= span) {
+    level_weights_.clear();
+    return false;
+  }
+  const float first = std::max(1.0f, std::round(0.25f * float(L)));
+  const float on = first + (float(L) - first) * float(step_) / span;  // Levels on, fractional.
+  level_weights_.resize(L);
+  for (int l = 0; l < L; ++l) {
+    const float x = std::clamp(on - float(l), 0.0f, 1.0f);
+    level_weights_[l] = 0.5f * (1.0f - std::cos(float(M_PI) * x));  // BARF's smooth fade-in.
+  }
+  return true;
+}
+
 float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const float* ray_bg,
                                bool track_touched) {
   const NgpModel& model = *model_;
-  const FieldEvaluator field(model);
+  FieldEvaluator field(model);
+  const bool annealing = LevelWeights();
+  if (annealing) field.SetLevelWeights(level_weights_.data());
   const HashGrid& grid = model.grid();
   const MarchOptions& mo = model.options().march;
   const int Dg = grid.output_dim();
@@ -504,6 +526,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
   {
     const int tid = omp_get_thread_num(), nt = omp_get_num_threads();
     for (int l = tid; l < L; l += nt) {
+      if (annealing && level_weights_[l] == 0.0f) continue;  // Off: its gradient is 0.
       for (const auto& sp : scratch_) {
         const int n = int(sp->store_pos.size() / 3);
         grid.BackwardLevel(l, sp->store_pos.data(), sp->store_dfeat.data(), n, grad_grid_.data(),

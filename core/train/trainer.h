@@ -133,6 +133,15 @@ struct TrainOptions {
   // entries the batch touched (a step's cost stays with its rays); the
   // gradient check (ComputeLossAndGradients) takes every entry. 0 = off.
   float grid_decay = 0.0f;
+  // Coarse-to-fine hash levels (BARF, Neuralangelo): training starts with a
+  // quarter of the levels (at least one) and switches the finer ones on, one
+  // after another, each fading in over one level's share, until this
+  // fraction of `iterations` has passed; a level that is off contributes no
+  // feature and gets no gradient, so fine levels only add detail once the
+  // coarse ones hold the geometry. Meant for a model trained from scratch
+  // (an update of a trained model would lose its fine levels for a while).
+  // 0 = off (every level from the start); at most 1.
+  float coarse_to_fine = 0.0f;
   LrSchedule lr_schedule = LrSchedule::kCosine;
   int lr_timescale = 0;           // tau of the inverse-sqrt schedules (0 = iterations).
   AdamOptions adam;
@@ -189,6 +198,9 @@ class Trainer {
 
   const StepStats& last() const { return last_; }
   int step() const { return step_; }
+  // Coarse-to-fine (TrainOptions::coarse_to_fine): the hash levels' weights
+  // in the last forward pass; empty when every level was fully on.
+  const std::vector<float>& level_weights() const { return level_weights_; }
   float CurrentLearningRate() const;
   double total_seconds() const { return total_seconds_; }
   long long total_samples() const { return total_samples_; }
@@ -215,6 +227,9 @@ class Trainer {
   float ForwardBackward(const RayBatch& batch, const float* jitter, const float* ray_bg, bool compute_grid_touch);
   // The exponent on proposal weights before resampling at the current step.
   float ProposalAnneal() const;
+  // TrainOptions::coarse_to_fine: each hash level's weight at this step
+  // (into level_weights_); false when every level is fully on.
+  bool LevelWeights();
   // Adds the EWC penalty's gradient (marking grid entries touched) and
   // returns its loss.
   float ApplyEwc(bool track_touched);
@@ -244,6 +259,7 @@ class Trainer {
 
   // Gradient buffers.
   std::vector<float> grad_grid_;
+  std::vector<float> level_weights_;  // Per hash level (coarse_to_fine).
   std::vector<uint8_t> touched_;
   std::vector<std::vector<uint32_t>> touched_lists_;  // Per level.
   std::vector<float> grad_mlp_, grad_emb_;

@@ -631,6 +631,103 @@ bool SameBits(const std::vector<float>& a, const std::vector<float>& b) {
   return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0;
 }
 
+// Coarse to fine on a 4-level grid, 8 steps over all of training: after 4
+// real steps levels 0-1 are on, level 2 is half on (BARF's cosine at 0.5)
+// and level 3 is off. The gradient there matches central differences on
+// every level, and level 3 neither moves the loss nor gets a gradient.
+TEST(TrainerGradientTest, CoarseToFineLevelsMatchFiniteDifferences) {
+  SerialEigen serial;
+  NgpModel model = TinyModel(3, /*time_steps=*/1);
+  ModelParams& p = model.mutable_params();
+  std::mt19937_64 rng(12);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  for (float& v : p.grid) v = u(rng) - 0.5f;
+  const View view = MakeView(/*gradient_image=*/true);
+  auto sampler = ImageRaySampler::Create({&view}, model);
+  ASSERT_TRUE(sampler.ok()) << sampler.status();
+  TrainOptions to = StepOptions(1);
+  to.iterations = 8;
+  to.coarse_to_fine = 1.0f;
+  to.opacity_reg = 0.0f;
+  Trainer trainer(&model, sampler->get(), to);
+  const HashGrid& grid = model.grid();
+  ASSERT_EQ(grid.num_levels(), 4);
+  const std::vector<float> level3_before(p.grid.begin() + 2 * grid.level_offset(3),
+                                         p.grid.begin() + 2 * (grid.level_offset(3) + grid.level_size(3)));
+  for (int k = 0; k < 4; ++k) ASSERT_TRUE(trainer.Step().ok());
+  // Four steps of training never touched the level that was off throughout.
+  EXPECT_TRUE(std::equal(level3_before.begin(), level3_before.end(), p.grid.begin() + 2 * grid.level_offset(3)));
+
+  RayBatch batch = MakeBatch(16, 5);
+  const std::vector<float> jitter(batch.size(), 0.5f);
+  for (int i = 0; i < batch.size(); ++i) {  // Targets a small residual away from the prediction.
+    const Eigen::Vector3f c = TrainerColour(&trainer, batch, jitter, i);
+    for (int k = 0; k < 3; ++k) batch.target[3 * i + k] = c[k] + (0.02f + 0.03f * u(rng)) * (rng() % 2 ? 1 : -1);
+  }
+  Trainer::Gradients g;
+  const float base = trainer.ComputeLossAndGradients(batch, jitter, &g);
+  ASSERT_EQ(trainer.level_weights().size(), 4u);
+  EXPECT_FLOAT_EQ(trainer.level_weights()[0], 1.0f);
+  EXPECT_FLOAT_EQ(trainer.level_weights()[1], 1.0f);
+  EXPECT_NEAR(trainer.level_weights()[2], 0.5f, 1e-6f);
+  EXPECT_EQ(trainer.level_weights()[3], 0.0f);
+  const double ulp = double(std::nextafter(base, 1.0f)) - base;
+  double gmax = 0;
+  for (float v : g.grid) gmax = std::max(gmax, double(std::abs(v)));
+  ASSERT_GT(gmax, 0.0);
+  const float h = 2e-3f;
+  for (int l = 0; l < 4; ++l) {
+    SCOPED_TRACE(l);
+    const size_t begin = 2 * grid.level_offset(l), end = 2 * (grid.level_offset(l) + grid.level_size(l));
+    std::vector<size_t> picks;  // The level's 12 largest gradients and 4 at random.
+    for (size_t i = begin; i < end; ++i) picks.push_back(i);
+    std::partial_sort(picks.begin(), picks.begin() + 12, picks.end(),
+                      [&](size_t a, size_t b) { return std::abs(g.grid[a]) > std::abs(g.grid[b]); });
+    picks.resize(12);
+    for (int k = 0; k < 4; ++k) picks.push_back(begin + rng() % (end - begin));
+    if (l == 3) {
+      for (size_t i = begin; i < end; ++i) ASSERT_EQ(g.grid[i], 0.0f) << i;
+    } else {
+      EXPECT_GT(std::abs(g.grid[picks[0]]), 0.05 * gmax);
+    }
+    int skipped = 0;
+    for (size_t i : picks) {
+      const float x0 = p.grid[i];
+      Trainer::Gradients tmp;
+      p.grid[i] = x0 + h;
+      const float hi = p.grid[i];
+      const double lp = trainer.ComputeLossAndGradients(batch, jitter, &tmp);
+      p.grid[i] = x0 - h;
+      const float lo = p.grid[i];
+      const double lm = trainer.ComputeLossAndGradients(batch, jitter, &tmp);
+      p.grid[i] = x0;
+      if (l == 3) {  // Off: the loss does not see the level at all.
+        EXPECT_EQ(lp, double(base));
+        EXPECT_EQ(lm, double(base));
+        continue;
+      }
+      const double up = (lp - base) / (double(hi) - x0), down = (base - lm) / (double(x0) - lo);
+      const double fd = (lp - lm) / (double(hi) - double(lo));
+      const double tol = 4 * ulp / (double(hi) - double(lo)) + 3e-2 * std::abs(fd) + 1e-3 * gmax;
+      if (std::abs(up - down) > 2 * tol) {
+        ++skipped;  // A ReLU kink inside [x - h, x + h].
+        continue;
+      }
+      EXPECT_NEAR(g.grid[i], fd, tol) << "grid[" << i << "] one-sided " << up << " " << down;
+    }
+    EXPECT_LE(skipped, 3);
+  }
+  // Past the annealing every level is on; and the option is validated.
+  for (int k = 0; k < 4; ++k) ASSERT_TRUE(trainer.Step().ok());
+  trainer.ComputeLossAndGradients(batch, jitter, &g);
+  EXPECT_TRUE(trainer.level_weights().empty());
+  TrainOptions bad;
+  for (float v : {-0.1f, 1.5f, float(NAN)}) {
+    bad.coarse_to_fine = v;
+    EXPECT_FALSE(bad.Validate().ok()) << v;
+  }
+}
+
 TEST(TrainerStepTest, NanWeightStopsAtStepOneWithoutTouchingParameters) {
   SerialEigen serial;
   NgpModel model = TinyModel(5, /*time_steps=*/1);
