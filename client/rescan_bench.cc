@@ -106,12 +106,18 @@ absl::StatusOr<SfmResult> PoseWithColmap(Scene* scan, std::vector<int>* posed, i
   return r;
 }
 
-double HeldOutPsnr(const NgpModel& model, std::vector<View> test, int time_step, int max_views) {
+EvalResult HeldOutScores(const NgpModel& model, std::vector<View> test, int time_step, int max_views,
+                         const std::string& save_dir = "") {
   for (View& v : test) v.camera.time_step = time_step;
   EvalOptions eo;
   eo.max_views = max_views;
+  eo.save_dir = save_dir;
   absl::StatusOr<EvalResult> r = EvaluateViews(model, test, eo);
-  return r.ok() ? r->psnr : 0.0;
+  return r.ok() ? *r : EvalResult{};
+}
+
+double HeldOutPsnr(const NgpModel& model, std::vector<View> test, int time_step, int max_views) {
+  return HeldOutScores(model, std::move(test), time_step, max_views).psnr;
 }
 
 struct CaseRow {
@@ -455,6 +461,13 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
                 "Visit A's training (from scratch): hash levels on coarse to fine over this fraction (0 = off)")
       ->capture_default_str()
       ->check(CLI::Range(0.0, 1.0));
+  c->add_option("--oversample", a->update.capacity.oversample,
+                "Finest hash-grid cells per pixel footprint (capacity.h), every training")
+      ->capture_default_str();
+  c->add_option("--max-finest", a->update.capacity.max_finest_resolution,
+                "Upper bound on the derived finest hash-grid resolution (0 = 2048 per unit of bound)")
+      ->capture_default_str();
+  c->add_option("--save-renders", a->save_renders, "Write visit A's held-out renders (and the photos) here");
   c->add_option("--first-seeds", a->first_seeds,
                 "unposed-first: training seeds compared (each with its own COLMAP run and posed baseline)")
       ->capture_default_str()
@@ -494,16 +507,34 @@ int RunBenchRescan(const BenchRescanArgs& a) {
   if (!state_a.ok()) return Fail(state_a.status());
   c.place_state = &*state_a;
   const double train_a = SecondsSince(t0);
-  c.psnr_a = HeldOutPsnr(*state_a->model, c.test, 0, a.eval_views);
-  std::printf("rescan %s: visit A trained in %.1f s, held-out PSNR %.2f dB\n", a.data.c_str(), train_a, c.psnr_a);
+  const EvalResult scores_a = HeldOutScores(*state_a->model, c.test, 0, a.eval_views, a.save_renders);
+  if (!a.save_renders.empty()) {  // The photos beside the renders, for looking at them.
+    for (size_t i = 0; i < c.test.size(); ++i) {
+      (void)WriteImage(absl::StrCat(a.save_renders, "/photo_", i, ".png"), c.test[i].image);
+    }
+  }
+  c.psnr_a = scores_a.psnr;
+  // Four of visit A's own photos: a held-out score far below this is a field
+  // that fits its photos and fails between them (floaters, speckle).
+  const EvalResult fit_a = HeldOutScores(*state_a->model, c.visit_a.train, 0, 4,
+                                         a.save_renders.empty() ? "" : a.save_renders + "/train");
+  std::printf("rescan %s: visit A trained in %.1f s, held-out PSNR %.2f dB, speckle %.4f, blur %.4f "
+              "(4 of its training views: %.2f dB)\n",
+              a.data.c_str(), train_a, c.psnr_a, scores_a.speckle, scores_a.blur, fit_a.psnr);
   for (const View& v : c.visit_a.train) c.place.push_back(v.camera);
   c.extent = PlaceExtent(c.place, state_a->model->normalization());
   nlohmann::json out = {{"data", a.data}, {"frames_a", c.visit_a.train.size()}, {"frames_b", c.visit_b.train.size()},
                         {"held_out", c.test.size()}, {"first_iterations", a.first_iterations},
                         {"iterations", a.update.train.iterations}, {"train_seed", a.update.train.seed},
                         {"grid_decay", a.update.train.grid_decay}, {"coarse_to_fine", a.first_coarse_to_fine},
+                        {"oversample", a.update.capacity.oversample},
                         {"train_a_seconds", train_a},
-                        {"psnr_a", c.psnr_a}, {"cases", nlohmann::json::array()}};
+                        {"psnr_a", c.psnr_a}, {"speckle_a", scores_a.speckle}, {"blur_a", scores_a.blur},
+                        {"psnr_a_train_views", fit_a.psnr},
+                        {"grid", {{"levels", state_a->model->options().grid.levels},
+                                  {"log2_table_size", state_a->model->options().grid.log2_table_size},
+                                  {"finest_resolution", state_a->model->options().grid.finest_resolution}}},
+                        {"cases", nlohmann::json::array()}};
   for (const std::string& which : cases) {
     absl::StatusOr<nlohmann::json> row = which == "unposed-first" ? RunFirstScanCase(c) : RunCase(c, which);
     if (!row.ok()) return Fail(row.status());

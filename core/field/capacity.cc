@@ -11,6 +11,7 @@ namespace clnerf {
 absl::Status CapacityOptions::Validate() const {
   if (!(oversample > 0)) return absl::InvalidArgumentError("capacity: oversample must be > 0");
   if (!(table_factor > 0)) return absl::InvalidArgumentError("capacity: table_factor must be > 0");
+  if (max_finest_resolution < 0) return absl::InvalidArgumentError("capacity: max_finest_resolution must be >= 0");
   if (min_log2_table_size < 10 || max_log2_table_size > 24 || min_log2_table_size > max_log2_table_size) {
     return absl::InvalidArgumentError("capacity: need 10 <= min_log2_table_size <= max_log2_table_size <= 24");
   }
@@ -46,7 +47,7 @@ ModelOptions DeriveModelOptions(const Scene& scene, const Normalization& norm, c
     footprint = footprints[footprints.size() / 2];
   }
   const int base_res = base.grid.base_resolution;
-  const int upstream_finest = int(2048 * norm.bound);
+  const int upstream_finest = cap.max_finest_resolution > 0 ? cap.max_finest_resolution : int(2048 * norm.bound);
   // Resolution over the box needed to resolve a pixel footprint near the centre.
   const float needed = cap.oversample * 2.0f * norm.bound / footprint;
   const int finest = std::clamp(int(std::ceil(needed)), 2 * base_res, std::max(2 * base_res, upstream_finest));

@@ -34,6 +34,9 @@ struct CapacityOptions {
   // 1 -> 28.99 dB, 115 samples marched per ray; 2 -> 28.63 dB, 67 per ray;
   // 3 (with 15 levels) -> 26.75 dB, 77 per ray (coarser steps grew fog).
   float unbounded_step_pixels = 2.0f;
+  // Upper bound on the finest resolution over the model box (0 = upstream's
+  // 2048 per unit of bound).
+  int max_finest_resolution = 0;
   absl::Status Validate() const;
 };
 

@@ -1,4 +1,5 @@
-// CapacityOverrides: unset fields keep the derived sizes, set ones win.
+// Capacity: the derived sizes (DeriveModelOptions) and CapacityOverrides (unset
+// fields keep the derived sizes, set ones win).
 #include "core/field/capacity.h"
 
 #include "gtest/gtest.h"
@@ -64,6 +65,32 @@ TEST(CapacityOverridesTest, OverridesThatWouldNotMeanWhatTheySayAreRefused) {
   big.log2_table_size = 40;
   EXPECT_TRUE(big.Validate().ok());
   EXPECT_FALSE(big.ApplyTo(ModelOptions{}).Validate().ok());
+}
+
+// A camera close to a small box with a long focal length needs a finest
+// resolution beyond upstream's 2048 per unit of bound; max_finest_resolution
+// caps it, and the table follows the capped resolution.
+TEST(CapacityDeriveTest, MaxFinestResolutionCapsTheDerivedResolution) {
+  Scene scene;
+  scene.kind = SceneKind::kBounded;
+  View v;
+  v.camera.intrinsics.width = v.camera.intrinsics.height = 100;
+  v.camera.intrinsics.fx = v.camera.intrinsics.fy = 4000.0f;
+  v.camera.c2w = Pose::Identity();
+  v.camera.c2w.col(3) = Eigen::Vector3f(0.0f, 0.0f, -1.0f);
+  scene.train.push_back(v);
+  Normalization norm;  // bound 0.5: upstream's finest is 1024.
+  CapacityOptions cap;
+  CapacityReport free_report, capped_report;
+  DeriveModelOptions(scene, norm, cap, ModelOptions(), &free_report);
+  EXPECT_EQ(free_report.finest_resolution, 1024);
+  cap.max_finest_resolution = 256;
+  ASSERT_TRUE(cap.Validate().ok());
+  const ModelOptions capped = DeriveModelOptions(scene, norm, cap, ModelOptions(), &capped_report);
+  EXPECT_EQ(capped.grid.finest_resolution, 256);
+  EXPECT_EQ(capped_report.log2_table_size, 14);  // 256^2 / 16 = 2^12, raised to the minimum.
+  cap.max_finest_resolution = -1;
+  EXPECT_FALSE(cap.Validate().ok());
 }
 
 }  // namespace
