@@ -161,7 +161,6 @@ struct BenchRescanArgs {
   // procedural capture, visit A with its known poses scores 23.8-28.5 dB
   // over four seeds).
   int first_seeds = 3;
-  float first_coarse_to_fine = 0.0f;  // TrainOptions::coarse_to_fine of visit A's training (from scratch).
   std::string save_renders;  // When set: visit A's held-out renders and photos are written here.
   int threads = 0;
   std::string json;

@@ -4,27 +4,9 @@
 
 namespace clnerf {
 
-void BindFitFlags(CLI::App* c, FitOptions* fo) {
-  TrainOptions& t = fo->train;
-  c->add_option("--iters", t.iterations, "Training steps")->capture_default_str();
-  c->add_option("--seed", t.seed, "Random seed")->capture_default_str();
-  BindThreadsFlag(c, &t.threads);
+void BindRegulariserFlags(CLI::App* c, TrainOptions* to) {
+  TrainOptions& t = *to;
   c->add_option("--lr", t.learning_rate, "Initial learning rate")->capture_default_str();
-  c->add_option("--batch-samples", t.target_samples, "Samples per batch (rays adapt)")->capture_default_str();
-  c->add_option("--curve-every", fo->curve_every, "Evaluate held-out views every N steps (PSNR-vs-time curve)")
-      ->capture_default_str();
-  c->add_option("--curve-views", fo->curve_views, "Held-out views per curve point")->capture_default_str();
-  // Capacity: derived from the scene unless given (core/field/capacity.h).
-  CapacityOverrides& o = fo->overrides;
-  c->add_option("--levels", fo->model.grid.levels, "Hash-grid levels")->capture_default_str();
-  c->add_option("--table-log2", o.log2_table_size, "log2 entries per level (default: derived from the scene)");
-  c->add_option("--finest-res", o.finest_resolution, "Finest grid resolution (default: derived)");
-  c->add_option("--steps-per-diagonal", o.steps_per_diagonal, "March steps across the box diagonal (default: derived)");
-  c->add_option("--occupancy-res", o.occupancy_resolution, "Occupancy grid resolution (default: derived)");
-  c->add_option("--cone-angle", o.cone_angle, "March cone angle (exponential steps; default: derived)");
-  c->add_option("--near", o.near, "Near plane in model units (default: derived)");
-  c->add_option("--occupancy-threshold", o.occupancy_threshold,
-                "Occupancy density threshold (default: derived from the minimum step)");
   // Regularisers (< 0: automatic, see core/train/trainer.h).
   c->add_option("--distortion", t.distortion_reg,
                 "Distortion-loss weight (< 0: 0.01 for real captures, 0 for objects)")
@@ -46,6 +28,31 @@ void BindFitFlags(CLI::App* c, FitOptions* fo) {
       ->capture_default_str()
       ->check(CLI::Range(0.0, 1.0));
   c->add_flag("--random-background", t.random_background, "Real captures: train on random background colours");
+  c->add_option("--opacity-reg", t.opacity_reg, "Weight of the ray-opacity entropy prior mean(-o log o)")
+      ->capture_default_str();
+}
+
+void BindFitFlags(CLI::App* c, FitOptions* fo) {
+  TrainOptions& t = fo->train;
+  c->add_option("--iters", t.iterations, "Training steps")->capture_default_str();
+  c->add_option("--seed", t.seed, "Random seed")->capture_default_str();
+  BindThreadsFlag(c, &t.threads);
+  c->add_option("--batch-samples", t.target_samples, "Samples per batch (rays adapt)")->capture_default_str();
+  c->add_option("--curve-every", fo->curve_every, "Evaluate held-out views every N steps (PSNR-vs-time curve)")
+      ->capture_default_str();
+  c->add_option("--curve-views", fo->curve_views, "Held-out views per curve point")->capture_default_str();
+  // Capacity: derived from the scene unless given (core/field/capacity.h).
+  CapacityOverrides& o = fo->overrides;
+  c->add_option("--levels", fo->model.grid.levels, "Hash-grid levels")->capture_default_str();
+  c->add_option("--table-log2", o.log2_table_size, "log2 entries per level (default: derived from the scene)");
+  c->add_option("--finest-res", o.finest_resolution, "Finest grid resolution (default: derived)");
+  c->add_option("--steps-per-diagonal", o.steps_per_diagonal, "March steps across the box diagonal (default: derived)");
+  c->add_option("--occupancy-res", o.occupancy_resolution, "Occupancy grid resolution (default: derived)");
+  c->add_option("--cone-angle", o.cone_angle, "March cone angle (exponential steps; default: derived)");
+  c->add_option("--near", o.near, "Near plane in model units (default: derived)");
+  c->add_option("--occupancy-threshold", o.occupancy_threshold,
+                "Occupancy density threshold (default: derived from the minimum step)");
+  BindRegulariserFlags(c, &t);
   BindEnumFlag(c, "--sampler", &fo->model.sampler, {SamplerKind::kAuto, SamplerKind::kOccupancy, SamplerKind::kProposal},
                SamplerKindName,
                "How samples are placed: occupancy-grid marching, proposal fields, or auto (occupancy marching; "

@@ -12,6 +12,10 @@
 
 namespace clnerf {
 
+// The learning rate and the training priors: distortion, near density,
+// grid decay, coarse-to-fine levels, random background, opacity entropy.
+void BindRegulariserFlags(CLI::App* command, TrainOptions* train);
+
 // What `clnerf train` trains with: steps, seed, threads, learning rate,
 // batch, PSNR-vs-time curve, the capacity overrides and the regularisers.
 void BindFitFlags(CLI::App* command, FitOptions* fit);

@@ -454,13 +454,7 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--eval-views", a->eval_views, "Held-out views scored (0 = all)")->capture_default_str();
   c->add_option("--train-seed", a->update.train.seed, "Training seed of visit A and of every update")
       ->capture_default_str();
-  c->add_option("--grid-decay", a->update.train.grid_decay,
-                "Normalised weight decay on the hash grid (Zip-NeRF: 0.1; 0 = off), every training")
-      ->capture_default_str();
-  c->add_option("--coarse-to-fine", a->first_coarse_to_fine,
-                "Visit A's training (from scratch): hash levels on coarse to fine over this fraction (0 = off)")
-      ->capture_default_str()
-      ->check(CLI::Range(0.0, 1.0));
+  BindRegulariserFlags(c, &a->update.train);  // Every training of the bench.
   c->add_option("--oversample", a->update.capacity.oversample,
                 "Finest hash-grid cells per pixel footprint (capacity.h), every training")
       ->capture_default_str();
@@ -501,7 +495,6 @@ int RunBenchRescan(const BenchRescanArgs& a) {
                a.update.train.iterations, c.test.size());
   c.first = a.update;
   c.first.train.iterations = a.first_iterations;
-  c.first.train.coarse_to_fine = a.first_coarse_to_fine;
   const auto t0 = std::chrono::steady_clock::now();
   absl::StatusOr<ContinualState> state_a = ContinualUpdate(c.visit_a, nullptr, c.first, {}, nullptr, nullptr);
   if (!state_a.ok()) return Fail(state_a.status());
@@ -526,7 +519,8 @@ int RunBenchRescan(const BenchRescanArgs& a) {
   nlohmann::json out = {{"data", a.data}, {"frames_a", c.visit_a.train.size()}, {"frames_b", c.visit_b.train.size()},
                         {"held_out", c.test.size()}, {"first_iterations", a.first_iterations},
                         {"iterations", a.update.train.iterations}, {"train_seed", a.update.train.seed},
-                        {"grid_decay", a.update.train.grid_decay}, {"coarse_to_fine", a.first_coarse_to_fine},
+                        {"grid_decay", a.update.train.grid_decay}, {"coarse_to_fine", a.update.train.coarse_to_fine},
+                        {"distortion", a.update.train.distortion_reg}, {"learning_rate", a.update.train.learning_rate},
                         {"oversample", a.update.capacity.oversample},
                         {"train_a_seconds", train_a},
                         {"psnr_a", c.psnr_a}, {"speckle_a", scores_a.speckle}, {"blur_a", scores_a.blur},
