@@ -19,8 +19,9 @@
 // that Backward consumes. The evaluator itself is immutable after
 // construction and SetLevelWeights (it holds the model by const reference
 // plus the per-time-step biases), so one evaluator may serve many threads,
-// each with its own FieldContext. It must not outlive the model, and the model's parameters must
-// not change while it is in use (build a new evaluator after each update).
+// each with its own FieldContext. It must not outlive the model, and the
+// model's parameters must not change while it is in use (build a new
+// evaluator after each update).
 #ifndef CLNERF_CORE_FIELD_FIELD_H_
 #define CLNERF_CORE_FIELD_FIELD_H_
 

@@ -12,8 +12,9 @@
 // library serves one request per connection, so every request passes the
 // door). After a reply the door closes lingering: it drains what the client
 // still sends for up to 2 s, so a client refused while sending a body (413)
-// reads its reply instead of a reset. Stop() closes the door and every connection still at it, which also
-// frees a shutdown from clients that never finish their headers.
+// reads its reply instead of a reset. Stop() closes the door and every
+// connection still at it, which also frees a shutdown from clients that
+// never finish their headers.
 //
 // cpp-httplib 0.11 (Debian's) applies its own 8 KiB limits only once a line
 // ends, and reads heads in its worker threads with a per-read timeout, so
