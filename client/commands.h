@@ -13,6 +13,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "client/remote_commands.h"
+#include "core/bake/baker.h"
 #include "core/continual/continual_protocol.h"
 #include "core/continual/continual_update.h"
 #include "core/continual/stability.h"
@@ -172,6 +173,21 @@ int Fail(const absl::Status& status);
 void SetThreads(int threads);
 // Writes `j` to `path` ("-" = stdout, "" = nowhere).
 absl::Status WriteJson(const std::string& path, const nlohmann::json& j);
+// An evaluation as JSON (means and per-view scores).
+nlohmann::json EvalJson(const EvalResult& r);
+
+// `bake`: a model (a file, or a service version's model.ckpt) baked into
+// the asset the browser renders (core/bake/baker.h).
+struct BakeArgs {
+  std::string model;
+  std::string out;   // Folder for manifest.json, index.bin.gz, atlas.bin.gz.
+  std::string data;  // Training cameras, when the model file holds none.
+  std::string json;
+  int time_step = -1;
+  int threads = 0;
+  BakeOptions bake;
+  DatasetOptions dataset;
+};
 
 // FitScene with a progress bar on stderr, labelled `label` (`clnerf train`
 // and the verbs that train like it).
@@ -182,6 +198,7 @@ absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, const FitOptions
 // onto `args` (see client/verb_set.h); its Run runs it.
 CLI::App* BindTrain(CLI::App* parent, TrainArgs* args);
 CLI::App* BindEval(CLI::App* parent, EvalArgs* args);
+CLI::App* BindBake(CLI::App* parent, BakeArgs* args);
 CLI::App* BindRender(CLI::App* parent, RenderArgs* args);
 CLI::App* BindDemo(CLI::App* parent, DemoArgs* args);
 CLI::App* BindScans(CLI::App* parent, ScansArgs* args);
@@ -195,6 +212,8 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* args);
 int RunTrain(const TrainArgs& args);
 int RunBenchRender(const BenchRenderArgs& args);
 int RunEval(const EvalArgs& args);
+int RunEvalBaked(const EvalArgs& args);  // RunEval on a baked asset folder.
+int RunBake(const BakeArgs& args);
 int RunRender(const RenderArgs& args);  // Dispatches to RunRemoteRender without --model.
 int RunRemoteRender(const RenderArgs& args);
 int RunDemo(const DemoArgs& args);

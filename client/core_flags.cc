@@ -81,6 +81,13 @@ void BindFitFlags(CLI::App* c, FitOptions* fo) {
   c->add_option("--view-colour-lr", t.view_colour_lr_scale,
                 "Learning-rate scale of the per-photo colour transforms")
       ->capture_default_str();
+  c->add_option("--error-share", fo->view_error.error_share,
+                "Share of training rays drawn where the model is still wrong (views or tiles in proportion to "
+                "their error, as a place's first scan trains in the service; 0 = uniform)")
+      ->capture_default_str();
+  c->add_option("--error-tiles", fo->view_error.tiles, "Error sampling: tiles per view side")->capture_default_str();
+  c->add_option("--error-decay", fo->view_error.decay, "Error sampling: per-step decay of the error estimates")
+      ->capture_default_str();
   c->add_flag("--prune", fo->prune,
               "After training, drop occupancy cells no training pixel needs (faster renders; docs/render_cost.md)");
   c->add_option("--prune-max-drop", fo->prune_options.max_psnr_drop,

@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <sstream>
 
 #include "absl/strings/str_format.h"
@@ -14,6 +15,8 @@
 #include "client/core_flags.h"
 #include "client/verb_set.h"
 #include "client/progress_bar.h"
+#include "core/bake/baked_asset.h"
+#include "core/bake/baked_renderer.h"
 #include "core/io/checkpoint.h"
 #include "core/data/capture_writer.h"
 #include "core/data/content_sweep.h"
@@ -35,6 +38,9 @@ const std::vector<View>* Split(const Scene& scene, const std::string& name) {
   return nullptr;
 }
 
+
+}  // namespace
+
 nlohmann::json EvalJson(const EvalResult& r) {
   nlohmann::json per = nlohmann::json::array();
   for (const ViewScore& v : r.views) {
@@ -46,8 +52,6 @@ nlohmann::json EvalJson(const EvalResult& r) {
           {"blur", r.blur}, {"num_images", r.views.size()}, {"mean_render_ms", r.mean_render_seconds * 1e3},
           {"images", per}};
 }
-
-}  // namespace
 
 absl::StatusOr<FitResult> TrainWithProgress(const Scene& scene, const FitOptions& fo, const std::string& label) {
   ProgressBar bar(label, fo.train.iterations);
@@ -157,7 +161,7 @@ int RunTrain(const TrainArgs& a) {
 
 CLI::App* BindEval(CLI::App* parent, EvalArgs* a) {
   CLI::App* c = parent->add_subcommand("eval", "Render a split and report PSNR/SSIM");
-  c->add_option("--model", a->model, "Model file")->required();
+  c->add_option("--model", a->model, "Model file, or a baked asset's folder (clnerf bake)")->required();
   c->add_option("--data", a->data, "Dataset directory")->required();
   c->add_option("--split", a->split, "train|val|test")->capture_default_str();
   c->add_option("--json", a->json, "Write results as JSON to this file ('-' = stdout)");
@@ -173,6 +177,7 @@ CLI::App* BindEval(CLI::App* parent, EvalArgs* a) {
 
 int RunEval(const EvalArgs& a) {
   SetThreads(a.threads);
+  if (IsBakedAssetDir(a.model)) return RunEvalBaked(a);
   absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
   if (!ck.ok()) return Fail(ck.status());
   absl::StatusOr<Scene> scene = LoadScene(a.data, a.dataset);
@@ -198,7 +203,7 @@ int RunEval(const EvalArgs& a) {
 CLI::App* BindRender(CLI::App* parent, RenderArgs* a) {
   CLI::App* c = parent->add_subcommand(
       "render", "Render views to PNG: locally with --model, else on the server (remote flags apply)");
-  c->add_option("--model", a->model, "Model file (omit to render on the server)");
+  c->add_option("--model", a->model, "Model file or baked asset folder (omit to render on the server)");
   c->add_option("--out", a->out, "PNG file (one view) or directory")->required();
   c->add_option("--data,--views-from", a->data,
                 "Take cameras from this dataset's split (remote: and score the renders against its images)");
@@ -220,9 +225,19 @@ CLI::App* BindRender(CLI::App* parent, RenderArgs* a) {
 int RunRender(const RenderArgs& a) {
   if (a.model.empty()) return RunRemoteRender(a);
   SetThreads(a.threads);
-  absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
-  if (!ck.ok()) return Fail(ck.status());
-  const NgpModel& model = ck->model;
+  // A baked asset's folder renders through its reference renderer (the
+  // browser's sampling); a model file through the model.
+  std::optional<BakedAsset> baked;
+  std::optional<LoadedCheckpoint> ck;
+  if (IsBakedAssetDir(a.model)) {
+    absl::StatusOr<BakedAsset> b = LoadBakedAsset(a.model);
+    if (!b.ok()) return Fail(b.status());
+    baked = std::move(*b);
+  } else {
+    absl::StatusOr<LoadedCheckpoint> c = LoadCheckpoint(a.model);
+    if (!c.ok()) return Fail(c.status());
+    ck = std::move(*c);
+  }
   std::vector<Camera> cams;
   std::vector<std::string> names;
   if (!a.pose.empty()) {
@@ -256,7 +271,7 @@ int RunRender(const RenderArgs& a) {
   for (size_t i = 0; i < cams.size(); ++i) {
     RenderOptions ro;
     ro.time_step = a.time_step;
-    absl::StatusOr<RenderedView> r = RenderView(model, cams[i], ro);
+    absl::StatusOr<RenderedView> r = baked ? RenderBakedView(*baked, cams[i]) : RenderView(ck->model, cams[i], ro);
     if (!r.ok()) return Fail(r.status());
     const std::string path = single ? a.out : absl::StrFormat("%s/%04d_%s.png", a.out, int(i), names[i]);
     if (absl::Status s = WriteImage(path, r->rgb); !s.ok()) return Fail(s);

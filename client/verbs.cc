@@ -9,6 +9,7 @@ void RegisterVerbs(VerbSet* verbs) {
   // Local: the engine in-process.
   verbs->Add(BindTrain, RunTrain);
   verbs->Add(BindEval, RunEval);
+  verbs->Add(BindBake, RunBake);
   verbs->Add(BindRender, RunRender);  // Remote without --model.
   verbs->Add(BindDemo, RunDemo);
   verbs->Add(BindScans, RunScans);

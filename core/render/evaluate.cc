@@ -35,6 +35,17 @@ double ConstantColourPsnr(const std::vector<View>& train, const std::vector<View
 
 absl::StatusOr<EvalResult> EvaluateViews(const NgpModel& model, const std::vector<View>& views,
                                          const EvalOptions& options) {
+  return EvaluateWith(
+      [&](const View& v) {
+        RenderOptions ro = options.render;
+        ro.time_step = std::min(v.camera.time_step, model.num_time_steps() - 1);
+        return RenderView(model, v.camera, ro);
+      },
+      views, options);
+}
+
+absl::StatusOr<EvalResult> EvaluateWith(const ViewRenderer& render, const std::vector<View>& views,
+                                        const EvalOptions& options) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;
   if (views.empty()) return absl::InvalidArgumentError("no views to evaluate");
   std::vector<size_t> pick;
@@ -52,10 +63,8 @@ absl::StatusOr<EvalResult> EvaluateViews(const NgpModel& model, const std::vecto
   for (size_t k : pick) {
     const View& v = views[k];
     if (v.image.empty()) return absl::InvalidArgumentError(absl::StrFormat("view '%s' has no image", v.name));
-    RenderOptions ro = options.render;
-    ro.time_step = std::min(v.camera.time_step, model.num_time_steps() - 1);
     const auto t0 = std::chrono::steady_clock::now();
-    absl::StatusOr<RenderedView> r = RenderView(model, v.camera, ro);
+    absl::StatusOr<RenderedView> r = render(v);
     const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     if (!r.ok()) return r.status();
     absl::StatusOr<ImageMetrics> m = ComputeImageMetrics(r->rgb, v.image);

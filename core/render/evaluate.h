@@ -5,6 +5,7 @@
 #ifndef CLNERF_CORE_RENDER_EVALUATE_H_
 #define CLNERF_CORE_RENDER_EVALUATE_H_
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -48,6 +49,12 @@ double ConstantColourPsnr(const std::vector<View>& train, const std::vector<View
 
 absl::StatusOr<EvalResult> EvaluateViews(const NgpModel& model, const std::vector<View>& views,
                                          const EvalOptions& options);
+
+// The same scoring for any renderer (e.g. a baked asset's reference
+// renderer, core/bake/baked_renderer.h); options.render is not used.
+using ViewRenderer = std::function<absl::StatusOr<RenderedView>(const View& view)>;
+absl::StatusOr<EvalResult> EvaluateWith(const ViewRenderer& render, const std::vector<View>& views,
+                                        const EvalOptions& options);
 
 }  // namespace clnerf
 

@@ -1,0 +1,146 @@
+// `clnerf bake`: a model baked into the asset the browser renders, and
+// `clnerf eval --model DIR` on such an asset (the C++ reference renderer).
+#include <cstdio>
+#include <filesystem>
+
+#include "absl/strings/str_format.h"
+#include "client/commands.h"
+#include "client/verb_set.h"
+#include "client/core_flags.h"
+#include "core/bake/baked_renderer.h"
+#include "core/continual/replay_memory.h"
+#include "core/data/dataset.h"
+#include "core/io/checkpoint.h"
+#include "nlohmann/json.hpp"
+
+namespace clnerf {
+namespace {
+
+// The cameras to bake with: the model file's own (a service version keeps
+// every scan's cameras in its replay memory), else --data's training views.
+absl::StatusOr<std::vector<Camera>> BakeCameras(const BakeArgs& a, const LoadedCheckpoint& ck, std::string* from) {
+  std::vector<Camera> cams;
+  if (a.data.empty()) {
+    const std::string* mem = ck.extras.FindSection("replay_memory");
+    if (mem == nullptr) {
+      return absl::InvalidArgumentError(
+          "the model file holds no cameras (a service version's model.ckpt does): give the capture it was trained "
+          "on with --data, so that the bake knows what the photos saw");
+    }
+    absl::StatusOr<ReplayMemory> memory = ReplayMemory::Deserialize(*mem);
+    if (!memory.ok()) return memory.status();
+    for (uint32_t i = 0; i < memory->num_cameras(); ++i) cams.push_back(memory->GetCamera(i));
+    *from = "the model's replay memory";
+    return cams;
+  }
+  DatasetOptions d = a.dataset;
+  d.load_images = false;
+  absl::StatusOr<Scene> scene = LoadScene(a.data, d);
+  if (!scene.ok()) return scene.status();
+  for (const View& v : scene->train) cams.push_back(v.camera);
+  *from = a.data;
+  return cams;
+}
+
+uint64_t FolderBytes(const std::string& dir) {
+  uint64_t n = 0;
+  std::error_code ec;
+  for (const auto& e : std::filesystem::directory_iterator(dir, ec)) {
+    if (e.is_regular_file(ec)) n += e.file_size(ec);
+  }
+  return n;
+}
+
+}  // namespace
+
+CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
+  CLI::App* c = parent->add_subcommand(
+      "bake", "Bake a model into the voxel asset the browser renders itself (view it with web/baked.html)");
+  c->add_option("--model", a->model, "Model file (clnerf train's output, or a version's model.ckpt)")->required();
+  c->add_option("--out", a->out, "Folder to write the asset into")->required();
+  c->add_option("--data", a->data, "The capture the model was trained on (its training cameras decide what is kept)");
+  c->add_option("--time-step", a->time_step, "Time step to bake (-1 = latest)")->capture_default_str();
+  c->add_option("--resolution", a->bake.resolution,
+                "Cells per axis over the field space, a multiple of 32 (0 = derived: 256 objects, 512 unbounded)")
+      ->capture_default_str();
+  c->add_option("--visibility-rays", a->bake.visibility_rays, "Training-camera rays that decide which blocks are kept")
+      ->capture_default_str();
+  c->add_option("--min-block-weight", a->bake.min_block_weight,
+                "Keep a block when some training ray puts at least this much weight in it")
+      ->capture_default_str();
+  c->add_option("--json", a->json, "Write the report as JSON to this file ('-' = stdout)");
+  BindThreadsFlag(c, &a->threads);
+  BindDatasetFlags(c, &a->dataset);
+  return c;
+}
+
+int RunBake(const BakeArgs& a) {
+  SetThreads(a.threads);
+  absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
+  if (!ck.ok()) return Fail(ck.status());
+  std::string from;
+  absl::StatusOr<std::vector<Camera>> cams = BakeCameras(a, *ck, &from);
+  if (!cams.ok()) return Fail(cams.status());
+  BakeOptions o = a.bake;
+  o.threads = a.threads;
+  BakeReport rep;
+  absl::StatusOr<BakedAsset> asset = BakeModel(ck->model, a.time_step, *cams, o, &rep);
+  if (!asset.ok()) return Fail(asset.status());
+  if (absl::Status s = SaveBakedAsset(*asset, a.out); !s.ok()) return Fail(s);
+  const uint64_t bytes = FolderBytes(a.out);
+  std::printf("baked time step %d at %d^3 (%zu cameras from %s): %d of %d candidate blocks kept, %.1f MB raw, "
+              "%.2f MB on disk, in %.1f s (density %.1f, visibility %.1f, colour %.1f)\n",
+              asset->time_step, rep.resolution, cams->size(), from.c_str(), rep.kept_blocks, rep.candidate_blocks,
+              double(asset->raw_bytes()) / 1e6, double(bytes) / 1e6, rep.total_seconds, rep.density_seconds,
+              rep.visibility_seconds, rep.colour_seconds);
+  nlohmann::json j = {{"model", a.model},          {"out", a.out},
+                      {"time_step", asset->time_step}, {"resolution", rep.resolution},
+                      {"candidate_blocks", rep.candidate_blocks}, {"kept_blocks", rep.kept_blocks},
+                      {"visibility_rays", rep.visibility_rays},   {"raw_bytes", asset->raw_bytes()},
+                      {"asset_bytes", bytes},                     {"bake_seconds", rep.total_seconds},
+                      {"density_seconds", rep.density_seconds},   {"visibility_seconds", rep.visibility_seconds},
+                      {"colour_seconds", rep.colour_seconds}};
+  if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
+  return 0;
+}
+
+// eval on a baked folder: every view through the reference renderer.
+int RunEvalBaked(const EvalArgs& a) {
+  absl::StatusOr<BakedAsset> asset = LoadBakedAsset(a.model);
+  if (!asset.ok()) return Fail(asset.status());
+  absl::StatusOr<Scene> scene = LoadScene(a.data, a.dataset);
+  if (!scene.ok()) return Fail(scene.status());
+  const std::vector<View>& views = a.split == "train" ? scene->train : a.split == "val" ? scene->val : scene->test;
+  if (a.split != "train" && a.split != "val" && a.split != "test") {
+    return Fail(absl::InvalidArgumentError("--split must be train, val or test"));
+  }
+  if (views.empty()) return Fail(absl::InvalidArgumentError(absl::StrFormat("split '%s' is empty", a.split)));
+  long long samples = 0, pixels = 0;
+  BakedRenderOptions ro;
+  ro.threads = a.threads;
+  absl::StatusOr<EvalResult> ev = EvaluateWith(
+      [&](const View& v) {
+        absl::StatusOr<RenderedView> r = RenderBakedView(*asset, v.camera, ro);
+        if (r.ok()) {
+          samples += r->samples;
+          pixels += (long long)r->rgb.num_pixels();
+        }
+        return r;
+      },
+      views, a.eval);
+  if (!ev.ok()) return Fail(ev.status());
+  nlohmann::json j = EvalJson(*ev);
+  j["model"] = a.model;
+  j["baked"] = true;
+  j["asset_bytes"] = FolderBytes(a.model);
+  j["samples_per_ray"] = pixels > 0 ? double(samples) / double(pixels) : 0.0;
+  j["split"] = a.split;
+  std::printf("%s (baked asset, reference renderer): PSNR %.2f dB (colour-corrected %.2f), SSIM %.4f, speckle %.4f, "
+              "blur %.4f over %zu images, %.1f ms/image, %.1f samples per ray\n",
+              a.split.c_str(), ev->psnr, ev->psnr_cc, ev->ssim, ev->speckle, ev->blur, ev->views.size(),
+              ev->mean_render_seconds * 1e3, j["samples_per_ray"].get<double>());
+  if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
+  return 0;
+}
+
+}  // namespace clnerf

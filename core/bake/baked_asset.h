@@ -1,0 +1,92 @@
+// BakedAsset: one time step of a trained model, baked into the block-sparse
+// voxel grid that the browser renders itself (issue 41; after SNeRG's
+// design). It is the asset's in-memory form and its file format.
+//
+// The grid covers the model's field space, the cube [-B, B]^3 (B = the
+// model box's half size for objects, 2 for unbounded scenes, whose far
+// surroundings are contracted into the shell 1 < |q|_inf < 2 exactly as the
+// model's field is, see contraction.h). It has R^3 cells in (R/8)^3 blocks
+// of 8^3 cells. `index` holds one entry per block: 0 = empty (no density),
+// otherwise 1 + the block's brick in `atlas`. A brick holds the 9^3 lattice
+// points of its block's cells (its own copy of the faces it shares with the
+// neighbouring blocks, so trilinear interpolation never leaves a brick), as
+// RGBA8: a density code a = round(255 sqrt(alpha0)), where alpha0 = 1 -
+// exp(-sigma * cell) is the opacity of one cell's length of the field (model
+// units, inner cube), and the diffuse colour premultiplied by a / 255, so
+// that interpolation weighs each corner's colour by its density (renderers
+// divide by the interpolated a). Bricks are laid out in an atlas of
+// bricks_x x bricks_y x bricks_z bricks (texels: 9 bricks_x wide, x fastest),
+// which is also the 3-D texture the page uploads.
+//
+// Files (a folder; SaveBakedAsset / LoadBakedAsset): manifest.json (the
+// fields below, format 1), index.bin.gz (uint32 little-endian, (R/8)^3,
+// x fastest) and atlas.bin.gz (RGBA8), both gzip streams, which the page
+// decodes with DecompressionStream.
+//
+// A value type without locking: concurrent const use is safe.
+#ifndef CLNERF_CORE_BAKE_BAKED_ASSET_H_
+#define CLNERF_CORE_BAKE_BAKED_ASSET_H_
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "core/data/camera.h"
+#include "core/data/scene.h"
+#include "Eigen/Core"
+
+namespace clnerf {
+
+inline constexpr int kBakeFormat = 1;
+inline constexpr int kBakeBlock = 8;   // Cells per block side.
+inline constexpr int kBakeBrick = 9;   // Lattice points per brick side.
+
+struct BakedAsset {
+  bool contracted = false;      // Unbounded scene: the field space is contracted.
+  float half_size = 1.0f;       // B: the grid covers [-B, B]^3 of field space.
+  int resolution = 0;           // R cells per axis, a multiple of kBakeBlock.
+  float near = 0.0f;            // Rays start this far from the camera (model units).
+  Normalization normalization;  // World -> model, as the model's.
+  Eigen::Vector3f background = Eigen::Vector3f::Ones();
+  int time_step = 0;            // The model's time step this is.
+  std::array<int, 3> bricks = {0, 0, 0};  // Atlas size in bricks.
+  // A few of the training cameras (world space), where a viewer starts.
+  std::vector<Camera> views;
+  std::vector<uint32_t> index;  // (R/8)^3 entries, x fastest.
+  std::vector<uint8_t> atlas;   // RGBA8 texels, 9 bricks x (x fastest) ...
+
+  int blocks_per_axis() const { return resolution / kBakeBlock; }
+  float cell() const { return 2.0f * half_size / float(resolution); }
+  // The model-space step along a ray inside the inner cube (half a cell).
+  float step() const { return 0.5f * cell(); }
+  int num_bricks() const;
+  std::array<int, 3> atlas_texels() const {
+    return {kBakeBrick * bricks[0], kBakeBrick * bricks[1], kBakeBrick * bricks[2]};
+  }
+  // Bytes of the raw (uncompressed) arrays.
+  size_t raw_bytes() const { return index.size() * 4 + atlas.size(); }
+  // Sizes and ranges consistent (every index entry names a brick).
+  absl::Status Validate() const;
+};
+
+// The asset's three files, name -> bytes (manifest.json, index.bin.gz,
+// atlas.bin.gz), e.g. for WriteDirectoryAtomically.
+absl::StatusOr<std::vector<std::pair<std::string, std::string>>> SerializeBakedAsset(const BakedAsset& asset);
+// Writes them into `dir` (created if needed; files replaced atomically).
+absl::Status SaveBakedAsset(const BakedAsset& asset, const std::string& dir);
+// Reads a folder SaveBakedAsset wrote. NOT_FOUND without a manifest;
+// INVALID_ARGUMENT / DATA_LOSS for a corrupt or inconsistent one.
+absl::StatusOr<BakedAsset> LoadBakedAsset(const std::string& dir);
+// True when `dir` holds a baked asset's manifest.
+bool IsBakedAssetDir(const std::string& dir);
+
+// The model-space camera of a world-space one (as NgpModel::ToModelCamera).
+Camera BakedModelCamera(const BakedAsset& asset, const Camera& world);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_BAKE_BAKED_ASSET_H_

@@ -1,0 +1,127 @@
+#include "core/bake/baked_asset.h"
+
+#include <filesystem>
+#include <fstream>
+
+#include "core/io/durable_file.h"
+#include "core/io/gzip.h"
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+// A 32^3 grid (4^3 blocks) with two bricks of arbitrary texels.
+BakedAsset SmallAsset() {
+  BakedAsset a;
+  a.contracted = true;
+  a.half_size = 2.0f;
+  a.resolution = 32;
+  a.near = 0.05f;
+  a.normalization.center = Eigen::Vector3f(1, 2, 3);
+  a.normalization.scale = 0.5f;
+  a.normalization.bound = 2.0f;
+  a.background = Eigen::Vector3f(0.1f, 0.2f, 0.3f);
+  a.time_step = 1;
+  a.bricks = {2, 1, 1};
+  Camera view;
+  view.intrinsics = {64, 48, 50, 50, 32, 24};
+  view.c2w.col(3) = Eigen::Vector3f(1, 2, -3);
+  a.views.push_back(view);
+  a.index.assign(64, 0);
+  a.index[5] = 1;
+  a.index[42] = 2;
+  const std::array<int, 3> t = a.atlas_texels();
+  a.atlas.resize(4 * size_t(t[0]) * t[1] * t[2]);
+  for (size_t i = 0; i < a.atlas.size(); ++i) a.atlas[i] = uint8_t((i * 37) % 251);
+  return a;
+}
+
+std::string TempDir(const std::string& name) {
+  const std::string d = ::testing::TempDir() + "/baked_asset_" + name;
+  std::filesystem::remove_all(d);
+  return d;
+}
+
+TEST(BakedAssetTest, SavedAssetLoadsBackTheSame) {
+  const BakedAsset a = SmallAsset();
+  ASSERT_TRUE(a.Validate().ok()) << a.Validate();
+  const std::string dir = TempDir("roundtrip");
+  ASSERT_TRUE(SaveBakedAsset(a, dir).ok());
+  EXPECT_TRUE(IsBakedAssetDir(dir));
+  absl::StatusOr<BakedAsset> b = LoadBakedAsset(dir);
+  ASSERT_TRUE(b.ok()) << b.status();
+  EXPECT_EQ(b->contracted, a.contracted);
+  EXPECT_EQ(b->resolution, a.resolution);
+  EXPECT_EQ(b->bricks, a.bricks);
+  EXPECT_EQ(b->index, a.index);
+  EXPECT_EQ(b->atlas, a.atlas);
+  EXPECT_EQ(b->time_step, 1);
+  EXPECT_NEAR(b->normalization.scale, 0.5f, 1e-7f);
+  EXPECT_NEAR(b->normalization.center.y(), 2.0f, 1e-7f);
+  EXPECT_NEAR(b->background.z(), 0.3f, 1e-7f);
+  EXPECT_EQ(b->num_bricks(), 2);
+  ASSERT_EQ(b->views.size(), 1u);
+  EXPECT_EQ(b->views[0].intrinsics.width, 64);
+  EXPECT_NEAR(b->views[0].c2w(2, 3), -3.0f, 1e-6f);
+}
+
+TEST(BakedAssetTest, InconsistentAssetsAreRefused) {
+  BakedAsset a = SmallAsset();
+  a.index[7] = 3;  // Only two bricks fit the atlas.
+  EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);
+  a = SmallAsset();
+  a.resolution = 36;
+  EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);
+  a = SmallAsset();
+  a.atlas.pop_back();
+  EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_FALSE(SerializeBakedAsset(a).ok());
+}
+
+TEST(BakedAssetTest, CorruptFoldersGiveClearErrors) {
+  const std::string dir = TempDir("corrupt");
+  EXPECT_EQ(LoadBakedAsset(dir).status().code(), absl::StatusCode::kNotFound);
+  ASSERT_TRUE(SaveBakedAsset(SmallAsset(), dir).ok());
+  // A truncated array.
+  absl::StatusOr<std::string> atlas = ReadFileToString(dir + "/atlas.bin.gz");
+  ASSERT_TRUE(atlas.ok());
+  ASSERT_TRUE(AtomicWriteFile(dir + "/atlas.bin.gz", atlas->substr(0, atlas->size() / 2)).ok());
+  absl::StatusOr<BakedAsset> b = LoadBakedAsset(dir);
+  EXPECT_EQ(b.status().code(), absl::StatusCode::kDataLoss) << b.status();
+  // An array larger than its manifest says (it cannot inflate past it).
+  absl::StatusOr<std::string> big = GzipCompress(std::string(1 << 20, 'x'));
+  ASSERT_TRUE(big.ok());
+  ASSERT_TRUE(AtomicWriteFile(dir + "/atlas.bin.gz", *big).ok());
+  EXPECT_EQ(LoadBakedAsset(dir).status().code(), absl::StatusCode::kDataLoss);
+  // A hostile manifest: absurd sizes are refused before anything is read.
+  ASSERT_TRUE(AtomicWriteFile(dir + "/manifest.json",
+                              R"({"format":1,"kind":"bounded","half_size":1,"resolution":1048576,"near":0,)"
+                              R"("scale":1,"bound":1,"time_step":0,"rotation":[1,0,0,0,1,0,0,0,1],)"
+                              R"("bricks":[1,1,1],"center":[0,0,0],"background":[1,1,1]})")
+                  .ok());
+  EXPECT_EQ(LoadBakedAsset(dir).status().code(), absl::StatusCode::kInvalidArgument);
+  ASSERT_TRUE(AtomicWriteFile(dir + "/manifest.json", R"({"format":9})").ok());
+  EXPECT_EQ(LoadBakedAsset(dir).status().code(), absl::StatusCode::kFailedPrecondition);
+  ASSERT_TRUE(AtomicWriteFile(dir + "/manifest.json", "{not json").ok());
+  EXPECT_EQ(LoadBakedAsset(dir).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+TEST(GzipTest, RoundTripsAndRefusesCorruptStreams) {
+  std::string data;
+  for (int i = 0; i < 100000; ++i) data.push_back(char(i % 7 == 0 ? i : 0));
+  absl::StatusOr<std::string> gz = GzipCompress(data);
+  ASSERT_TRUE(gz.ok());
+  EXPECT_LT(gz->size(), data.size() / 4);
+  EXPECT_EQ(uint8_t((*gz)[0]), 0x1f);  // The gzip magic browsers expect.
+  EXPECT_EQ(uint8_t((*gz)[1]), 0x8b);
+  absl::StatusOr<std::string> back = GzipDecompress(*gz, data.size());
+  ASSERT_TRUE(back.ok()) << back.status();
+  EXPECT_EQ(*back, data);
+  EXPECT_EQ(GzipDecompress(*gz, data.size() - 1).status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_EQ(GzipDecompress(gz->substr(0, gz->size() - 9), data.size()).status().code(),
+            absl::StatusCode::kDataLoss);
+  EXPECT_EQ(GzipDecompress("not gzip at all", 100).status().code(), absl::StatusCode::kDataLoss);
+}
+
+}  // namespace
+}  // namespace clnerf

@@ -1,0 +1,121 @@
+// MarchBaked: the one march over a baked grid that the reference renderer
+// (baked_renderer.h, where the rule is spelled out) and the baker's
+// visibility pass share, templated on where the lattice values come from.
+//
+// Pure function template; thread-safe.
+#ifndef CLNERF_CORE_BAKE_BAKED_MARCH_H_
+#define CLNERF_CORE_BAKE_BAKED_MARCH_H_
+
+#include <algorithm>
+#include <cmath>
+
+#include "core/bake/baked_asset.h"
+#include "core/data/contraction.h"
+#include "core/field/ray_marcher.h"
+#include "Eigen/Core"
+
+namespace clnerf {
+
+// Rays stop once the transmittance falls to this.
+inline constexpr float kBakedMinTransmittance = 1.0f / 255.0f;
+// A texel's opacity per cell is capped here (a = 255 is a solid cell).
+inline constexpr float kBakedMaxAlpha = 0.9999f;
+// At most this many samples per ray.
+inline constexpr int kBakedMaxSteps = 4096;
+
+// The model-space interval to march; false when the ray misses the grid.
+inline bool BakedRayInterval(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d, float* t0,
+                             float* t1) {
+  // Unbounded: |contract(x)|_inf = 2 - 1/r reaches 2 - cell/2 at r = 2/cell.
+  const float box = a.contracted ? 2.0f / a.cell() : a.half_size;
+  if (!IntersectBox(o, d, box, t0, t1)) return false;
+  *t0 = std::max(*t0, a.near);
+  return *t1 > *t0;
+}
+
+// Model-space t at which a ray leaves the box [lo, hi] it is in.
+inline float BakedExitT(const Eigen::Vector3f& o, const Eigen::Vector3f& d, const Eigen::Vector3f& lo,
+                        const Eigen::Vector3f& hi) {
+  float t = 1e30f;
+  for (int k = 0; k < 3; ++k) {
+    if (d[k] > 1e-12f) t = std::min(t, (hi[k] - o[k]) / d[k]);
+    if (d[k] < -1e-12f) t = std::min(t, (lo[k] - o[k]) / d[k]);
+  }
+  return t;
+}
+
+// Marches ray o + t d (unit d, model space) over the grid of `a` (only its
+// geometry fields are read). sample(block, u, &rgba) returns false for an
+// empty block, else the lattice's RGBA in [0, 1] at cell coordinates u;
+// visit(block, weight, t, rgba) sees every sample's compositing weight.
+// Returns the final transmittance.
+template <class Sample, class Visit>
+float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d, Sample&& sample,
+                 Visit&& visit) {
+  float t0 = 0, t1 = 0, T = 1.0f;
+  if (!BakedRayInterval(a, o, d, &t0, &t1)) return T;
+  const int nb = a.blocks_per_axis();
+  const float step = a.step(), cell = a.cell(), B = a.half_size, to_cells = float(a.resolution) / (2.0f * B);
+  const float block_size = float(kBakeBlock) / to_cells;  // Field units.
+  float t = t0 + 0.5f * step;
+  for (int it = 0; it < kBakedMaxSteps && t < t1 && T > kBakedMinTransmittance; ++it) {
+    const Eigen::Vector3f x = o + t * d;
+    const float r = InfNorm(x);
+    const float dt = a.contracted && r > 1.0f ? step * r * r : step;
+    const Eigen::Vector3f u = ((a.contracted ? Contract(x) : x).array() + B) * to_cells;
+    int b[3];
+    for (int k = 0; k < 3; ++k) b[k] = std::clamp(int(std::floor(u[k] / float(kBakeBlock))), 0, nb - 1);
+    const int block = b[0] + nb * (b[1] + nb * b[2]);
+    Eigen::Vector4f rgba;
+    if (!sample(block, u, b, &rgba)) {
+      // An empty block: skipped at once where it lies in model space
+      // unchanged (by whole steps, so samples stay on t0 + (k + 1/2) step).
+      const Eigen::Vector3f lo(float(b[0]) * block_size - B, float(b[1]) * block_size - B,
+                               float(b[2]) * block_size - B);
+      const Eigen::Vector3f hi = lo.array() + block_size;
+      if (!a.contracted || (lo.cwiseAbs().maxCoeff() <= 1.0f && hi.cwiseAbs().maxCoeff() <= 1.0f)) {
+        t += std::max(1.0f, std::ceil((BakedExitT(o, d, lo, hi) - t) / step)) * step;
+      } else {
+        t += dt;
+      }
+      continue;
+    }
+    const float alpha0 = std::min(rgba[3] * rgba[3], kBakedMaxAlpha);
+    const float alpha = 1.0f - std::exp(std::log(1.0f - alpha0) * (dt / cell));
+    visit(block, T * alpha, t, rgba);
+    T *= 1.0f - alpha;
+    t += dt;
+  }
+  return T;
+}
+
+// The colour of an interpolated sample: the atlas holds colour times the
+// density code (premultiplied), so interpolation weighs each corner's colour
+// by its density; this divides it back out.
+inline Eigen::Vector3f BakedColour(const Eigen::Vector4f& rgba) {
+  return (rgba.head<3>() / std::max(rgba[3], 1.0f / 255.0f)).cwiseMin(1.0f);
+}
+
+// Trilinear RGBA (0..255 per channel) of a 9^3 RGBA8 lattice `texel(x, y,
+// z, c)` at local coordinates l in [0, 8]^3.
+template <class Texel>
+Eigen::Vector4f TrilinearBrick(const float l_in[3], Texel&& texel) {
+  int i0[3];
+  float f[3];
+  for (int k = 0; k < 3; ++k) {
+    const float l = std::clamp(l_in[k], 0.0f, float(kBakeBlock));
+    i0[k] = std::min(int(l), kBakeBlock - 1);
+    f[k] = l - float(i0[k]);
+  }
+  Eigen::Vector4f acc = Eigen::Vector4f::Zero();
+  for (int corner = 0; corner < 8; ++corner) {
+    const int dx = corner & 1, dy = (corner >> 1) & 1, dz = corner >> 2;
+    const float w = (dx ? f[0] : 1.0f - f[0]) * (dy ? f[1] : 1.0f - f[1]) * (dz ? f[2] : 1.0f - f[2]);
+    for (int c = 0; c < 4; ++c) acc[c] += w * texel(i0[0] + dx, i0[1] + dy, i0[2] + dz, c);
+  }
+  return acc;
+}
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_BAKE_BAKED_MARCH_H_

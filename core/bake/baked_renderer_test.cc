@@ -1,0 +1,129 @@
+#include "core/bake/baked_renderer.h"
+
+#include <cmath>
+
+#include "core/data/contraction.h"
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+// An empty grid of R^3 cells over [-B, B]^3 with room for `bricks` bricks.
+BakedAsset EmptyAsset(bool contracted, float half_size, int resolution, int bricks) {
+  BakedAsset a;
+  a.contracted = contracted;
+  a.half_size = half_size;
+  a.resolution = resolution;
+  a.background = Eigen::Vector3f(1, 1, 1);
+  a.bricks = {bricks, 1, 1};
+  const int nb = a.blocks_per_axis();
+  a.index.assign(size_t(nb) * nb * nb, 0);
+  const std::array<int, 3> t = a.atlas_texels();
+  a.atlas.assign(4 * size_t(t[0]) * t[1] * t[2], 0);
+  return a;
+}
+
+// Fills block (bx, by, bz) with brick k of uniform colour and density code.
+void FillBlock(BakedAsset* a, int bx, int by, int bz, int k, const Eigen::Vector3f& rgb, uint8_t code) {
+  const int nb = a->blocks_per_axis();
+  a->index[size_t(bx) + size_t(nb) * (size_t(by) + size_t(nb) * size_t(bz))] = uint32_t(k + 1);
+  const std::array<int, 3> t = a->atlas_texels();
+  for (int z = 0; z < kBakeBrick; ++z) {
+    for (int y = 0; y < kBakeBrick; ++y) {
+      for (int x = 0; x < kBakeBrick; ++x) {
+        uint8_t* p = a->atlas.data() + 4 * (size_t(k * kBakeBrick + x) + size_t(t[0]) * (size_t(y) + size_t(t[1]) * z));
+        for (int c = 0; c < 3; ++c) p[c] = uint8_t(std::lround(float(code) * rgb[c]));  // Premultiplied.
+        p[3] = code;
+      }
+    }
+  }
+}
+
+// Opacity of `samples` half-cell steps through a uniform code.
+float ClosedFormOpacity(uint8_t code, int samples) {
+  const float a = float(code) / 255.0f;
+  return 1.0f - std::pow(1.0f - a * a, 0.5f * float(samples));
+}
+
+TEST(BakedRendererTest, AUniformBlockComposesAsItsClosedForm) {
+  // 32^3 cells over [-1, 1]^3: blocks of 0.5; block (2, 2, 2) spans [0, 0.5]^3.
+  BakedAsset a = EmptyAsset(false, 1.0f, 32, 1);
+  const Eigen::Vector3f colour(0.8f, 0.2f, 0.4f);
+  FillBlock(&a, 2, 2, 2, 0, colour, 100);
+  ASSERT_TRUE(a.Validate().ok());
+  const BakedRay r = RenderBakedRay(a, Eigen::Vector3f(0.26f, 0.24f, -3.0f), Eigen::Vector3f(0, 0, 1));
+  // The block is 8 cells deep: 16 half-cell samples (one more or less at the
+  // lattice's phase).
+  EXPECT_GE(r.samples, 15);
+  EXPECT_LE(r.samples, 17);
+  EXPECT_NEAR(r.opacity, ClosedFormOpacity(100, r.samples), 1e-5f);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(r.rgb[c], r.opacity * colour[c] + (1.0f - r.opacity), 2e-3f);
+  // Depth: the weights sit between the block's faces (z = 3 to 3.5 from the origin).
+  EXPECT_GT(r.depth / r.opacity, 3.0f);
+  EXPECT_LT(r.depth / r.opacity, 3.5f);
+  // A ray that misses the block sees the background only.
+  const BakedRay miss = RenderBakedRay(a, Eigen::Vector3f(-0.3f, 0.24f, -3.0f), Eigen::Vector3f(0, 0, 1));
+  EXPECT_EQ(miss.samples, 0);
+  EXPECT_FLOAT_EQ(miss.opacity, 0.0f);
+  EXPECT_NEAR(miss.rgb[0], 1.0f, 1e-6f);
+}
+
+TEST(BakedRendererTest, SkippingEmptyBlocksLandsOnEveryOccupiedOne) {
+  // Two thin blocks far apart on one ray, empty space between and around:
+  // the skips must reach both, each with its full depth of samples.
+  BakedAsset a = EmptyAsset(false, 1.0f, 64, 2);
+  FillBlock(&a, 5, 7, 1, 0, Eigen::Vector3f(1, 0, 0), 60);
+  FillBlock(&a, 5, 7, 6, 1, Eigen::Vector3f(0, 0, 1), 60);
+  const float cell = a.cell();
+  const Eigen::Vector3f o(-1.0f + (5 * 8 + 4.3f) * cell, -1.0f + (7 * 8 + 3.7f) * cell, -2.0f);
+  const BakedRay r = RenderBakedRay(a, o, Eigen::Vector3f(0, 0, 1));
+  EXPECT_GE(r.samples, 31);
+  EXPECT_LE(r.samples, 33);
+  EXPECT_NEAR(r.opacity, ClosedFormOpacity(60, r.samples), 1e-5f);
+  EXPECT_GT(r.rgb[0], r.rgb[2]);  // The red block is in front.
+  EXPECT_GT(r.rgb[2], 0.0f);
+  // Oblique rays see the same total as marching without skips would: each
+  // block's samples are spaced one step apart along the ray.
+  const Eigen::Vector3f d = Eigen::Vector3f(0.05f, -0.03f, 1.0f).normalized();
+  const BakedRay s = RenderBakedRay(a, o - 2.0f * d.cwiseProduct(Eigen::Vector3f(1, 1, 0)), d);
+  EXPECT_NEAR(s.opacity, ClosedFormOpacity(60, s.samples), 1e-5f);
+}
+
+TEST(BakedRendererTest, TheFarShellIsReachedThroughTheContraction) {
+  // Contracted grid: block (7, 3, 3) of 8^3 lies at contracted x in [1.5, 2),
+  // model-space distance 2 to about 64 along +x.
+  BakedAsset a = EmptyAsset(true, 2.0f, 64, 1);
+  FillBlock(&a, 7, 3, 3, 0, Eigen::Vector3f(0, 1, 0), 255);
+  ASSERT_TRUE(a.Validate().ok());
+  const Eigen::Vector3f o(0.0f, -0.25f, -0.25f);
+  const BakedRay hit = RenderBakedRay(a, o, Eigen::Vector3f(1, 0, 0));
+  EXPECT_GT(hit.opacity, 0.99f);
+  EXPECT_NEAR(hit.rgb[1], 1.0f, 0.01f);
+  const float depth = hit.depth / hit.opacity;
+  EXPECT_GT(depth, 1.9f);  // Where contract(x) = 1.5: x = 2.
+  EXPECT_LT(depth, 2.2f);
+  const BakedRay miss = RenderBakedRay(a, o, Eigen::Vector3f(-1, 0, 0));
+  EXPECT_FLOAT_EQ(miss.opacity, 0.0f);
+}
+
+TEST(BakedRendererTest, ViewsHonourTheNormalisation) {
+  BakedAsset a = EmptyAsset(false, 1.0f, 32, 1);
+  FillBlock(&a, 2, 2, 2, 0, Eigen::Vector3f(0, 0, 0), 255);
+  a.normalization.center = Eigen::Vector3f(10, 0, 0);
+  a.normalization.scale = 0.5f;  // World block: x in [10, 11].
+  Camera cam;
+  cam.intrinsics = {8, 8, 8, 8, 4, 4};
+  cam.c2w = Pose::Identity();
+  cam.c2w.col(3) = Eigen::Vector3f(10.5f, 0.5f, -6.0f);
+  absl::StatusOr<RenderedView> v = RenderBakedView(a, cam);
+  ASSERT_TRUE(v.ok()) << v.status();
+  // The black block fills the middle of the image.
+  EXPECT_LT(v->rgb.pixel(4, 4)[0], 0.05f);
+  EXPECT_GT(v->rgb.pixel(0, 0)[0], 0.95f);
+  EXPECT_GT(v->samples, 0);
+  cam.c2w(0, 0) = std::nanf("");
+  EXPECT_EQ(RenderBakedView(a, cam).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace clnerf

@@ -1,0 +1,322 @@
+#include "core/bake/baker.h"
+
+#include <omp.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+
+#include "absl/strings/str_format.h"
+#include "core/bake/baked_march.h"
+#include "core/field/field.h"
+
+namespace clnerf {
+namespace {
+
+constexpr int kLattice = kBakeBrick * kBakeBrick * kBakeBrick;  // Points per brick.
+
+double Since(std::chrono::steady_clock::time_point t0) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+// What the stages share: the grid (an asset's geometry fields), the
+// candidate blocks and their lattice values.
+struct BakeWork {
+  BakedAsset asset;             // Geometry so far; arrays filled at the end.
+  std::vector<int32_t> slot;    // Per block: candidate slot, or -1.
+  std::vector<int> blocks;      // Candidate slot -> block.
+  std::vector<uint8_t> code;    // kLattice density codes per candidate.
+};
+
+// Field-space position of lattice point i (0..8 per axis) of block b.
+Eigen::Vector3f LatticePoint(const BakedAsset& a, int block, int i) {
+  const int nb = a.blocks_per_axis();
+  const int b[3] = {block % nb, (block / nb) % nb, block / (nb * nb)};
+  const int l[3] = {i % kBakeBrick, (i / kBakeBrick) % kBakeBrick, i / (kBakeBrick * kBakeBrick)};
+  Eigen::Vector3f q;
+  for (int k = 0; k < 3; ++k) q[k] = -a.half_size + float(kBakeBlock * b[k] + l[k]) * a.cell();
+  return q;
+}
+
+// Stage 1: blocks overlapping occupied occupancy cells, probed on a stride
+// no coarser than the occupancy grid's finest cell.
+void FindCandidates(const NgpModel& model, BakeWork* w) {
+  const BakedAsset& a = w->asset;
+  const OccupancyGrid& occ = model.occupancy();
+  const int nb = a.blocks_per_axis();
+  const int stride = std::clamp(int(occ.CellSize(0) / a.cell()), 1, kBakeBlock);
+  const int total = nb * nb * nb;
+  std::vector<uint8_t> hit(size_t(total), 0);
+#pragma omp parallel for schedule(dynamic, 64)
+  for (int block = 0; block < total; ++block) {
+    const Eigen::Vector3f corner = LatticePoint(a, block, 0);
+    for (int z = 0; z < kBakeBlock && !hit[block]; z += stride) {
+      for (int y = 0; y < kBakeBlock && !hit[block]; y += stride) {
+        for (int x = 0; x < kBakeBlock; x += stride) {
+          const Eigen::Vector3f q = corner + a.cell() * Eigen::Vector3f(float(x) + 0.5f, float(y) + 0.5f, float(z) + 0.5f);
+          if (occ.Occupied(q)) {
+            hit[block] = 1;
+            break;
+          }
+        }
+      }
+    }
+  }
+  w->slot.assign(size_t(total), -1);
+  for (int block = 0; block < total; ++block) {
+    if (!hit[block]) continue;
+    w->slot[block] = int32_t(w->blocks.size());
+    w->blocks.push_back(block);
+  }
+}
+
+uint8_t DensityCode(float sigma, float cell) {
+  const float alpha0 = 1.0f - std::exp(-std::max(sigma, 0.0f) * cell);
+  return uint8_t(std::lround(255.0f * std::sqrt(std::clamp(alpha0, 0.0f, 1.0f))));
+}
+
+// Stage 2: density codes at every candidate's lattice points.
+void BakeDensity(const NgpModel& model, int t, BakeWork* w) {
+  const size_t n = w->blocks.size();
+  w->code.assign(n * kLattice, 0);
+  constexpr size_t kChunk = 512;  // Blocks per DensityAt call.
+  std::vector<float> pts, sigma;
+  for (size_t begin = 0; begin < n; begin += kChunk) {
+    const size_t m = std::min(kChunk, n - begin);
+    pts.resize(3 * m * kLattice);
+    sigma.resize(m * kLattice);
+    for (size_t k = 0; k < m; ++k) {
+      for (int i = 0; i < kLattice; ++i) {
+        const Eigen::Vector3f q = LatticePoint(w->asset, w->blocks[begin + k], i);
+        std::copy(q.data(), q.data() + 3, pts.data() + 3 * (k * kLattice + size_t(i)));
+      }
+    }
+    model.Density(pts.data(), int(m * kLattice), t, sigma.data());
+    // Only where the occupancy grid is occupied, as the model's own march
+    // samples: the field's faint values in cells it skips never show.
+    const OccupancyGrid& occ = model.occupancy();
+    for (size_t j = 0; j < m * kLattice; ++j) {
+      const bool on = occ.Occupied(Eigen::Map<const Eigen::Vector3f>(pts.data() + 3 * j));
+      w->code[begin * kLattice + j] = on ? DensityCode(sigma[j], w->asset.cell()) : 0;
+    }
+  }
+}
+
+// Stage 3: training rays march the density codes; per candidate, the most
+// weight one ray left in it and the weighted sum of those rays' directions.
+void Visibility(const std::vector<Camera>& cameras, const BakeOptions& o, BakeWork* w, std::vector<float>* max_w,
+                std::vector<Eigen::Vector3f>* dir, long long* rays_marched) {
+  const BakedAsset& a = w->asset;
+  double pixels = 0;
+  for (const Camera& c : cameras) pixels += double(c.intrinsics.width) * c.intrinsics.height;
+  const int stride = std::max(1, int(std::ceil(std::sqrt(pixels / double(o.visibility_rays)))));
+  const size_t n = w->blocks.size();
+  max_w->assign(n, 0.0f);
+  dir->assign(n, Eigen::Vector3f::Zero());
+  long long marched = 0;
+#pragma omp parallel reduction(+ : marched)
+  {
+    std::vector<float> my_w(n, 0.0f);
+    std::vector<Eigen::Vector3f> my_dir(n, Eigen::Vector3f::Zero());
+#pragma omp for schedule(dynamic)
+    for (int ci = 0; ci < int(cameras.size()); ++ci) {
+      const Camera cam = BakedModelCamera(a, cameras[ci]);
+      for (int y = stride / 2; y < cam.intrinsics.height; y += stride) {
+        for (int x = stride / 2; x < cam.intrinsics.width; x += stride) {
+          Eigen::Vector3f or_, d;
+          cam.Ray(float(x) + 0.5f, float(y) + 0.5f, &or_, &d);
+          int cur = -1;
+          float acc = 0.0f;
+          auto flush = [&]() {
+            if (cur < 0) return;
+            my_w[cur] = std::max(my_w[cur], acc);
+            my_dir[cur] += acc * d;
+          };
+          MarchBaked(
+              a, or_, d,
+              [&](int block, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
+                const int32_t s = w->slot[block];
+                if (s < 0) return false;
+                const uint8_t* c = w->code.data() + size_t(s) * kLattice;
+                const float l[3] = {u[0] - float(kBakeBlock * b[0]), u[1] - float(kBakeBlock * b[1]),
+                                    u[2] - float(kBakeBlock * b[2])};
+                const float v = TrilinearBrick(l, [&](int xx, int yy, int zz, int ch) {
+                                  return ch == 3 ? float(c[xx + kBakeBrick * (yy + kBakeBrick * zz)]) : 0.0f;
+                                })[3];
+                *rgba = Eigen::Vector4f(0, 0, 0, v / 255.0f);
+                return true;
+              },
+              [&](int block, float weight, float, const Eigen::Vector4f&) {
+                const int s = w->slot[block];
+                if (s != cur) {
+                  flush();
+                  cur = s;
+                  acc = 0.0f;
+                }
+                acc += weight;
+              });
+          flush();
+          ++marched;
+        }
+      }
+    }
+#pragma omp critical
+    for (size_t k = 0; k < n; ++k) {
+      (*max_w)[k] = std::max((*max_w)[k], my_w[k]);
+      (*dir)[k] += my_dir[k];
+    }
+  }
+  *rays_marched = marched;
+}
+
+// Which lattice points' colours can show: a sample in a cell blends its 8
+// corners' colours with the opacity of their densities, so a point's colour
+// matters only when some point of a cell around it (its 3^3 neighbourhood
+// in the brick) has density. The others are written as 0, which renders
+// the same and compresses far better than the field's colours in empty
+// space.
+std::vector<uint8_t> ColourUsed(const uint8_t* code) {
+  std::vector<uint8_t> used(kLattice, 0);
+  for (int z = 0; z < kBakeBrick; ++z) {
+    for (int y = 0; y < kBakeBrick; ++y) {
+      for (int x = 0; x < kBakeBrick; ++x) {
+        if (code[x + kBakeBrick * (y + kBakeBrick * z)] == 0) continue;
+        for (int dz = std::max(z - 1, 0); dz <= std::min(z + 1, kBakeBrick - 1); ++dz) {
+          for (int dy = std::max(y - 1, 0); dy <= std::min(y + 1, kBakeBrick - 1); ++dy) {
+            for (int dx = std::max(x - 1, 0); dx <= std::min(x + 1, kBakeBrick - 1); ++dx) {
+              used[dx + kBakeBrick * (dy + kBakeBrick * dz)] = 1;
+            }
+          }
+        }
+      }
+    }
+  }
+  return used;
+}
+
+// Stage 4: colours of the kept candidates' lattice points along their mean
+// viewing direction, written with the density codes into the atlas.
+void BakeColour(const NgpModel& model, int t, const std::vector<int>& kept, const std::vector<Eigen::Vector3f>& dir,
+                BakeWork* w) {
+  BakedAsset& a = w->asset;
+  const int n = int(kept.size());
+  const int side = std::max(1, int(std::ceil(std::cbrt(double(std::max(n, 1))))));
+  a.bricks = {side, side, std::max(1, (n + side * side - 1) / (side * side))};
+  const std::array<int, 3> dims = a.atlas_texels();
+  a.atlas.assign(4 * size_t(dims[0]) * dims[1] * dims[2], 0);
+  const FieldEvaluator field(model);
+#pragma omp parallel
+  {
+    FieldContext fc;
+    std::vector<int> seg = {0, kLattice};
+#pragma omp for schedule(dynamic)
+    for (int k = 0; k < n; ++k) {
+      const int s = kept[k];
+      Eigen::Vector3f d = dir[s];
+      d = d.norm() > 0 ? d.normalized() : Eigen::Vector3f(0, 0, 1);
+      field.SetRays(1, d.data(), nullptr, t, &fc);
+      field.ResizeSamples(kLattice, &fc);
+      for (int i = 0; i < kLattice; ++i) {
+        const Eigen::Vector3f g = field.GridInputFromFieldSpace(LatticePoint(a, w->blocks[s], i));
+        std::copy(g.data(), g.data() + 3, fc.pos.data() + 3 * size_t(i));
+      }
+      field.Density(kLattice, seg.data(), nullptr, 1, &fc);
+      std::vector<int> all(kLattice);
+      for (int i = 0; i < kLattice; ++i) all[i] = i;
+      field.Select(all.data(), kLattice, /*for_backward=*/false, &fc);
+      field.Colour(kLattice, seg.data(), nullptr, 1, &fc);
+      const size_t ox = size_t(k % side) * kBakeBrick, oy = size_t((k / side) % side) * kBakeBrick,
+                   oz = size_t(k / (side * side)) * kBakeBrick;
+      const uint8_t* code = w->code.data() + size_t(s) * kLattice;
+      const std::vector<uint8_t> used = ColourUsed(code);
+      for (int i = 0; i < kLattice; ++i) {
+        const size_t x = ox + size_t(i % kBakeBrick), y = oy + size_t((i / kBakeBrick) % kBakeBrick),
+                     z = oz + size_t(i / (kBakeBrick * kBakeBrick));
+        uint8_t* px = a.atlas.data() + 4 * (x + size_t(dims[0]) * (y + size_t(dims[1]) * z));
+        for (int c = 0; c < 3; ++c) {
+          // Premultiplied by the density code, so that interpolation
+          // weighs each corner's colour by its density (the renderer
+          // divides by the interpolated code).
+          const float a = float(code[i]) / 255.0f;
+          px[c] = used[i] ? uint8_t(std::lround(255.0f * a * std::clamp(fc.ws.rgb(c, i), 0.0f, 1.0f))) : 0;
+        }
+        px[3] = code[i];
+      }
+    }
+  }
+  const int nb = a.blocks_per_axis();
+  a.index.assign(size_t(nb) * nb * nb, 0);
+  for (int k = 0; k < n; ++k) a.index[size_t(w->blocks[kept[k]])] = uint32_t(k + 1);
+}
+
+}  // namespace
+
+absl::Status BakeOptions::Validate() const {
+  if (resolution != 0 && (resolution < 32 || resolution > 2048 || resolution % 32 != 0)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("bake: resolution %d must be 0 (derived) or a multiple of 32 in [32, 2048]", resolution));
+  }
+  if (visibility_rays < 1) return absl::InvalidArgumentError("bake: visibility_rays must be positive");
+  if (!(min_block_weight >= 0.0f && min_block_weight < 1.0f)) {
+    return absl::InvalidArgumentError("bake: min_block_weight must be in [0, 1)");
+  }
+  if (threads < 0) return absl::InvalidArgumentError("bake: threads must be >= 0");
+  return absl::OkStatus();
+}
+
+absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const std::vector<Camera>& cameras,
+                                     const BakeOptions& options, BakeReport* report) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  if (cameras.empty()) return absl::InvalidArgumentError("bake: no training cameras to find what is visible");
+  if (model.uses_proposals()) {
+    return absl::UnimplementedError("bake: models with proposal sampling have no occupancy grid to bake from");
+  }
+  if (time_step >= model.num_time_steps()) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("bake: time step %d does not exist (model has %d)", time_step, model.num_time_steps()));
+  }
+  for (const Camera& c : cameras) {
+    if (absl::Status s = ValidateCamera(c); !s.ok()) return s;
+  }
+  const int t = time_step < 0 ? model.num_time_steps() - 1 : time_step;
+  const int threads = options.threads > 0 ? options.threads : omp_get_max_threads();
+  const int saved_threads = omp_get_max_threads();
+  omp_set_num_threads(threads);
+  const auto t0 = std::chrono::steady_clock::now();
+  BakeReport rep;
+  BakeWork w;
+  BakedAsset& a = w.asset;
+  a.contracted = model.contracted();
+  a.half_size = model.contracted() ? kContractedBound : model.bound();
+  a.resolution = options.resolution > 0 ? options.resolution : (model.contracted() ? 512 : 256);
+  a.near = model.options().march.near;
+  a.normalization = model.normalization();
+  a.background = model.background();
+  a.time_step = t;
+  for (int k = 0; k < 4 && k < int(cameras.size()); ++k) a.views.push_back(cameras[k * cameras.size() / 4]);
+  FindCandidates(model, &w);
+  BakeDensity(model, t, &w);
+  rep.density_seconds = Since(t0);
+  const auto t1 = std::chrono::steady_clock::now();
+  std::vector<float> max_w;
+  std::vector<Eigen::Vector3f> dir;
+  Visibility(cameras, options, &w, &max_w, &dir, &rep.visibility_rays);
+  rep.visibility_seconds = Since(t1);
+  std::vector<int> kept;
+  for (size_t s = 0; s < w.blocks.size(); ++s) {
+    if (max_w[s] >= options.min_block_weight && max_w[s] > 0.0f) kept.push_back(int(s));
+  }
+  const auto t2 = std::chrono::steady_clock::now();
+  BakeColour(model, t, kept, dir, &w);
+  rep.colour_seconds = Since(t2);
+  omp_set_num_threads(saved_threads);
+  rep.resolution = a.resolution;
+  rep.candidate_blocks = int(w.blocks.size());
+  rep.kept_blocks = int(kept.size());
+  rep.total_seconds = Since(t0);
+  if (report != nullptr) *report = rep;
+  if (absl::Status s = a.Validate(); !s.ok()) return s;
+  return std::move(a);
+}
+
+}  // namespace clnerf

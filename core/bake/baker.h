@@ -1,0 +1,63 @@
+// Baker: bakes one time step of a trained NgpModel into a BakedAsset (the
+// block-sparse voxel grid the browser renders itself; baked_asset.h), using
+// only point queries of the field, in four stages:
+//
+//  1. Candidate blocks: the 8^3-cell blocks that overlap occupied cells of
+//     the model's occupancy grid.
+//  2. Density at the 9^3 lattice points of every candidate block.
+//  3. Visibility: rays from the training cameras (a strided subset of their
+//     pixels) march the baked densities exactly as the renderer will; a
+//     block is kept when some ray deposits at least `min_block_weight` of
+//     its weight in it, and the rays' weighted mean direction in the block
+//     is recorded.
+//  4. Colour at the kept blocks' lattice points, from the full field seen
+//     along that mean direction (the colour the photos showed there), then
+//     quantised to RGBA8 and packed into the atlas.
+//
+// Thread-safe for concurrent calls on the same (const) model; each call runs
+// its stages over the OpenMP threads of the calling context.
+#ifndef CLNERF_CORE_BAKE_BAKER_H_
+#define CLNERF_CORE_BAKE_BAKER_H_
+
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "core/bake/baked_asset.h"
+#include "core/data/camera.h"
+#include "core/field/ngp_model.h"
+
+namespace clnerf {
+
+struct BakeOptions {
+  // Cells per axis of the grid over the field space (a multiple of 32);
+  // 0 = derived: 256 for objects, 512 for unbounded scenes (whose inner
+  // cube, where the cameras are, gets half of them).
+  int resolution = 0;
+  // Training-camera rays marched for visibility (pixels on a stride that
+  // gives about this many over all cameras).
+  int visibility_rays = 1 << 18;
+  // A block is kept when some training ray deposits at least this much of
+  // its weight in it.
+  float min_block_weight = 0.01f;
+  int threads = 0;  // OpenMP threads; 0 = all available.
+  absl::Status Validate() const;
+};
+
+struct BakeReport {
+  int resolution = 0;
+  int candidate_blocks = 0;  // Blocks overlapping occupied cells.
+  int kept_blocks = 0;       // Blocks the training rays see.
+  long long visibility_rays = 0;
+  double density_seconds = 0, visibility_seconds = 0, colour_seconds = 0, total_seconds = 0;
+};
+
+// Bakes `time_step` (-1 = the latest) of `model`. `cameras` are the training
+// cameras in world space (visibility); INVALID_ARGUMENT when there are none
+// or the options are bad.
+absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const std::vector<Camera>& cameras,
+                                     const BakeOptions& options, BakeReport* report = nullptr);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_BAKE_BAKER_H_

@@ -1,0 +1,126 @@
+#include "core/bake/baker.h"
+
+#include "core/bake/baked_renderer.h"
+#include "absl/strings/str_cat.h"
+#include "core/data/image.h"
+#include "core/data/procedural_scene.h"
+#include "core/render/metrics.h"
+#include "core/render/renderer.h"
+#include "core/train/fit.h"
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+// A small procedural scene (an object scene, or with `backdrop` an
+// unbounded one) and a model trained on it for a few seconds.
+struct Trained {
+  Scene scene;
+  std::unique_ptr<NgpModel> model;
+  std::vector<Camera> cameras;
+};
+
+Trained Train(bool backdrop) {
+  ProceduralSceneOptions po;
+  po.width = po.height = 40;
+  po.num_train_views = 24;
+  po.num_test_views = 2;
+  po.num_time_steps = 1;
+  po.backdrop = backdrop;
+  po.seed = 5;
+  absl::StatusOr<Scene> s = GenerateProceduralScene(po);
+  EXPECT_TRUE(s.ok()) << s.status();
+  FitOptions fo;
+  fo.train.iterations = 300;
+  fo.train.threads = 2;
+  fo.train.seed = 1;
+  fo.train.target_samples = 1 << 13;
+  fo.train.batch_rays = 512;
+  fo.model.grid.levels = 8;
+  fo.capacity.max_log2_table_size = 14;
+  fo.model.occupancy.warmup_iterations = 64;
+  absl::StatusOr<FitResult> fit = FitScene(*s, fo, nullptr);
+  EXPECT_TRUE(fit.ok()) << fit.status();
+  Trained t;
+  t.scene = *s;
+  t.model = std::move(fit->model);
+  for (const View& v : s->train) t.cameras.push_back(v.camera);
+  return t;
+}
+
+// Each kind trained once for all the tests.
+const Trained& TrainTiny(bool backdrop) {
+  static Trained* cache[2] = {nullptr, nullptr};
+  if (cache[backdrop] == nullptr) cache[backdrop] = new Trained(Train(backdrop));
+  return *cache[backdrop];
+}
+
+// PSNR of the baked asset's reference render against the model's own render
+// of a few training cameras.
+double BakedAgainstModel(const BakedAsset& asset, const Trained& t) {
+  double sum = 0;
+  int n = 0;
+  for (size_t i = 0; i < t.cameras.size(); i += 6) {
+    absl::StatusOr<RenderedView> m = RenderView(*t.model, t.cameras[i], RenderOptions());
+    absl::StatusOr<RenderedView> b = RenderBakedView(asset, t.cameras[i]);
+    EXPECT_TRUE(m.ok() && b.ok());
+    sum += Psnr(b->rgb, m->rgb);
+    if (getenv("BAKE_DEBUG")) {
+      static int call = 0; if (i == 0) ++call; (void)WriteImage(absl::StrCat("/tmp/bakedbg_", call, "_", i, "_model.png"), m->rgb);
+      (void)WriteImage(absl::StrCat("/tmp/bakedbg_", call, "_", i, "_baked.png"), b->rgb);
+      std::printf("view %zu: %.2f dB\n", i, Psnr(b->rgb, m->rgb));
+    }
+    ++n;
+  }
+  return sum / n;
+}
+
+TEST(BakerTest, AnObjectBakesIntoAnAssetThatRendersLikeTheModel) {
+  const Trained& t = TrainTiny(false);
+  ASSERT_FALSE(t.model->contracted());
+  BakeOptions o;
+  o.resolution = 128;
+  BakeReport rep;
+  absl::StatusOr<BakedAsset> a = BakeModel(*t.model, -1, t.cameras, o, &rep);
+  ASSERT_TRUE(a.ok()) << a.status();
+  EXPECT_GT(rep.kept_blocks, 0);
+  EXPECT_LE(rep.kept_blocks, rep.candidate_blocks);
+  EXPECT_LT(rep.candidate_blocks, 16 * 16 * 16);  // The occupancy grid culls empty space.
+  EXPECT_EQ(a->num_bricks(), rep.kept_blocks);
+  const double psnr = BakedAgainstModel(*a, t);
+  EXPECT_GT(psnr, 25.0) << "the baked asset does not render like its model";
+  // Culling every block gives the background: the bake is what draws.
+  o.min_block_weight = 0.999f;
+  absl::StatusOr<BakedAsset> none = BakeModel(*t.model, -1, t.cameras, o, &rep);
+  ASSERT_TRUE(none.ok());
+  EXPECT_LT(BakedAgainstModel(*none, t), psnr - 5.0);
+}
+
+TEST(BakerTest, AnUnboundedSceneBakesItsFarShellToo) {
+  const Trained& t = TrainTiny(true);
+  ASSERT_TRUE(t.model->contracted());
+  BakeOptions o;
+  o.resolution = 256;
+  absl::StatusOr<BakedAsset> a = BakeModel(*t.model, 0, t.cameras, o, nullptr);
+  ASSERT_TRUE(a.ok()) << a.status();
+  EXPECT_TRUE(a->contracted);
+  EXPECT_GT(BakedAgainstModel(*a, t), 22.0);
+}
+
+TEST(BakerTest, BadRequestsAreRefused) {
+  const Trained& t = TrainTiny(false);
+  EXPECT_EQ(BakeModel(*t.model, -1, {}, BakeOptions(), nullptr).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(BakeModel(*t.model, 3, t.cameras, BakeOptions(), nullptr).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  BakeOptions o;
+  o.resolution = 100;  // Not a multiple of 32.
+  EXPECT_EQ(BakeModel(*t.model, -1, t.cameras, o, nullptr).status().code(), absl::StatusCode::kInvalidArgument);
+  std::vector<Camera> bad = t.cameras;
+  bad[0].c2w(1, 3) = std::nanf("");
+  EXPECT_EQ(BakeModel(*t.model, -1, bad, BakeOptions(), nullptr).status().code(),
+            absl::StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace clnerf

@@ -1,0 +1,196 @@
+#!/usr/bin/env python3
+"""The baked asset in a real headless Chromium with software WebGL2.
+
+Trains a small procedural object with the real CLI (`clnerf demo`), bakes it
+(`clnerf bake`), renders a fixed camera with the C++ reference renderer
+(`clnerf render --model DIR --pose ...`), serves the asset folder with the
+standalone page (web/baked.html + baked.js) from a static HTTP server on
+loopback, and checks in Debian's chromium (SwiftShader WebGL2):
+  * the page loads the asset with no error and says "baked";
+  * its frame at that camera matches the reference render: mean absolute
+    difference under MAX_MEAN_DIFF of 255 (the two march the same samples;
+    what differs is float rounding and the GPU's 8-bit filter weights);
+  * dragging changes the frame;
+  * frame times at 400x300 and 800x600, printed as JSON;
+and saves a screenshot under --out. Never skips.
+
+Usage: baked_browser_test.py --client BIN --web DIR --out DIR
+"""
+import argparse
+import base64
+import http.server
+import json
+import math
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import zlib
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from viewer_driver import fail, mean_abs_diff, run_client, wait_for  # noqa: E402
+
+try:
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.common.action_chains import ActionChains
+    from selenium.webdriver.common.by import By
+except ImportError as e:
+    fail(f"python3-selenium is missing ({e}); run scripts/install-deps.sh")
+
+# Measured on SwiftShader against the reference renderer: see
+# docs/baking.md. A wrong camera convention, a half-pixel shift or a broken
+# march gives tens.
+MAX_MEAN_DIFF = 2.0
+
+
+def read_png_rgba(path):
+    """RGB(A) 8-bit PNG -> (w, h, RGBA bytes). Enough for clnerf's PNGs."""
+    data = open(path, "rb").read()
+    if data[:8] != b"\x89PNG\r\n\x1a\n":
+        fail(f"{path} is not a PNG")
+    pos, idat, w = 8, b"", 0
+    while pos < len(data):
+        n, kind = struct.unpack(">I4s", data[pos:pos + 8])
+        body = data[pos + 8:pos + 8 + n]
+        if kind == b"IHDR":
+            w, h, depth, ctype = struct.unpack(">IIBB", body[:10])
+            if depth != 8 or ctype not in (2, 6):
+                fail(f"{path}: unsupported PNG (depth {depth}, colour type {ctype})")
+            ch = 3 if ctype == 2 else 4
+        elif kind == b"IDAT":
+            idat += body
+        pos += 12 + n
+    raw, stride, out, prev = zlib.decompress(idat), w * ch, bytearray(), bytearray(w * ch)
+    for y in range(h):
+        f, line = raw[y * (stride + 1)], bytearray(raw[y * (stride + 1) + 1:(y + 1) * (stride + 1)])
+        for i in range(stride):
+            a = line[i - ch] if i >= ch else 0
+            b, c = prev[i], prev[i - ch] if i >= ch else 0
+            if f == 1:
+                line[i] = (line[i] + a) & 255
+            elif f == 2:
+                line[i] = (line[i] + b) & 255
+            elif f == 3:
+                line[i] = (line[i] + (a + b) // 2) & 255
+            elif f == 4:
+                p = a + b - c
+                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+                line[i] = (line[i] + (a if pa <= pb and pa <= pc else b if pb <= pc else c)) & 255
+        prev = line
+        for x in range(w):
+            out += line[x * ch:x * ch + 3] + b"\xff"
+    return w, h, bytes(out)
+
+
+def serve(folder):
+    handler = lambda *a, **k: http.server.SimpleHTTPRequestHandler(*a, directory=folder, **k)  # noqa: E731
+    http.server.SimpleHTTPRequestHandler.log_message = lambda *a: None
+    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=srv.serve_forever, daemon=True).start()
+    return srv
+
+
+def start_chromium():
+    chromium = shutil.which("chromium") or "/usr/bin/chromium"
+    driver_bin = shutil.which("chromedriver") or "/usr/bin/chromedriver"
+    for b in (chromium, driver_bin):
+        if not os.path.exists(b):
+            fail(f"{b} not found: install chromium and chromium-driver (scripts/install-deps.sh)")
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = chromium
+    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1000,800",
+              "--no-first-run", "--disable-extensions", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
+              "--ignore-gpu-blocklist"):
+        opts.add_argument(a)
+    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
+    driver = webdriver.Chrome(service=Service(driver_bin), options=opts)
+    driver.set_script_timeout(120)
+    return driver
+
+
+def page_pixels(driver):
+    return base64.b64decode(driver.execute_script("return window.clnerfBaked.pixels();"))
+
+
+def load(driver, url):
+    driver.get(url)
+    wait_for("the baked page", lambda: driver.execute_script(
+        "return window.clnerfBaked && (window.clnerfBaked.ready || window.clnerfBaked.error);"), timeout=60)
+    err = driver.execute_script("return window.clnerfBaked.error;")
+    if err:
+        fail(f"the page could not show the asset: {err}")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--client", required=True)
+    ap.add_argument("--web", required=True, help="server/frontends/web (baked.html, baked.js)")
+    ap.add_argument("--out", required=True)
+    args = ap.parse_args()
+    os.makedirs(args.out, exist_ok=True)
+    work = tempfile.mkdtemp(prefix="clnerf_baked_")
+    env = dict(os.environ)
+    run_client(args.client, ["demo", "--out", f"{work}/demo", "--iters", "300", "--size", "48"], env, "demo")
+    asset = f"{work}/asset"
+    print(run_client(args.client, ["bake", "--model", f"{work}/demo/model.clnerf", "--data", f"{work}/demo/scene",
+                                   "--out", asset, "--resolution", "128"], env, "bake").strip())
+    W, H = 200, 150
+    # A held-out camera of the scene (OpenGL camera-to-world, as --pose takes it).
+    meta = json.load(open(f"{work}/demo/scene/transforms_test.json"))
+    m = meta["frames"][0]["transform_matrix"]
+    pose = ",".join(f"{v:.7f}" for row in m[:3] for v in row)
+    focal = 0.5 * W / math.tan(0.5 * meta["camera_angle_x"])
+    view = f"w={W}&h={H}&pose={pose}&focal={focal:.5f}"
+    run_client(args.client, ["render", "--model", asset, "--pose", pose, "--width", str(W), "--height", str(H),
+                             "--focal", f"{focal:.5f}", "--out", f"{args.out}/reference.png"], env, "reference render")
+    rw, rh, ref = read_png_rgba(f"{args.out}/reference.png")
+    if (rw, rh) != (W, H):
+        fail(f"reference render is {rw}x{rh}")
+    for f in ("baked.html", "baked.js"):
+        shutil.copy(os.path.join(args.web, f), asset)
+    srv = serve(asset)
+    base = f"http://127.0.0.1:{srv.server_address[1]}/baked.html"
+    driver = start_chromium()
+    try:
+        load(driver, f"{base}?{view}")
+        if driver.find_element(By.ID, "badge").text != "baked":
+            fail("the badge does not say 'baked'")
+        got = page_pixels(driver)
+        diff = mean_abs_diff(got, ref)
+        print(f"WebGL2 frame against the C++ reference render at {W}x{H}: mean |diff| {diff:.3f} / 255")
+        if diff > MAX_MEAN_DIFF:
+            driver.save_screenshot(f"{args.out}/mismatch.png")
+            fail(f"the WebGL2 frame differs from the reference render by {diff:.2f} (> {MAX_MEAN_DIFF})")
+        if sum(abs(got[i] - 255) for i in range(0, len(got), 4)) < 1000:
+            fail("the frame is blank")
+        frames0 = driver.execute_script("return window.clnerfBaked.frames;")
+        canvas = driver.find_element(By.ID, "view")
+        ActionChains(driver).move_to_element(canvas).click_and_hold().move_by_offset(40, 10).release().perform()
+        wait_for("a frame after the drag", lambda: driver.execute_script("return window.clnerfBaked.frames;") > frames0)
+        moved = page_pixels(driver)
+        if mean_abs_diff(moved, got) < 1.0:
+            fail("dragging did not change the frame")
+        driver.save_screenshot(f"{args.out}/baked.png")
+        timing = {}
+        for (w, h) in ((400, 300), (800, 600)):
+            load(driver, f"{base}?w={w}&h={h}&pose={pose}&focal={focal * w / W:.5f}")
+            timing[f"{w}x{h}"] = driver.execute_script("return window.clnerfBaked.timeFrames(5);")
+        errors = [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
+        if errors:
+            fail(f"page errors: {errors[:3]}")
+        print(json.dumps({"baked_browser": {"mean_abs_diff": diff, "frame_ms": timing}}))
+        print(f"software WebGL2 frame: {timing['400x300']:.1f} ms at 400x300, {timing['800x600']:.1f} ms at 800x600")
+    finally:
+        driver.quit()
+        srv.shutdown()
+        shutil.rmtree(work, ignore_errors=True)
+    print("PASS")
+
+
+if __name__ == "__main__":
+    main()
