@@ -1,7 +1,6 @@
 // `clnerf bake`: a model baked into the asset the browser renders, and
 // `clnerf eval --model DIR` on such an asset (the C++ reference renderer).
 #include <cstdio>
-#include <filesystem>
 
 #include "absl/strings/str_format.h"
 #include "client/commands.h"
@@ -41,16 +40,6 @@ absl::StatusOr<std::vector<Camera>> BakeCameras(const BakeArgs& a, const LoadedC
   *from = a.data;
   return cams;
 }
-
-uint64_t FolderBytes(const std::string& dir) {
-  uint64_t n = 0;
-  std::error_code ec;
-  for (const auto& e : std::filesystem::directory_iterator(dir, ec)) {
-    if (e.is_regular_file(ec)) n += e.file_size(ec);
-  }
-  return n;
-}
-
 }  // namespace
 
 CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
@@ -87,7 +76,9 @@ int RunBake(const BakeArgs& a) {
   absl::StatusOr<BakedAsset> asset = BakeModel(ck->model, a.time_step, *cams, o, &rep);
   if (!asset.ok()) return Fail(asset.status());
   if (absl::Status s = SaveBakedAsset(*asset, a.out); !s.ok()) return Fail(s);
-  const uint64_t bytes = FolderBytes(a.out);
+  absl::StatusOr<uint64_t> stored = BakedAssetBytes(a.out);
+  if (!stored.ok()) return Fail(stored.status());
+  const uint64_t bytes = *stored;
   std::printf("baked time step %d at %d^3 (%zu cameras from %s): %d of %d candidate blocks kept, %.1f MB raw, "
               "%.2f MB on disk, in %.1f s (density %.1f, visibility %.1f, colour %.1f)\n",
               asset->time_step, rep.resolution, cams->size(), from.c_str(), rep.kept_blocks, rep.candidate_blocks,
@@ -105,16 +96,11 @@ int RunBake(const BakeArgs& a) {
 }
 
 // eval on a baked folder: every view through the reference renderer.
-int RunEvalBaked(const EvalArgs& a) {
+int EvalBakedAsset(const EvalArgs& a, const std::vector<View>& views) {
   absl::StatusOr<BakedAsset> asset = LoadBakedAsset(a.model);
   if (!asset.ok()) return Fail(asset.status());
-  absl::StatusOr<Scene> scene = LoadScene(a.data, a.dataset);
-  if (!scene.ok()) return Fail(scene.status());
-  const std::vector<View>& views = a.split == "train" ? scene->train : a.split == "val" ? scene->val : scene->test;
-  if (a.split != "train" && a.split != "val" && a.split != "test") {
-    return Fail(absl::InvalidArgumentError("--split must be train, val or test"));
-  }
-  if (views.empty()) return Fail(absl::InvalidArgumentError(absl::StrFormat("split '%s' is empty", a.split)));
+  absl::StatusOr<uint64_t> bytes = BakedAssetBytes(a.model);
+  if (!bytes.ok()) return Fail(bytes.status());
   long long samples = 0, pixels = 0;
   BakedRenderOptions ro;
   ro.threads = a.threads;
@@ -132,7 +118,7 @@ int RunEvalBaked(const EvalArgs& a) {
   nlohmann::json j = EvalJson(*ev);
   j["model"] = a.model;
   j["baked"] = true;
-  j["asset_bytes"] = FolderBytes(a.model);
+  j["asset_bytes"] = *bytes;
   j["samples_per_ray"] = pixels > 0 ? double(samples) / double(pixels) : 0.0;
   j["split"] = a.split;
   std::printf("%s (baked asset, reference renderer): PSNR %.2f dB (colour-corrected %.2f), SSIM %.4f, speckle %.4f, "

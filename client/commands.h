@@ -212,7 +212,8 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* args);
 int RunTrain(const TrainArgs& args);
 int RunBenchRender(const BenchRenderArgs& args);
 int RunEval(const EvalArgs& args);
-int RunEvalBaked(const EvalArgs& args);  // RunEval on a baked asset folder.
+// RunEval's scoring of a baked asset folder (--model DIR) on `views`.
+int EvalBakedAsset(const EvalArgs& args, const std::vector<View>& views);
 int RunBake(const BakeArgs& args);
 int RunRender(const RenderArgs& args);  // Dispatches to RunRemoteRender without --model.
 int RunRemoteRender(const RenderArgs& args);

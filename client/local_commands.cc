@@ -177,14 +177,19 @@ CLI::App* BindEval(CLI::App* parent, EvalArgs* a) {
 
 int RunEval(const EvalArgs& a) {
   SetThreads(a.threads);
-  if (IsBakedAssetDir(a.model)) return RunEvalBaked(a);
-  absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.model);
-  if (!ck.ok()) return Fail(ck.status());
+  const bool baked = IsBakedAssetDir(a.model);
+  std::optional<LoadedCheckpoint> ck;
+  if (!baked) {
+    absl::StatusOr<LoadedCheckpoint> c = LoadCheckpoint(a.model);
+    if (!c.ok()) return Fail(c.status());
+    ck = std::move(*c);
+  }
   absl::StatusOr<Scene> scene = LoadScene(a.data, a.dataset);
   if (!scene.ok()) return Fail(scene.status());
   const std::vector<View>* views = Split(*scene, a.split);
   if (views == nullptr) return Fail(absl::InvalidArgumentError("--split must be train, val or test"));
   if (views->empty()) return Fail(absl::InvalidArgumentError(absl::StrFormat("split '%s' is empty", a.split)));
+  if (baked) return EvalBakedAsset(a, *views);
   absl::StatusOr<EvalResult> ev = EvaluateViews(ck->model, *views, a.eval);
   if (!ev.ok()) return Fail(ev.status());
   nlohmann::json j = EvalJson(*ev);

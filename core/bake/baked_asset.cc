@@ -200,6 +200,17 @@ absl::Status SaveBakedAsset(const BakedAsset& asset, const std::string& dir) {
   return absl::OkStatus();
 }
 
+absl::StatusOr<uint64_t> BakedAssetBytes(const std::string& dir) {
+  uint64_t n = 0;
+  for (const char* name : {kManifest, kIndexFile, kAtlasFile}) {
+    std::error_code ec;
+    const uintmax_t size = std::filesystem::file_size(std::filesystem::path(dir) / name, ec);
+    if (ec) return absl::NotFoundError(absl::StrCat("baked asset: ", dir, "/", name, ": ", ec.message()));
+    n += size;
+  }
+  return n;
+}
+
 bool IsBakedAssetDir(const std::string& dir) {
   std::error_code ec;
   return std::filesystem::is_regular_file(std::filesystem::path(dir) / kManifest, ec);

@@ -81,6 +81,9 @@ absl::Status SaveBakedAsset(const BakedAsset& asset, const std::string& dir);
 // Reads a folder SaveBakedAsset wrote. NOT_FOUND without a manifest;
 // INVALID_ARGUMENT / DATA_LOSS for a corrupt or inconsistent one.
 absl::StatusOr<BakedAsset> LoadBakedAsset(const std::string& dir);
+// Bytes of the asset's three files in `dir` (what a browser downloads; other
+// files beside them, such as a copied viewer page, are not counted).
+absl::StatusOr<uint64_t> BakedAssetBytes(const std::string& dir);
 // True when `dir` holds a baked asset's manifest.
 bool IsBakedAssetDir(const std::string& dir);
 

@@ -48,6 +48,16 @@ TEST(BakedAssetTest, SavedAssetLoadsBackTheSame) {
   const std::string dir = TempDir("roundtrip");
   ASSERT_TRUE(SaveBakedAsset(a, dir).ok());
   EXPECT_TRUE(IsBakedAssetDir(dir));
+  // The asset's bytes are its three files, not a viewer page copied beside them.
+  uintmax_t files = 0;
+  for (const char* f : {"manifest.json", "index.bin.gz", "atlas.bin.gz"}) {
+    files += std::filesystem::file_size(std::filesystem::path(dir) / f);
+  }
+  ASSERT_TRUE(AtomicWriteFile(dir + "/baked.html", std::string(1000, 'x')).ok());
+  absl::StatusOr<uint64_t> bytes = BakedAssetBytes(dir);
+  ASSERT_TRUE(bytes.ok()) << bytes.status();
+  EXPECT_EQ(*bytes, files);
+  EXPECT_EQ(BakedAssetBytes(TempDir("missing")).status().code(), absl::StatusCode::kNotFound);
   absl::StatusOr<BakedAsset> b = LoadBakedAsset(dir);
   ASSERT_TRUE(b.ok()) << b.status();
   EXPECT_EQ(b->contracted, a.contracted);

@@ -27,13 +27,6 @@ bool SampleBlock(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], 
 
 }  // namespace
 
-bool SampleBaked(const BakedAsset& a, const Eigen::Vector3f& u, Eigen::Vector4f* rgba) {
-  const int nb = a.blocks_per_axis();
-  int b[3];
-  for (int k = 0; k < 3; ++k) b[k] = std::clamp(int(std::floor(u[k] / float(kBakeBlock))), 0, nb - 1);
-  return SampleBlock(a, u, b, rgba);
-}
-
 BakedRay RenderBakedRay(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d) {
   BakedRay out;
   const float T = MarchBaked(

@@ -18,7 +18,8 @@
 //       space unchanged, else by dt
 //     else: rgba = trilinear(brick, u - 8 * block)
 //       alpha = 1 - exp(-(-log(1 - min(a^2, kBakedMaxAlpha))) * dt / cell)
-//       C += T alpha rgb; T *= 1 - alpha; t += dt
+//       C += T alpha rgb / a (the atlas's colour is premultiplied by a);
+//       T *= 1 - alpha; t += dt
 //   C += T * background
 //
 // Thread-safe: the asset is read only; each call uses its own scratch.
@@ -38,10 +39,6 @@ namespace clnerf {
 struct BakedRenderOptions {
   int threads = 0;  // OpenMP threads; 0 = all available.
 };
-
-// RGBA in [0, 1] of the lattice at cell coordinates u (in [0, R]^3); false
-// when u's block is empty.
-bool SampleBaked(const BakedAsset& asset, const Eigen::Vector3f& u, Eigen::Vector4f* rgba);
 
 struct BakedRay {
   Eigen::Vector3f rgb = Eigen::Vector3f::Zero();

@@ -208,7 +208,9 @@ void BakeColour(const NgpModel& model, int t, const std::vector<int>& kept, cons
 #pragma omp parallel
   {
     FieldContext fc;
-    std::vector<int> seg = {0, kLattice};
+    const std::vector<int> seg = {0, kLattice};
+    std::vector<int> all(kLattice);  // Every lattice point reaches the colour MLP.
+    for (int i = 0; i < kLattice; ++i) all[i] = i;
 #pragma omp for schedule(dynamic)
     for (int k = 0; k < n; ++k) {
       const int s = kept[k];
@@ -221,8 +223,6 @@ void BakeColour(const NgpModel& model, int t, const std::vector<int>& kept, cons
         std::copy(g.data(), g.data() + 3, fc.pos.data() + 3 * size_t(i));
       }
       field.Density(kLattice, seg.data(), nullptr, 1, &fc);
-      std::vector<int> all(kLattice);
-      for (int i = 0; i < kLattice; ++i) all[i] = i;
       field.Select(all.data(), kLattice, /*for_backward=*/false, &fc);
       field.Colour(kLattice, seg.data(), nullptr, 1, &fc);
       const size_t ox = size_t(k % side) * kBakeBrick, oy = size_t((k / side) % side) * kBakeBrick,

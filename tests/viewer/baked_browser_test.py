@@ -24,23 +24,15 @@ import math
 import os
 import shutil
 import struct
-import subprocess
 import sys
 import tempfile
 import threading
-import time
 import zlib
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from viewer_driver import fail, mean_abs_diff, run_client, wait_for  # noqa: E402
-
-try:
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-    from selenium.webdriver.common.action_chains import ActionChains
-    from selenium.webdriver.common.by import By
-except ImportError as e:
-    fail(f"python3-selenium is missing ({e}); run scripts/install-deps.sh")
+from viewer_driver import fail, mean_abs_diff, run_client, start_chromium, wait_for  # noqa: E402
+from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
+from selenium.webdriver.common.by import By  # noqa: E402
 
 # Measured on SwiftShader against the reference renderer: see
 # docs/baking.md. A wrong camera convention, a half-pixel shift or a broken
@@ -95,24 +87,6 @@ def serve(folder):
     return srv
 
 
-def start_chromium():
-    chromium = shutil.which("chromium") or "/usr/bin/chromium"
-    driver_bin = shutil.which("chromedriver") or "/usr/bin/chromedriver"
-    for b in (chromium, driver_bin):
-        if not os.path.exists(b):
-            fail(f"{b} not found: install chromium and chromium-driver (scripts/install-deps.sh)")
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = chromium
-    for a in ("--headless=new", "--no-sandbox", "--disable-dev-shm-usage", "--window-size=1000,800",
-              "--no-first-run", "--disable-extensions", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-              "--ignore-gpu-blocklist"):
-        opts.add_argument(a)
-    opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(service=Service(driver_bin), options=opts)
-    driver.set_script_timeout(120)
-    return driver
-
-
 def page_pixels(driver):
     return base64.b64decode(driver.execute_script("return window.clnerfBaked.pixels();"))
 
@@ -155,7 +129,7 @@ def main():
         shutil.copy(os.path.join(args.web, f), asset)
     srv = serve(asset)
     base = f"http://127.0.0.1:{srv.server_address[1]}/baked.html"
-    driver = start_chromium()
+    driver = start_chromium(window="1000,800", software_webgl=True, script_timeout=120)
     try:
         load(driver, f"{base}?{view}")
         if driver.find_element(By.ID, "badge").text != "baked":

@@ -88,7 +88,9 @@ def run_client(client, args, env, what, timeout=None):
     return r.stdout
 
 
-def start_chromium(window="1400,1000"):
+def start_chromium(window="1400,1000", software_webgl=False, script_timeout=30):
+    """Headless Chromium through chromedriver. software_webgl: WebGL2 on
+    SwiftShader (the baked asset's page) instead of no GPU at all."""
     chromium = shutil.which("chromium") or "/usr/bin/chromium"
     driver_bin = shutil.which("chromedriver") or "/usr/bin/chromedriver"
     for b in (chromium, driver_bin):
@@ -96,12 +98,14 @@ def start_chromium(window="1400,1000"):
             fail(f"{b} not found: install chromium and chromium-driver (scripts/install-deps.sh)")
     opts = webdriver.ChromeOptions()
     opts.binary_location = chromium
-    for a in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-dev-shm-usage",
+    gpu = (("--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist") if software_webgl
+           else ("--disable-gpu",))
+    for a in ("--headless=new", "--no-sandbox", *gpu, "--disable-dev-shm-usage",
               f"--window-size={window}", "--no-first-run", "--disable-extensions"):
         opts.add_argument(a)
     opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     driver = webdriver.Chrome(service=Service(driver_bin), options=opts)
-    driver.set_script_timeout(30)
+    driver.set_script_timeout(script_timeout)
     return driver
 
 

@@ -225,7 +225,8 @@ class BakedRenderer {
     gl.viewport(0, 0, W, H);
     gl.useProgram(p);
     gl.bindVertexArray(this.vao);
-    const u = (n) => gl.getUniformLocation(p, n);
+    if (!this.uniforms) this.uniforms = {};  // Looked up once per program, not per frame.
+    const u = (n) => this.uniforms[n] !== undefined ? this.uniforms[n] : (this.uniforms[n] = gl.getUniformLocation(p, n));
     gl.uniform1i(u("uIndex"), 0);
     gl.uniform1i(u("uAtlas"), 1);
     gl.uniformMatrix3fv(u("uRot"), false, rot);
