@@ -155,7 +155,11 @@ void ModelHost::FollowReplicas(const std::optional<PlaceHead>& head) {
   std::lock_guard<std::mutex> lock(upload_mu_);
   absl::StatusOr<std::vector<ScanRecord>> pending = scans_->List();
   absl::StatusOr<std::vector<VersionInfo>> versions = publisher_->versions().List();
-  if (!pending.ok() || !versions.ok()) return;
+  if (!pending.ok() || !versions.ok()) {
+    spdlog::warn("following other replicas: cannot list the store: {}; next poll retries",
+                 (pending.ok() ? versions.status() : pending.status()).ToString());
+    return;
+  }
   std::map<std::string, const VersionInfo*> by_scan;
   for (const VersionInfo& v : *versions) {
     if (v.unavailable.empty()) by_scan[v.scan_id] = &v;

@@ -16,6 +16,7 @@
 #include "core/data/image.h"
 #include "core/data/sparse_depth.h"
 #include "nlohmann/json.hpp"
+#include "spdlog/spdlog.h"
 
 namespace clnerf {
 
@@ -244,6 +245,9 @@ absl::StatusOr<std::vector<ScanRecord>> ScanStore::List() const {
     const std::string name = e.path().filename().string();
     if (!e.is_directory() || name.rfind(kTmpPrefix, 0) == 0) continue;
     absl::StatusOr<ScanRecord> r = ReadScanRecord(e.path());
+    // Removed (trained, cancelled or parked) by another replica or thread
+    // between the directory read and this one: not in the store any more.
+    if (!r.ok() && absl::IsNotFound(r.status()) && !fs::exists(e.path())) continue;
     if (!r.ok()) return r.status();
     out.push_back(*std::move(r));
   }
@@ -401,10 +405,21 @@ absl::Status ScanStore::Park(const std::string& scan_id, const std::string& reas
 }
 
 absl::Status ScanStore::Remove(const std::string& scan_id) {
+  // Renamed away first (atomic), then deleted: a concurrent List() sees the
+  // whole scan or none of it, never a folder emptied half-way; a crash
+  // mid-delete leaves a temporary that the next Open(clean_temps) removes.
+  const fs::path from = fs::path(dir_) / scan_id;
+  const fs::path doomed = fs::path(dir_) / absl::StrCat(kTmpPrefix, "removed-", scan_id);
   std::error_code ec;
-  fs::remove_all(fs::path(dir_) / scan_id, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot remove scan ", scan_id, ": ", ec.message()));
-  return SyncDirectory(dir_);
+  fs::remove_all(doomed, ec);  // Left by a crash in an earlier removal of this id.
+  fs::rename(from, doomed, ec);
+  if (ec && ec != std::errc::no_such_file_or_directory) {
+    return absl::InternalError(absl::StrCat("cannot remove scan ", scan_id, ": ", ec.message()));
+  }
+  if (absl::Status s = SyncDirectory(dir_); !s.ok()) return s;
+  fs::remove_all(doomed, ec);
+  if (ec) spdlog::warn("scan {} is removed; its files were not all deleted: {}", scan_id, ec.message());
+  return absl::OkStatus();
 }
 
 }  // namespace clnerf
