@@ -57,6 +57,12 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
   c->add_option("--min-block-weight", a->bake.min_block_weight,
                 "Keep a block when some training ray puts at least this much weight in it")
       ->capture_default_str();
+  c->add_option("--fit-rays", a->bake.fit.rays,
+                "Training-camera rays the colour fit matches to the model's renders (0 = no fit)")
+      ->capture_default_str();
+  c->add_option("--fit-iters", a->bake.fit.iterations, "Colour-fit solver iterations")->capture_default_str();
+  c->add_option("--fit-prior", a->bake.fit.prior, "Colour-fit damping towards the field's own colours")
+      ->capture_default_str();
   c->add_option("--json", a->json, "Write the report as JSON to this file ('-' = stdout)");
   BindThreadsFlag(c, &a->threads);
   BindDatasetFlags(c, &a->dataset);
@@ -80,17 +86,23 @@ int RunBake(const BakeArgs& a) {
   if (!stored.ok()) return Fail(stored.status());
   const uint64_t bytes = *stored;
   std::printf("baked time step %d at %d^3 (%zu cameras from %s): %d of %d candidate blocks kept, %.1f MB raw, "
-              "%.2f MB on disk, in %.1f s (density %.1f, visibility %.1f, colour %.1f)\n",
+              "%.2f MB on disk, in %.1f s (density %.1f, visibility %.1f, colour %.1f, fit %.1f: %lld rays, rms %.4f -> "
+              "%.4f)\n",
               asset->time_step, rep.resolution, cams->size(), from.c_str(), rep.kept_blocks, rep.candidate_blocks,
               double(asset->raw_bytes()) / 1e6, double(bytes) / 1e6, rep.total_seconds, rep.density_seconds,
-              rep.visibility_seconds, rep.colour_seconds);
+              rep.visibility_seconds, rep.colour_seconds, rep.fit_seconds, rep.fit.rays, rep.fit.rms_before,
+              rep.fit.rms_after);
   nlohmann::json j = {{"model", a.model},          {"out", a.out},
                       {"time_step", asset->time_step}, {"resolution", rep.resolution},
                       {"candidate_blocks", rep.candidate_blocks}, {"kept_blocks", rep.kept_blocks},
                       {"visibility_rays", rep.visibility_rays},   {"raw_bytes", asset->raw_bytes()},
                       {"asset_bytes", bytes},                     {"bake_seconds", rep.total_seconds},
                       {"density_seconds", rep.density_seconds},   {"visibility_seconds", rep.visibility_seconds},
-                      {"colour_seconds", rep.colour_seconds}};
+                      {"colour_seconds", rep.colour_seconds},     {"fit_seconds", rep.fit_seconds},
+                      {"fit", {{"rays", rep.fit.rays}, {"unknowns", rep.fit.unknowns}, {"nonzeros", rep.fit.nonzeros},
+                               {"rms_before", rep.fit.rms_before}, {"rms_after", rep.fit.rms_after},
+                               {"target_seconds", rep.fit.target_seconds}, {"rows_seconds", rep.fit.rows_seconds},
+                               {"solve_seconds", rep.fit.solve_seconds}}}};
   if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
   return 0;
 }

@@ -8,6 +8,7 @@
 
 #include "absl/strings/str_format.h"
 #include "core/bake/baked_march.h"
+#include "core/bake/colour_fit.h"
 #include "core/field/field.h"
 
 namespace clnerf {
@@ -36,6 +37,16 @@ Eigen::Vector3f LatticePoint(const BakedAsset& a, int block, int i) {
   Eigen::Vector3f q;
   for (int k = 0; k < 3; ++k) q[k] = -a.half_size + float(kBakeBlock * b[k] + l[k]) * a.cell();
   return q;
+}
+
+// Texel index (RGBA8 units) in the atlas of lattice point i of brick k.
+size_t BrickTexel(const BakedAsset& a, int k, int i) {
+  const std::array<int, 3> dims = a.atlas_texels();
+  const int side = a.bricks[0];
+  const size_t x = size_t(k % side) * kBakeBrick + size_t(i % kBakeBrick),
+               y = size_t((k / side) % a.bricks[1]) * kBakeBrick + size_t((i / kBakeBrick) % kBakeBrick),
+               z = size_t(k / (side * a.bricks[1])) * kBakeBrick + size_t(i / (kBakeBrick * kBakeBrick));
+  return x + size_t(dims[0]) * (y + size_t(dims[1]) * z);
 }
 
 // Stage 1: blocks overlapping occupied occupancy cells, probed on a stride
@@ -175,7 +186,7 @@ void Visibility(const std::vector<Camera>& cameras, const BakeOptions& o, BakeWo
 // in the brick) has density. The others are written as 0, which renders
 // the same and compresses far better than the field's colours in empty
 // space.
-std::vector<uint8_t> ColourUsed(const uint8_t* code) {
+std::vector<uint8_t> ColourUsed(const uint8_t* code) {  // kLattice codes.
   std::vector<uint8_t> used(kLattice, 0);
   for (int z = 0; z < kBakeBrick; ++z) {
     for (int y = 0; y < kBakeBrick; ++y) {
@@ -195,15 +206,20 @@ std::vector<uint8_t> ColourUsed(const uint8_t* code) {
 }
 
 // Stage 4: colours of the kept candidates' lattice points along their mean
-// viewing direction, written with the density codes into the atlas.
+// viewing direction (3 floats per point, brick-major), and the atlas's
+// density codes and the index.
 void BakeColour(const NgpModel& model, int t, const std::vector<int>& kept, const std::vector<Eigen::Vector3f>& dir,
-                BakeWork* w) {
+                BakeWork* w, std::vector<float>* rgb) {
   BakedAsset& a = w->asset;
   const int n = int(kept.size());
   const int side = std::max(1, int(std::ceil(std::cbrt(double(std::max(n, 1))))));
   a.bricks = {side, side, std::max(1, (n + side * side - 1) / (side * side))};
   const std::array<int, 3> dims = a.atlas_texels();
   a.atlas.assign(4 * size_t(dims[0]) * dims[1] * dims[2], 0);
+  const int nb = a.blocks_per_axis();
+  a.index.assign(size_t(nb) * nb * nb, 0);
+  for (int k = 0; k < n; ++k) a.index[size_t(w->blocks[kept[k]])] = uint32_t(k + 1);
+  rgb->assign(3 * size_t(kLattice) * size_t(n), 0.0f);
   const FieldEvaluator field(model);
 #pragma omp parallel
   {
@@ -225,28 +241,34 @@ void BakeColour(const NgpModel& model, int t, const std::vector<int>& kept, cons
       field.Density(kLattice, seg.data(), nullptr, 1, &fc);
       field.Select(all.data(), kLattice, /*for_backward=*/false, &fc);
       field.Colour(kLattice, seg.data(), nullptr, 1, &fc);
-      const size_t ox = size_t(k % side) * kBakeBrick, oy = size_t((k / side) % side) * kBakeBrick,
-                   oz = size_t(k / (side * side)) * kBakeBrick;
       const uint8_t* code = w->code.data() + size_t(s) * kLattice;
-      const std::vector<uint8_t> used = ColourUsed(code);
       for (int i = 0; i < kLattice; ++i) {
-        const size_t x = ox + size_t(i % kBakeBrick), y = oy + size_t((i / kBakeBrick) % kBakeBrick),
-                     z = oz + size_t(i / (kBakeBrick * kBakeBrick));
-        uint8_t* px = a.atlas.data() + 4 * (x + size_t(dims[0]) * (y + size_t(dims[1]) * z));
-        for (int c = 0; c < 3; ++c) {
-          // Premultiplied by the density code, so that interpolation
-          // weighs each corner's colour by its density (the renderer
-          // divides by the interpolated code).
-          const float a = float(code[i]) / 255.0f;
-          px[c] = used[i] ? uint8_t(std::lround(255.0f * a * std::clamp(fc.ws.rgb(c, i), 0.0f, 1.0f))) : 0;
-        }
-        px[3] = code[i];
+        for (int c = 0; c < 3; ++c) (*rgb)[3 * (size_t(k) * kLattice + size_t(i)) + c] = std::clamp(fc.ws.rgb(c, i), 0.0f, 1.0f);
+        a.atlas[4 * BrickTexel(a, k, i) + 3] = code[i];
       }
     }
   }
-  const int nb = a.blocks_per_axis();
-  a.index.assign(size_t(nb) * nb * nb, 0);
-  for (int k = 0; k < n; ++k) a.index[size_t(w->blocks[kept[k]])] = uint32_t(k + 1);
+}
+
+// Stage 6: the colours into the atlas, premultiplied by the density code
+// (so that interpolation weighs each corner's colour by its density; the
+// renderer divides by the interpolated code), 0 where they cannot show.
+void WriteColours(const std::vector<float>& rgb, BakedAsset* a) {
+  const int n = a->num_bricks();
+#pragma omp parallel for schedule(dynamic)
+  for (int k = 0; k < n; ++k) {
+    uint8_t code[kLattice];
+    for (int i = 0; i < kLattice; ++i) code[i] = a->atlas[4 * BrickTexel(*a, k, i) + 3];
+    const std::vector<uint8_t> used = ColourUsed(code);
+    for (int i = 0; i < kLattice; ++i) {
+      uint8_t* px = a->atlas.data() + 4 * BrickTexel(*a, k, i);
+      const float s = float(code[i]) / 255.0f;
+      for (int c = 0; c < 3; ++c) {
+        const float v = rgb[3 * (size_t(k) * kLattice + size_t(i)) + c];
+        px[c] = used[i] ? uint8_t(std::lround(255.0f * s * std::clamp(v, 0.0f, 1.0f))) : 0;
+      }
+    }
+  }
 }
 
 }  // namespace
@@ -261,7 +283,7 @@ absl::Status BakeOptions::Validate() const {
     return absl::InvalidArgumentError("bake: min_block_weight must be in [0, 1)");
   }
   if (threads < 0) return absl::InvalidArgumentError("bake: threads must be >= 0");
-  return absl::OkStatus();
+  return fit.Validate();
 }
 
 absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const std::vector<Camera>& cameras,
@@ -307,8 +329,16 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
     if (max_w[s] >= options.min_block_weight && max_w[s] > 0.0f) kept.push_back(int(s));
   }
   const auto t2 = std::chrono::steady_clock::now();
-  BakeColour(model, t, kept, dir, &w);
+  std::vector<float> rgb;
+  BakeColour(model, t, kept, dir, &w, &rgb);
   rep.colour_seconds = Since(t2);
+  const auto t3 = std::chrono::steady_clock::now();
+  if (absl::Status s = FitBakedColours(model, t, cameras, a, options.fit, &rgb, &rep.fit); !s.ok()) {
+    omp_set_num_threads(saved_threads);
+    return s;
+  }
+  rep.fit_seconds = Since(t3);
+  WriteColours(rgb, &a);
   omp_set_num_threads(saved_threads);
   rep.resolution = a.resolution;
   rep.candidate_blocks = int(w.blocks.size());

@@ -11,8 +11,11 @@
 //     its weight in it, and the rays' weighted mean direction in the block
 //     is recorded.
 //  4. Colour at the kept blocks' lattice points, from the full field seen
-//     along that mean direction (the colour the photos showed there), then
-//     quantised to RGBA8 and packed into the atlas.
+//     along that mean direction (the colour the photos showed there).
+//  5. Colour fit (colour_fit.h): the colours that make the asset's renders
+//     of training-camera rays match the model's, by damped least squares
+//     from stage 4's colours.
+//  6. Quantised to RGBA8 and packed into the atlas.
 //
 // Thread-safe for concurrent calls on the same (const) model; each call runs
 // its stages over the OpenMP threads of the calling context.
@@ -24,6 +27,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "core/bake/baked_asset.h"
+#include "core/bake/colour_fit.h"
 #include "core/data/camera.h"
 #include "core/field/ngp_model.h"
 
@@ -43,6 +47,7 @@ struct BakeOptions {
   // (docs/baking.md).
   float min_block_weight = 0.1f;
   int threads = 0;  // OpenMP threads; 0 = all available.
+  ColourFitOptions fit;  // Stage 5; fit.rays = 0 skips it.
   absl::Status Validate() const;
 };
 
@@ -51,7 +56,8 @@ struct BakeReport {
   int candidate_blocks = 0;  // Blocks overlapping occupied cells.
   int kept_blocks = 0;       // Blocks the training rays see.
   long long visibility_rays = 0;
-  double density_seconds = 0, visibility_seconds = 0, colour_seconds = 0, total_seconds = 0;
+  ColourFitReport fit;
+  double density_seconds = 0, visibility_seconds = 0, colour_seconds = 0, fit_seconds = 0, total_seconds = 0;
 };
 
 // Bakes `time_step` (-1 = the latest) of `model`. `cameras` are the training
