@@ -66,6 +66,9 @@ int main(int argc, char** argv) {
   app.add_option("--first-scan-iters", first_iters,
                  "Training iterations of a place's first scan (default 2000, what `clnerf train` gives a "
                  "capture; 0 = as --iters)");
+  app.add_flag("!--no-bake", o.bake_on_publish,
+               "Do not bake new versions for the browser when they are published (viewers then get server frames "
+               "until a time step is baked on its first request)");
   app.add_option("--max-queue", o.max_queue, "Scans that may wait for training")->capture_default_str();
   app.add_option("--keep-versions", o.keep_versions, "Model versions kept on disk, oldest pruned first (0 = all)")
       ->capture_default_str();

@@ -88,6 +88,7 @@ absl::Status ServerOptions::Validate() const {
   if (absl::Status s = sfm.Validate(); !s.ok()) return s;
   if (colmap_binary.empty()) return absl::InvalidArgumentError("colmap_binary is empty");
   if (first_scan_iterations < 0) return absl::InvalidArgumentError("first_scan_iterations must be >= 0");
+  if (absl::Status s = bake.Validate(); !s.ok()) return s;
   return gate.Validate();
 }
 
@@ -117,6 +118,22 @@ absl::Status ApplyGate(const nlohmann::json& g, GateOptions* o) {
       s = Get(*it, "gate.replay_memorised_margin_db", &o->replay_memorised_margin_db);
     }
     else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'gate.", k, "'"));
+    if (!s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ApplyBake(const nlohmann::json& g, ServerOptions* o) {
+  if (!g.is_object()) return absl::InvalidArgumentError("config key 'bake' must be an object");
+  for (auto it = g.begin(); it != g.end(); ++it) {
+    const std::string& k = it.key();
+    absl::Status s;
+    if (k == "on_publish") s = Get(*it, "bake.on_publish", &o->bake_on_publish);
+    else if (k == "resolution") s = Get(*it, "bake.resolution", &o->bake.resolution);
+    else if (k == "min_block_weight") s = Get(*it, "bake.min_block_weight", &o->bake.min_block_weight);
+    else if (k == "visibility_rays") s = Get(*it, "bake.visibility_rays", &o->bake.visibility_rays);
+    else if (k == "fit_rays") s = Get(*it, "bake.fit_rays", &o->bake.fit.rays);
+    else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'bake.", k, "'"));
     if (!s.ok()) return s;
   }
   return absl::OkStatus();
@@ -260,6 +277,8 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
       s = ApplyRegistration(*it, &o->registration);
     } else if (k == "posing") {
       s = ApplyPosing(*it, o);
+    } else if (k == "bake") {
+      s = ApplyBake(*it, o);
     } else {
       return absl::InvalidArgumentError(absl::StrCat("unknown config key '", k, "'"));
     }

@@ -21,6 +21,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "core/continual/continual_update.h"
+#include "core/bake/baker.h"
 #include "core/continual/deployment_gate.h"
 #include "core/pose/registration.h"
 #include "core/pose/sfm.h"
@@ -122,6 +123,15 @@ struct ServerOptions {
   // empty here.
   SfmOptions posing;
   std::string colmap_binary = "colmap";  // Looked up on PATH.
+  // Baking (issue 41; core/bake/baker.h, docs/baking.md): each new
+  // version's latest time step is baked into the asset the browser renders
+  // itself, after the gate and before the publish (job phase BAKING), so a
+  // version is viewable the moment it is deployed; other time steps are
+  // baked on their first request (GET /api/asset) and kept beside the
+  // version. A failed bake never stops a publish. Config object "bake":
+  // on_publish, resolution, min_block_weight, visibility_rays, fit_rays.
+  bool bake_on_publish = true;
+  BakeOptions bake;
 
   // CLNeRF with warm start, offline replay, 300 iterations per update
   // (a lego_100 task in ~35 s on 2 cores; see docs/benchmarks.md).

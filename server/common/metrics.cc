@@ -43,6 +43,21 @@ Metrics::Metrics() : registry_(std::make_shared<prometheus::Registry>()) {
                        .Register(r)
                        .Add({}, prometheus::Histogram::BucketBoundaries{0.01, 0.05, 0.1, 0.25, 0.5, 1, 2.5, 5});
   upload_bytes_ = &BuildCounter().Name("clnerf_upload_bytes_total").Help("Bytes of accepted scans").Register(r).Add({});
+  assets_ = &BuildCounter()
+                 .Name("clnerf_asset_requests_total")
+                 .Help("Baked-asset file requests (GET /api/asset) by status code")
+                 .Register(r);
+  asset_bytes_ = &BuildCounter().Name("clnerf_asset_bytes_total").Help("Bytes of baked-asset files sent").Register(r).Add({});
+  asset_bakes_ = &BuildCounter()
+                      .Name("clnerf_asset_bakes_total")
+                      .Help("Time steps baked on a viewer's request")
+                      .Register(r)
+                      .Add({});
+  asset_bake_seconds_ = &BuildCounter()
+                             .Name("clnerf_asset_bake_seconds_total")
+                             .Help("Seconds spent baking time steps on request")
+                             .Register(r)
+                             .Add({});
   gate_refusals_ = &BuildCounter()
                         .Name("clnerf_gate_refusals_total")
                         .Help("Updates the deployment gate refused")
@@ -77,6 +92,16 @@ void Metrics::RenderDone(absl::StatusCode code, double seconds) {
 void Metrics::UploadDone(absl::StatusCode code, int64_t bytes) {
   uploads_->Add({{"code", CodeLabel(code)}}).Increment();
   if (code == absl::StatusCode::kOk && bytes > 0) upload_bytes_->Increment(double(bytes));
+}
+
+void Metrics::AssetServed(absl::StatusCode code, int64_t bytes) {
+  assets_->Add({{"code", CodeLabel(code)}}).Increment();
+  if (bytes > 0) asset_bytes_->Increment(double(bytes));
+}
+
+void Metrics::AssetBaked(double seconds) {
+  asset_bakes_->Increment();
+  asset_bake_seconds_->Increment(seconds);
 }
 
 void Metrics::UpdateDone(const std::string& outcome, double seconds) {

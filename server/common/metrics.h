@@ -40,6 +40,10 @@ class Metrics {
 
   void RenderDone(absl::StatusCode code, double seconds);
   void UploadDone(absl::StatusCode code, int64_t bytes);
+  // Baked-asset files served (GET /api/asset; 304s count with 0 bytes) and
+  // time steps baked on request.
+  void AssetServed(absl::StatusCode code, int64_t bytes);
+  void AssetBaked(double seconds);
   // outcome: "published", "refused" (by the gate), "failed", "cancelled".
   void UpdateDone(const std::string& outcome, double seconds);
   void ModelLoaded(double seconds);
@@ -61,6 +65,10 @@ class Metrics {
   prometheus::Histogram* update_seconds_;
   prometheus::Histogram* load_seconds_;
   prometheus::Counter* upload_bytes_;
+  prometheus::Family<prometheus::Counter>* assets_;
+  prometheus::Counter* asset_bytes_;
+  prometheus::Counter* asset_bakes_;
+  prometheus::Counter* asset_bake_seconds_;
   prometheus::Counter* gate_refusals_;
   prometheus::Counter* loads_;
   prometheus::Counter* load_failures_;

@@ -384,6 +384,41 @@ void HttpApi::Register(httplib::Server* server) {
     res.set_content(*std::move(bytes), r->format == HttpImageFormat::kPng ? "image/png" : "image/jpeg");
   });
 
+  // A version's baked asset for the browser (issue 41): ?version=N (0 =
+  // deployed) &time=T (default latest) &file=manifest.json|index.bin.gz|
+  // atlas.bin.gz. index/atlas are gzip streams sent as they are (no
+  // Content-Encoding: the page decodes them with DecompressionStream).
+  server->Get("/api/asset", [this](const httplib::Request& req, httplib::Response& res) {
+    absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
+    if (!place.ok()) return SendError(res, place.status());
+    ModelHost* const host = place->get();
+    auto fail = [&](const absl::Status& s) {
+      host->metrics().AssetServed(s.code(), 0);
+      SendError(res, s);
+    };
+    absl::StatusOr<int64_t> v = IntParam(req, "version", 0, 0, int64_t(1) << 62);
+    if (!v.ok()) return fail(v.status());
+    absl::StatusOr<int64_t> t = IntParam(req, "time", -1, -1, 1 << 20);
+    if (!t.ok()) return fail(t.status());
+    const std::string file = req.has_param("file") ? req.get_param_value("file") : "manifest.json";
+    absl::StatusOr<AssetFile> a =
+        host->Asset(*v, *t < 0 ? std::nullopt : std::optional<int>(int(*t)), file);
+    if (!a.ok()) return fail(a.status());
+    // An explicit version never changes; "the deployed one" may.
+    res.set_header("Cache-Control", *v > 0 ? "public, max-age=31536000, immutable" : "no-cache");
+    res.set_header("ETag", a->etag);
+    res.set_header("X-Clnerf-Version", std::to_string(a->version));
+    res.set_header("X-Clnerf-Time-Step", std::to_string(a->time_step));
+    if (req.get_header_value("If-None-Match") == a->etag) {
+      host->metrics().AssetServed(absl::StatusCode::kOk, 0);
+      res.status = 304;
+      return;
+    }
+    host->metrics().AssetServed(absl::StatusCode::kOk, int64_t(a->bytes.size()));
+    const char* type = file == "manifest.json" ? "application/json" : "application/octet-stream";
+    res.set_content(std::move(a->bytes), type);
+  });
+
   server->Get("/api/jobs", [this](const httplib::Request& req, httplib::Response& res) {
     absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);
     if (!place.ok()) return SendError(res, place.status());

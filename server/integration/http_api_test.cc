@@ -12,7 +12,11 @@
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_join.h"
+#include "core/bake/baked_asset.h"
+#include "core/bake/baked_renderer.h"
 #include "core/data/image.h"
+#include "core/io/durable_file.h"
+#include "core/render/metrics.h"
 #include "httplib.h"
 #include "nlohmann/json.hpp"
 #include "server/testing/prometheus_text_test_util.h"
@@ -451,6 +455,100 @@ TEST_F(HttpApiTest, ProbesAnswerWhileRendersHoldEveryWorker) {
     std::printf("%s answered in %.3f s\n", path, s);
   }
   for (auto& f : renders) f.get();
+}
+
+// Issue 41: every published version comes with its latest time step baked
+// for the browser; other time steps are baked on their first request and
+// kept; files carry ETags (304 on a match) and versions are cached as
+// immutable. The asset served is a valid one that renders the scene.
+TEST_F(HttpApiTest, BakedAssetsAreServedWithEtagsAndOtherTimeStepsBakedOnRequest) {
+  const std::string store = TempDir("srv_asset");
+  StartHttp(TinyServerOptions(store));
+  const Scene scene = TinyScans(2);
+  ASSERT_EQ(UploadAndWait(scene, 0).phase(), v1::JOB_PHASE_DONE);
+  const v1::Job j1 = UploadAndWait(scene, 1);
+  ASSERT_EQ(j1.phase(), v1::JOB_PHASE_DONE) << j1.error();
+  EXPECT_GT(Json(http_->Get("/api/jobs/" + j1.job_id()))["metrics"]["bake_seconds"].get<double>(), 0.0);
+  auto metric = [&](const std::string& name) {
+    auto m = http_->Get("/metrics");
+    std::map<std::string, double> samples;
+    EXPECT_EQ(testing_util::ParsePrometheusText(m->body, &samples), "");
+    return samples[name];
+  };
+
+  // The deployed version's latest time step was baked when it was published.
+  const std::string dir = TempDir("srv_asset_copy");
+  for (const char* file : {"manifest.json", "index.bin.gz", "atlas.bin.gz"}) {
+    auto r = http_->Get(absl::StrCat("/api/asset?file=", file));
+    ASSERT_TRUE(r);
+    ASSERT_EQ(r->status, 200) << r->body;
+    EXPECT_EQ(r->get_header_value("X-Clnerf-Version"), "2");
+    EXPECT_EQ(r->get_header_value("X-Clnerf-Time-Step"), "1");
+    EXPECT_EQ(r->get_header_value("Cache-Control"), "no-cache");  // "The deployed one" may change.
+    EXPECT_EQ(r->get_header_value("Content-Encoding"), "");  // The page decompresses index and atlas itself.
+    ASSERT_TRUE(AtomicWriteFile(dir + "/" + file, r->body).ok());
+  }
+  EXPECT_EQ(metric("clnerf_asset_bakes_total"), 0);
+  absl::StatusOr<BakedAsset> asset = LoadBakedAsset(dir);
+  ASSERT_TRUE(asset.ok()) << asset.status();
+  EXPECT_EQ(asset->time_step, 1);
+  absl::StatusOr<RenderedView> baked = RenderBakedView(*asset, scene.test[0].camera);
+  ASSERT_TRUE(baked.ok());
+  EXPECT_GT(Psnr(baked->rgb, scene.test[0].image), 12.0);  // The scene, not the background.
+
+  // An explicit version is immutable; its ETag answers 304 with no body.
+  auto first = http_->Get("/api/asset?version=2&time=1&file=atlas.bin.gz");
+  ASSERT_TRUE(first);
+  ASSERT_EQ(first->status, 200);
+  EXPECT_EQ(first->get_header_value("Cache-Control"), "public, max-age=31536000, immutable");
+  const std::string etag = first->get_header_value("ETag");
+  ASSERT_FALSE(etag.empty());
+  auto again = http_->Get("/api/asset?version=2&time=1&file=atlas.bin.gz", {{"If-None-Match", etag}});
+  ASSERT_TRUE(again);
+  EXPECT_EQ(again->status, 304);
+  EXPECT_TRUE(again->body.empty());
+
+  // Time step 0 of version 2 is baked on its first request, once.
+  auto past = http_->Get("/api/asset?version=2&time=0");
+  ASSERT_TRUE(past);
+  ASSERT_EQ(past->status, 200) << past->body;
+  EXPECT_EQ(json::parse(past->body)["time_step"], 0);
+  EXPECT_EQ(metric("clnerf_asset_bakes_total"), 1);
+  auto past_again = http_->Get("/api/asset?version=2&time=0&file=index.bin.gz");
+  ASSERT_TRUE(past_again);
+  EXPECT_EQ(past_again->status, 200);
+  EXPECT_EQ(metric("clnerf_asset_bakes_total"), 1);
+  EXPECT_EQ(metric("clnerf_renders_total{code=\"OK\"}"), 0);  // Viewing the asset costs no render.
+  EXPECT_GT(metric("clnerf_asset_bytes_total"), double(first->body.size()));
+
+  // Bad requests: their status and a message; nothing is baked for them.
+  for (const auto& [path, status] : std::vector<std::pair<std::string, int>>{
+           {"/api/asset?file=../version.json", 400}, {"/api/asset?file=model.ckpt", 400},
+           {"/api/asset?time=2", 400}, {"/api/asset?time=-2", 400}, {"/api/asset?version=9", 404},
+           {"/api/asset?version=x", 400}, {"/api/asset?place=nowhere", 404}}) {
+    auto r = http_->Get(path);
+    ASSERT_TRUE(r) << path;
+    EXPECT_EQ(r->status, status) << path << ": " << r->body;
+    EXPECT_TRUE(Json(r).contains("error")) << path;
+  }
+  EXPECT_EQ(metric("clnerf_asset_bakes_total"), 1);
+}
+
+// A version that cannot be baked (a proposal-sampled model has no occupancy
+// grid to bake from) is published all the same; its asset request says why,
+// so the viewer falls back to server frames.
+TEST_F(HttpApiTest, AVersionThatCannotBeBakedIsPublishedAndItsAssetRequestSaysWhy) {
+  ServerOptions o = TinyServerOptions(TempDir("srv_asset_fail"));
+  o.update.model.sampler = SamplerKind::kProposal;
+  StartHttp(o);
+  const v1::Job j = UploadAndWait(TinyScans(1), 0);
+  ASSERT_EQ(j.phase(), v1::JOB_PHASE_DONE) << j.error();
+  EXPECT_EQ(Json(http_->Get("/api/jobs/" + j.job_id()))["metrics"]["bake_failed"], 1);
+  auto r = http_->Get("/api/asset");
+  ASSERT_TRUE(r);
+  EXPECT_EQ(r->status, 500);
+  EXPECT_NE(Json(r)["error"].get<std::string>().find("proposal"), std::string::npos) << r->body;
+  EXPECT_EQ(Json(http_->Get("/api/info"))["deployed_version"], 1);
 }
 
 }  // namespace

@@ -22,6 +22,7 @@ const char* JobPhaseName(JobPhase p) {
     case JobPhase::kCancelled: return "cancelled";
     case JobPhase::kRegistering: return "registering";
     case JobPhase::kPosing: return "posing";
+    case JobPhase::kBaking: return "baking";
   }
   return "unknown";
 }

@@ -32,9 +32,10 @@
 namespace clnerf {
 
 // (The order matches the wire enum's, less one; kPosing then kRegistering
-// run before kPreparingReplay.)
+// run before kPreparingReplay, kBaking between kValidating and kPublishing.)
 enum class JobPhase {
-  kQueued, kPreparingReplay, kTraining, kValidating, kPublishing, kDone, kFailed, kCancelled, kRegistering, kPosing
+  kQueued, kPreparingReplay, kTraining, kValidating, kPublishing, kDone, kFailed, kCancelled, kRegistering, kPosing,
+  kBaking
 };
 const char* JobPhaseName(JobPhase p);
 inline bool IsFinal(JobPhase p) { return p == JobPhase::kDone || p == JobPhase::kFailed || p == JobPhase::kCancelled; }

@@ -379,6 +379,33 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
   return false;
 }
 
+std::optional<BakedAsset> UpdateWorker::BakeForViewers(const std::string& job_id, const ContinualState& next,
+                                                       std::map<std::string, double>* metrics) {
+  if (!options_.bake_on_publish) return std::nullopt;
+  jobs_->Update(job_id, [&](JobStatus* j) {
+    j->phase = JobPhase::kBaking;
+    j->iteration = j->total_iterations = 0;
+  });
+  std::vector<Camera> cameras;  // Every scan's cameras: what the photos saw, in the place's frame.
+  for (uint32_t i = 0; i < next.memory.num_cameras(); ++i) cameras.push_back(next.memory.GetCamera(i));
+  BakeOptions o = options_.bake;
+  o.threads = options_.train_threads;
+  BakeReport rep;
+  absl::StatusOr<BakedAsset> asset = BakeModel(*next.model, -1, cameras, o, &rep);
+  if (!asset.ok()) {
+    spdlog::warn("job {}: baking for the browser failed ({}); publishing without it (viewers get server frames)",
+                 job_id, asset.status().ToString());
+    (*metrics)["bake_failed"] = 1;
+    return std::nullopt;
+  }
+  (*metrics)["bake_seconds"] = rep.total_seconds;
+  (*metrics)["bake_kept_blocks"] = rep.kept_blocks;
+  (*metrics)["bake_raw_bytes"] = double(asset->raw_bytes());
+  spdlog::info("job {}: baked time step {} for the browser in {:.1f} s ({} blocks)", job_id, asset->time_step,
+               rep.total_seconds, rep.kept_blocks);
+  return *std::move(asset);
+}
+
 void UpdateWorker::RunJob(const std::string& job_id) {
   cancel_ = false;
   job_started_ = std::chrono::steady_clock::now();
@@ -520,14 +547,20 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   }
   if (stopping_) return FinishStopped(job_id, scan_id);
 
-  // 4. Publish; on a store error keep the trained state and retry once the
+  // 4. Bake for the browser (the publish writes it beside the version).
+  const std::optional<BakedAsset> baked = BakeForViewers(job_id, *next, &gate.metrics);
+  gate.metrics["update_seconds"] = SecondsSince(t0);
+  jobs_->Update(job_id, [&](JobStatus* j) { j->metrics = gate.metrics; });
+  if (stopping_) return FinishStopped(job_id, scan_id);
+
+  // 5. Publish; on a store error keep the trained state and retry once the
   // store recovers (or until shutdown: the scan is then retrained).
   jobs_->Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kPublishing; });
   absl::StatusOr<VersionInfo> published;
   while (true) {
     published = publisher_->Publish(*next, prev ? prev->info.version : 0,
                                     {scan_id, job->scan_name, job_id, FrameNames(*scene)}, gate.metrics,
-                                    coordinator_ != nullptr ? &head : nullptr);
+                                    coordinator_ != nullptr ? &head : nullptr, baked ? &*baked : nullptr);
     if (published.ok()) break;
     if (coordinator_ != nullptr && absl::IsAborted(published.status())) {
       // Fenced: this replica lost the place's lease (paused, cut off) or the

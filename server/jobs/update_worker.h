@@ -107,6 +107,12 @@ class UpdateWorker {
   // job FAILED and is removed (nothing else changes). Returns false when
   // the job has ended; adds posing_* metrics to `metrics`.
   // `prev`: the place's deployed version, if any (its camera seeds COLMAP's).
+  // Bakes the new version's latest time step for the browser in phase
+  // BAKING (ServerOptions::bake_on_publish); nothing when baking is off or
+  // fails (logged, bake_failed in `metrics`: the publish goes on). Adds
+  // bake_* metrics to `metrics`.
+  std::optional<BakedAsset> BakeForViewers(const std::string& job_id, const ContinualState& next,
+                                           std::map<std::string, double>* metrics);
   bool PoseScan(const std::string& job_id, const ScanRecord& scan, const Servable* prev,
                 std::map<std::string, double>* metrics);
   bool RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,

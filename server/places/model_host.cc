@@ -6,6 +6,8 @@
 #include <set>
 
 #include "absl/strings/str_cat.h"
+#include "core/bake/baker.h"
+#include "core/io/durable_file.h"
 #include "core/pose/place_map.h"
 #include "core/render/renderer.h"
 #include "core/data/stopwatch.h"
@@ -334,6 +336,59 @@ absl::StatusOr<std::shared_ptr<const Servable>> ModelHost::Snapshot(int64_t vers
     return absl::UnavailableError(absl::StrCat("no version is deployed: ", publisher_->error()));
   }
   return snap;
+}
+
+absl::StatusOr<AssetFile> ModelHost::Asset(int64_t version, std::optional<int> time_step, const std::string& file) {
+  if (file != "manifest.json" && file != "index.bin.gz" && file != "atlas.bin.gz") {
+    return absl::InvalidArgumentError(absl::StrCat("asset file '", EscapeForLog(file, 64),
+                                                   "' is not manifest.json, index.bin.gz or atlas.bin.gz"));
+  }
+  if (time_step.has_value() && *time_step < 0) {
+    return absl::InvalidArgumentError(absl::StrCat("time step ", *time_step, " is negative"));
+  }
+  const int64_t v = version != 0 ? version : deployed_version();
+  if (v == 0) return Snapshot(0).status();  // Nothing deployed: the same error as a render's.
+  absl::StatusOr<VersionInfo> info = publisher_->versions().Info(v);
+  if (!info.ok()) return info.status();
+  const int t = time_step.value_or(info->time_steps - 1);
+  if (t >= info->time_steps) {
+    return absl::InvalidArgumentError(
+        absl::StrCat("time step ", t, " is out of range: version ", v, " has time steps 0..", info->time_steps - 1));
+  }
+  AssetFile out;
+  out.version = v;
+  out.time_step = t;
+  out.name = file;
+  const std::string dir = publisher_->versions().BakedDir(v, t);
+  if (!IsBakedAssetDir(dir)) {
+    std::lock_guard<std::mutex> lock(bake_mu_);
+    if (!IsBakedAssetDir(dir)) {  // Not baked by the request before this one.
+      absl::StatusOr<std::shared_ptr<const Servable>> snap = Snapshot(v);
+      if (!snap.ok()) return snap.status();
+      std::vector<Camera> cameras;
+      for (uint32_t i = 0; i < (*snap)->memory().num_cameras(); ++i) cameras.push_back((*snap)->memory().GetCamera(i));
+      BakeOptions o = options_.bake;
+      o.threads = cores_;
+      BakeReport rep;
+      absl::StatusOr<BakedAsset> asset = BakeModel((*snap)->model(), t, cameras, o, &rep);
+      if (!asset.ok()) {
+        return absl::InternalError(absl::StrCat("baking version ", v, " time step ", t, " failed: ",
+                                                asset.status().message()));
+      }
+      absl::Status s = publisher_->versions().WriteBaked(v, t, *asset);
+      if (!s.ok() && !absl::IsAlreadyExists(s)) return s;
+      metrics_->AssetBaked(rep.total_seconds);
+      out.baked_now = true;
+      spdlog::info("place {}: baked version {} time step {} for the browser in {:.1f} s", place_, v, t,
+                   rep.total_seconds);
+    }
+  }
+  absl::StatusOr<std::string> bytes = ReadFileToString(dir + "/" + file, "baked asset file");
+  if (!bytes.ok()) return bytes.status();
+  out.bytes = *std::move(bytes);
+  out.etag = absl::StrCat("\"v", v, "-t", t, "-", file, "-", out.bytes.size(), "-",
+                          absl::Hex(std::hash<std::string>()(out.bytes)), "\"");
+  return out;
 }
 
 absl::StatusOr<SceneSummary> ModelHost::Scene(int64_t version) const {

@@ -91,6 +91,19 @@ struct CameraList {
   std::vector<int> index;  // Per camera, its index within its time step.
 };
 
+// One file of a version's baked asset (issue 41; core/bake/baked_asset.h):
+// what GET /api/asset serves. Versions are immutable, and so is each time
+// step's asset once written: the same (version, time step, file) always has
+// the same bytes and the same etag.
+struct AssetFile {
+  int64_t version = 0;
+  int time_step = 0;
+  std::string name;   // manifest.json, index.bin.gz or atlas.bin.gz.
+  std::string bytes;  // index/atlas: gzip streams, sent as they are.
+  std::string etag;   // Quoted, for ETag / If-None-Match.
+  bool baked_now = false;  // This request baked the time step.
+};
+
 // Where photos were taken in the place's frame (core/pose/photo_localization.h).
 struct LocalizeResult {
   int64_t version = 0;
@@ -189,6 +202,14 @@ class ModelHost {
   // render slot (RESOURCE_EXHAUSTED when none frees up in time).
   absl::StatusOr<LocalizeResult> Localize(int64_t v, const std::vector<PhotoQuery>& photos,
                                           const std::function<bool()>& should_stop = {}) const;
+  // File `file` of version `version`'s (0 = deployed) asset of `time_step`
+  // (unset = the version's latest): stored when the version was published,
+  // or baked now (a few seconds; bakes of one place run one at a time) and
+  // kept beside the version. INVALID_ARGUMENT for another file name or a
+  // time step out of range, NOT_FOUND for an unknown version, errors as
+  // Render's otherwise; a failed bake is INTERNAL with its reason (the
+  // viewer then shows server frames).
+  absl::StatusOr<AssetFile> Asset(int64_t version, std::optional<int> time_step, const std::string& file);
   // Rollback / pin. NOT_FOUND for an unknown version.
   absl::StatusOr<VersionInfo> SetDeployedVersion(int64_t v);
   int64_t deployed_version() const { return publisher_->registry().deployed_version(); }
@@ -240,6 +261,7 @@ class ModelHost {
   JobTracker jobs_;
   std::unique_ptr<UpdateWorker> worker_;
   std::mutex upload_mu_;  // Serialises uploads (id reservation, save, enqueue).
+  std::mutex bake_mu_;    // Serialises bakes on request.
   int64_t followed_version_ = 0;  // Newest version FollowReplicas has seen; guarded by upload_mu_.
   const std::shared_ptr<TrainingScheduler> trainings_;
   const std::shared_ptr<RenderSlots> render_slots_;

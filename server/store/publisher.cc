@@ -240,8 +240,17 @@ absl::StatusOr<ReservedIds> Publisher::ReserveIds() {
   return ids;
 }
 
+void Publisher::WriteBakedLocked(const BakedAsset* baked, int64_t version, const std::string& staged_tag) {
+  if (baked == nullptr) return;
+  if (absl::Status s = versions_->WriteBaked(version, baked->time_step, *baked, staged_tag); !s.ok()) {
+    spdlog::warn("version {}: its baked asset was not stored ({}); it is baked again when a viewer asks",
+                 version, s.ToString());
+  }
+}
+
 absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int64_t parent, const Origin& origin,
-                                               const std::map<std::string, double>& metrics, const PlaceHead* fence) {
+                                               const std::map<std::string, double>& metrics, const PlaceHead* fence,
+                                               const BakedAsset* baked) {
   std::lock_guard<std::mutex> lock(mu_);
   if (absl::Status s = RefusalLocked(); !s.ok()) return s;
   VersionInfo info;
@@ -261,7 +270,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
   info.job_id = origin.job_id;
   info.frame_names = origin.frame_names;
   info.metrics = metrics;
-  if (replicated_) return PublishReplicatedLocked(state, info, *fence);
+  if (replicated_) return PublishReplicatedLocked(state, info, *fence, baked);
   absl::StatusOr<VersionInfo> written = versions_->Write(*state.model, state.memory, info);
   if (!written.ok()) {
     // Nothing was left behind; the caller may publish the same state again
@@ -270,6 +279,7 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
     return written.status();
   }
   CrashPoint("publish:version-written");
+  WriteBakedLocked(baked, info.version, "");
   // The version is durable from here on: it is deployed now, and recovery
   // deploys it on the next start even if the manifest cannot be updated.
   manifest_.next_version = info.version + 1;
@@ -290,13 +300,14 @@ absl::StatusOr<VersionInfo> Publisher::Publish(const ContinualState& state, int6
 }
 
 absl::StatusOr<VersionInfo> Publisher::PublishReplicatedLocked(const ContinualState& state, const VersionInfo& info,
-                                                               const PlaceHead& fence) {
+                                                               const PlaceHead& fence, const BakedAsset* baked) {
   versions_->RemoveStaged(info.version, replica_tag_);  // A leftover of this process's earlier attempt.
   absl::StatusOr<VersionInfo> written = versions_->WriteStaged(*state.model, state.memory, info, replica_tag_);
   if (!written.ok()) {
     SetErrorLocked(written.status());
     return written.status();
   }
+  WriteBakedLocked(baked, info.version, replica_tag_);
   CrashPoint("publish:staged");
   // The fenced commit: only while this replica holds the place's lease and
   // the head is where this update started. Refused: nothing stays behind.

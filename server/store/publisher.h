@@ -92,8 +92,12 @@ class Publisher {
   // the version is written staged, committed only if this replica still
   // holds the place's lease and the head has not moved (ABORTED otherwise,
   // and nothing is left behind), then promoted to versions/N.
+  // `baked` (optional): the new version's asset for the browser, written
+  // beside it before it is deployed (VersionStore::WriteBaked); a failure
+  // to write it is logged and does not stop the publish.
   absl::StatusOr<VersionInfo> Publish(const ContinualState& state, int64_t parent, const Origin& origin,
-                                      const std::map<std::string, double>& metrics, const PlaceHead* fence = nullptr);
+                                      const std::map<std::string, double>& metrics, const PlaceHead* fence = nullptr,
+                                      const BakedAsset* baked = nullptr);
 
   // Replicas: whether this store is shared through a coordinator.
   bool replicated() const { return replicated_; }
@@ -133,8 +137,9 @@ class Publisher {
   // After a publish: `state`'s optimiser (if it carries one) becomes the
   // place's, tagged with `version` (a failure only costs the next resume).
   void StoreOptimizerLocked(const ContinualState& state, int64_t version);
+  void WriteBakedLocked(const BakedAsset* baked, int64_t version, const std::string& staged_tag);
   absl::StatusOr<VersionInfo> PublishReplicatedLocked(const ContinualState& state, const VersionInfo& info,
-                                                      const PlaceHead& fence);
+                                                      const PlaceHead& fence, const BakedAsset* baked);
   absl::Status RetryLocked();
   void MaybeRetryLocked();  // RetryLocked() if retry_seconds passed.
   void SetErrorLocked(const absl::Status& s);

@@ -72,16 +72,35 @@ std::string VersionStore::VersionDir(int64_t v) const {
   return (fs::path(dir_) / absl::StrFormat("%06d", v)).string();
 }
 
-absl::StatusOr<VersionInfo> VersionStore::Write(const NgpModel& model, const ReplayMemory& memory,
-                                                VersionInfo info) {
-  return WriteInto(VersionDir(info.version), model, memory, std::move(info));
-}
-
 namespace {
 std::string StagedName(int64_t version, const std::string& tag) {
   return absl::StrFormat(".staged-%06d-%s", version, tag);
 }
 }  // namespace
+
+std::string VersionStore::BakedDir(int64_t version, int time_step) const {
+  return (fs::path(VersionDir(version)) / "baked" / std::to_string(time_step)).string();
+}
+
+absl::Status VersionStore::WriteBaked(int64_t version, int time_step, const BakedAsset& asset,
+                                      const std::string& staged_tag) {
+  absl::StatusOr<std::vector<std::pair<std::string, std::string>>> files = SerializeBakedAsset(asset);
+  if (!files.ok()) return files.status();
+  const fs::path parent = (staged_tag.empty() ? fs::path(VersionDir(version))
+                                              : fs::path(dir_) / StagedName(version, staged_tag)) / "baked";
+  std::error_code ec;
+  if (!fs::exists(parent.parent_path(), ec)) return absl::NotFoundError(absl::StrCat("version ", version, " does not exist"));
+  fs::create_directories(parent, ec);
+  if (ec) return absl::InternalError(absl::StrCat("cannot create ", parent.string(), ": ", ec.message()));
+  std::vector<std::pair<std::string, std::string_view>> views;
+  for (const auto& [name, bytes] : *files) views.emplace_back(name, bytes);
+  return WriteDirectoryAtomically((parent / std::to_string(time_step)).string(), views);
+}
+
+absl::StatusOr<VersionInfo> VersionStore::Write(const NgpModel& model, const ReplayMemory& memory,
+                                                VersionInfo info) {
+  return WriteInto(VersionDir(info.version), model, memory, std::move(info));
+}
 
 absl::StatusOr<VersionInfo> VersionStore::WriteStaged(const NgpModel& model, const ReplayMemory& memory,
                                                       VersionInfo info, const std::string& tag) {

@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "core/bake/baked_asset.h"
 #include "core/field/ngp_model.h"
 #include "core/continual/replay_memory.h"
 #include "core/train/optimizer_state.h"
@@ -118,6 +119,17 @@ class VersionStore {
   void RemoveStaged(int64_t version, const std::string& tag);
   // The tags of staged directories of `version` (normally none).
   std::vector<std::string> StagedTags(int64_t version) const;
+
+  // Baked assets (issue 41; core/bake/baked_asset.h) beside a version's
+  // checkpoint, one folder per time step:
+  //   versions/<n>/baked/<t>/{manifest.json, index.bin.gz, atlas.bin.gz}
+  // A derived cache: the latest time step is written when the version is
+  // published, others on first request. Each folder is written whole
+  // (WriteDirectoryAtomically): present means complete. ALREADY_EXISTS when
+  // it is there already (another writer won); `staged_tag` non-empty writes
+  // into that staged version instead (replicas, before promotion).
+  absl::Status WriteBaked(int64_t version, int time_step, const BakedAsset& asset, const std::string& staged_tag = "");
+  std::string BakedDir(int64_t version, int time_step) const;
 
   absl::StatusOr<Manifest> ReadManifest() const;  // Defaults if absent.
   absl::Status WriteManifest(const Manifest& manifest);

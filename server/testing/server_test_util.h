@@ -59,6 +59,10 @@ inline ServerOptions TinyServerOptions(const std::string& store, int iterations 
   o.gate.max_replay_drop_db = 10.0f;
   o.gate.validation_views = 2;
   o.shutdown_grace_seconds = 2;
+  // Each publish bakes: a coarse grid and few rays keep it to milliseconds.
+  o.bake.resolution = 64;
+  o.bake.visibility_rays = 1 << 12;
+  o.bake.fit.rays = 1 << 11;
   return o;
 }
 
