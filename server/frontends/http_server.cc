@@ -115,7 +115,7 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(const std::string&
   srv.set_keep_alive_timeout(1);
   s->api_->Register(&srv);
 
-  for (const char* path : {"/", "/index.html", "/viewer.js", "/viewer.css"}) {
+  for (const char* path : {"/", "/index.html", "/viewer.js", "/viewer.css", "/baked.js", "/baked.html"}) {
     srv.Get(path, [](const httplib::Request& req, httplib::Response& res) {
       const WebAsset* a = FindWebAsset(req.path == "/index.html" ? "/" : req.path);
       if (a == nullptr) return SendJsonError(res, 404, "NOT_FOUND", "no such page");

@@ -15,7 +15,9 @@ checks what a user sees:
   * picking another place shows that place's model, and the URL names it;
   * no page error, no HTTP 5xx;
   * SIGTERM with the page still open stops the server within 5 s;
-and saves screenshots under --out. Never skips: a missing browser or driver
+and saves screenshots under --out. The page runs with frames=server: the
+server renders every frame (service_baked_browser_test.py covers the
+baked asset's frames). Never skips: a missing browser or driver
 is a failure (scripts/install-deps.sh installs them).
 
 Usage: viewer_browser_test.py --server BIN --client BIN --out DIR
@@ -63,7 +65,9 @@ def main():
         print(f"two versions trained in {time.time() - t_start:.1f} s", flush=True)
 
         driver = start_chromium()
-        base = f"http://127.0.0.1:{server.http}/"
+        # Server frames (the path without WebGL2, or for a version that could
+        # not be baked); the baked path is service_baked_browser_test.py's.
+        base = f"http://127.0.0.1:{server.http}/#frames=server"
         driver.get(base)
 
         # 1. A full-resolution frame arrives and the canvas is not blank.

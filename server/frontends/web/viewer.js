@@ -10,6 +10,15 @@
 // on the newer request, stops the stale one too and frees its slot. Full
 // frames are kept in a small cache, so flipping times or versions at a still
 // camera is instant.
+//
+// Baked assets (issue 41; baked.js): where WebGL2 is available each panel
+// downloads its version's baked asset (GET /api/asset) once and renders it
+// itself while the camera moves, with no server render at all; when the
+// camera is still it fetches the exact server render of that view
+// (frames=auto, the default). frames=baked never asks the server for a
+// frame; frames=server never uses the asset. While an asset loads, or when
+// a version cannot be baked, the panel shows server frames as before. The
+// badge says which it shows: "baked" or "exact".
 'use strict';
 
 (() => {
@@ -47,7 +56,9 @@
     dragging: false,
     keys: new Set(),
     token: '',
+    frameMode: 'auto',    // auto | baked | server (see above).
     frames: [],           // Recent frames, for the status line and tests.
+    bakedLoads: [],       // {key, ms, error}: asset loads, for tests.
     httpErrors: [],       // Responses >= 500 and network failures.
     pageErrors: [],
   };
@@ -85,6 +96,7 @@
       this.time = null;    // null = the version's latest.
       this.inflight = null;  // {abort, key, full}
       this.shown = null;     // {bmp, key, full, w, h, t, v, renderMs}
+      this.baked = null;     // {canvas, renderer, key, loading, failed}: its baked asset (bakedFor).
       this.renderMsPerPx = 0.002;  // Server render ms per pixel (EMA).
       this.overheadMs = 15;        // Request + decode overhead (EMA).
       this.error = '';
@@ -330,10 +342,111 @@
 
   function requestAll() { for (const p of activePanels()) pump(p); present(); }
 
+  // ---- Baked assets --------------------------------------------------------------
+  const bakedSupported = typeof BakedRenderer !== 'undefined' && BakedRenderer.supported();
+  // The panel's renderer when its version and time step's asset is loaded;
+  // otherwise starts loading it (once; a failure is remembered) and null.
+  function bakedFor(p) {
+    if (!bakedSupported || state.frameMode === 'server' || !state.scene) return null;
+    const v = p.effectiveVersion(), t = p.effectiveTime(), want = v + '|' + t;
+    if (!p.baked) {
+      const canvas = document.createElement('canvas');
+      try {
+        p.baked = { canvas, renderer: new BakedRenderer(canvas), key: '', loading: '', failed: {} };
+      } catch (e) {
+        state.bakedLoads.push({ key: want, error: String(e) });
+        return null;
+      }
+    }
+    const b = p.baked;
+    if (b.key === want) return b.renderer;
+    if (b.loading === want || b.failed[want] || !(v > 0)) return null;
+    b.loading = want;
+    const t0 = performance.now();
+    const url = (name) => withPlace('/api/asset?version=' + v + '&time=' + t + '&file=' + encodeURIComponent(name));
+    b.renderer.load(url).then(() => {
+      b.key = want;  // The textures hold the asset that loaded last.
+      state.bakedLoads.push({ key: want, ms: performance.now() - t0 });
+    }, (e) => {
+      b.failed[want] = String(e.message || e);
+      state.bakedLoads.push({ key: want, error: b.failed[want] });
+    }).finally(() => {
+      if (b.loading === want) b.loading = '';
+      requestAll();
+    });
+    return null;
+  }
+
+  // The OpenCV camera of the view (as the server's look-at form builds it).
+  function bakedCamera(W, H) {
+    const c = state.cam;
+    const z = unit(sub(c.target, c.eye)), x = unit(cross(z, unit(c.up))), y = cross(z, x);
+    const f = 0.5 * H / Math.tan(c.fov * Math.PI / 360);
+    return { c2w: [x[0], y[0], z[0], c.eye[0], x[1], y[1], z[1], c.eye[1], x[2], y[2], z[2], c.eye[2]],
+      fx: f, fy: f, cx: W / 2, cy: H / 2 };
+  }
+
+  // Draws panel p's baked frame for the current camera at the next
+  // animation frame (one draw per frame however many moves arrive).
+  function drawBaked(p, renderer, key) {
+    p.bakedWant = { renderer, key };
+    if (p.bakedScheduled) return;
+    p.bakedScheduled = true;
+    requestAnimationFrame(() => {
+      p.bakedScheduled = false;
+      const want = p.bakedWant;
+      if (!want || (p.shown && p.shown.full && p.shown.key === want.key)) return;
+      const [W, H] = state.res, cv = p.baked.canvas;
+      if (cv.width !== W || cv.height !== H) { cv.width = W; cv.height = H; }
+      const t0 = performance.now();
+      try {
+        want.renderer.draw(bakedCamera(W, H));
+      } catch (e) {
+        p.baked.failed[p.baked.key] = String(e.message || e);
+        p.baked.key = '';
+        requestAll();
+        return;
+      }
+      const ms = performance.now() - t0;
+      const old = p.shown;
+      if (old && old.bmp && !old.full && !old.baked && old.bmp.close) old.bmp.close();
+      p.shown = { bmp: cv, baked: true, full: false, key: want.key, w: W, h: H, t: p.effectiveTime(),
+        v: p.effectiveVersion(), renderMs: ms };
+      state.frames.push({ panel: p.name, baked: true, full: false, w: W, h: H, t: p.shown.t, v: p.shown.v,
+        at: performance.now(), ms, renderMs: ms });
+      if (state.frames.length > 400) state.frames.splice(0, 200);
+      showMessage(p, '');
+      present();
+    });
+  }
+
   function pump(p) {
     if (!state.scene || !state.cam) return;
     const [W, H] = state.res;
     const fullKey = p.key(W, H);
+    const baked = bakedFor(p);
+    if (baked) {
+      // The asset while moving (or always, with frames=baked); the exact
+      // frame once still, from the cache or the server.
+      const exact = state.frameMode === 'auto' && !moving();
+      const cachedExact = exact ? cacheGet(fullKey) : null;
+      if (cachedExact) {
+        if (!p.shown || p.shown.key !== fullKey || !p.shown.full) {
+          p.shown = { ...cachedExact.meta, bmp: cachedExact.bmp, key: fullKey };
+          present();
+        }
+        return;
+      }
+      if (!p.shown || p.shown.key !== fullKey) drawBaked(p, baked, fullKey);
+      if (p.inflight && (!exact || p.inflight.key !== fullKey)) { p.inflight.abort.abort(); p.inflight = null; }
+      if (exact && !p.inflight && !(p.shown && p.shown.full && p.shown.key === fullKey)) {
+        fetchFrame(p, W, H, fullKey, true, fullKey);
+      }
+      return;
+    }
+    // frames=baked waits for the asset that is loading (the old frame stays);
+    // a failed one falls back to server frames.
+    if (state.frameMode === 'baked' && p.baked && p.baked.loading) return;
     const cached = cacheGet(fullKey);
     if (cached) {
       if (p.inflight) { p.inflight.abort.abort(); p.inflight = null; }
@@ -390,14 +503,17 @@
       if (full) cachePut(fullKey, { bmp, meta });
       const old = p.shown;
       p.shown = { ...meta, bmp, key };
-      if (old && old.bmp !== bmp && !old.full) old.bmp.close();
+      if (old && old.bmp !== bmp && !old.full && !old.baked) old.bmp.close();  // A baked frame's is the GL canvas.
       showMessage(p, '');
       state.frames.push({ panel: p.name, full, w, h, t: meta.t, v: meta.v, at: performance.now(), ms: total,
         renderMs });
       if (state.frames.length > 400) state.frames.splice(0, 200);
       present();
     } catch (e) {
-      if (e.name !== 'AbortError') showMessage(p, 'Render failed: ' + escapeHtml(e.message));
+      if (e.name !== 'AbortError') {
+        showMessage(p, 'Render failed: ' + escapeHtml(e.message));
+        if (!(e instanceof TypeError && /fetch/i.test(e.message))) state.pageErrors.push('frame: ' + e);  // A bug, not the network.
+      }
     } finally {
       if (p.inflight === mine) p.inflight = null;
       // Keep going: the camera may have moved meanwhile, or settled.
@@ -408,12 +524,14 @@
   function setBadge(p, refining) {
     const s = p.shown;
     const [W, H] = state.res;
-    let text = s ? 'v' + s.v + ' · t' + s.t + ' · ' + s.w + '×' + s.h : '';
-    if (s && !s.full) text += ' preview';
-    if (refining || (s && !s.full)) text += ' · refining to ' + W + '×' + H + '…';
+    let text = s ? 'v' + s.v + ' · t' + s.t + ' · ' + s.w + '×' + s.h + (s.baked ? ' · baked' : ' · exact') : '';
+    if (s && !s.full && !s.baked) text += ' preview';
+    if (s && s.baked && !refining) text += ' · drawn in this browser';
+    else if (refining || (s && !s.full)) text += ' · refining to ' + W + '×' + H + '…';
     else if (s) text += ' · ' + Math.round(s.renderMs) + ' ms';
     p.badge.textContent = text;
-    p.badge.classList.toggle('refining', !!(refining || (s && !s.full)));
+    p.badge.classList.toggle('refining', !!(refining || (s && !s.full && !s.baked)));
+    p.badge.classList.toggle('baked', !!(s && s.baked));
   }
 
   function showMessage(p, html) {
@@ -659,6 +777,12 @@
     requestAll();
     scheduleHash();
   });
+  $('frames').addEventListener('change', (e) => {
+    state.frameMode = e.target.value;
+    for (const p of Object.values(panels)) if (p.shown && p.shown.baked && state.frameMode === 'server') p.shown = null;
+    requestAll();
+    scheduleHash();
+  });
   $('reset').addEventListener('click', () => { resetAll(); touched(); });
   $('jump').addEventListener('change', (e) => {
     if (e.target.value === '') return;
@@ -698,6 +822,7 @@
     const c = state.cam;
     const q = new URLSearchParams({ eye: fmt(c.eye), target: fmt(c.target), up: fmt(c.up), fov: c.fov.toFixed(2),
       res: state.res.join('x'), mode: state.mode });
+    if (state.frameMode !== 'auto') q.set('frames', state.frameMode);
     if (state.place) q.set('place', state.place);
     const put = (p, k) => {
       if (p.version) q.set('v' + k, String(p.version));
@@ -733,6 +858,8 @@
       const t = q.get('t' + k);
       if (t !== null && Number.isInteger(Number(t)) && Number(t) >= 0) p.time = Number(t);
     }
+    if (['auto', 'baked', 'server'].includes(q.get('frames'))) state.frameMode = q.get('frames');
+    $('frames').value = state.frameMode;
     const sw = Number(q.get('swipe'));
     if (sw >= 0 && sw <= 1 && q.has('swipe')) state.swipe = sw;
     return ['single', 'side', 'swipe'].includes(q.get('mode')) ? q.get('mode') : null;
@@ -766,7 +893,13 @@
     get camera() { return state.cam && { ...state.cam }; },
     get resolution() { return state.res.slice(); },
     get scene() { return state.scene; },
-    shown(name) { const s = panels[name].shown; return s && { full: s.full, w: s.w, h: s.h, t: s.t, v: s.v }; },
+    shown(name) {
+      const s = panels[name].shown;
+      return s && { full: s.full, baked: !!s.baked, w: s.w, h: s.h, t: s.t, v: s.v };
+    },
+    get bakedSupported() { return bakedSupported; },
+    get bakedLoads() { return state.bakedLoads; },
+    badge(name) { return panels[name].badge.textContent; },
     busy(name) { return !!panels[name].inflight; },
     setMode,
   };
