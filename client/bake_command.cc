@@ -60,6 +60,9 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
   c->add_option("--fit-rays", a->bake.fit.rays,
                 "Training-camera rays the colour fit matches to the model's renders (0 = no fit)")
       ->capture_default_str();
+  c->add_flag("--view-dependent,!--diffuse", a->bake.view_dependent,
+              "Fit a view-dependent colour term too (c0 + H d per lattice point), or only diffuse colours")
+      ->capture_default_str();
   c->add_option("--fit-iters", a->bake.fit.iterations, "Colour-fit solver iterations")->capture_default_str();
   c->add_option("--fit-prior", a->bake.fit.prior, "Colour-fit damping towards the field's own colours")
       ->capture_default_str();
@@ -99,6 +102,7 @@ int RunBake(const BakeArgs& a) {
                       {"asset_bytes", bytes},                     {"bake_seconds", rep.total_seconds},
                       {"density_seconds", rep.density_seconds},   {"visibility_seconds", rep.visibility_seconds},
                       {"colour_seconds", rep.colour_seconds},     {"fit_seconds", rep.fit_seconds},
+                      {"view_dependent", asset->view_dependent()},
                       {"fit", {{"rays", rep.fit.rays}, {"unknowns", rep.fit.unknowns}, {"nonzeros", rep.fit.nonzeros},
                                {"rms_before", rep.fit.rms_before}, {"rms_after", rep.fit.rms_after},
                                {"target_seconds", rep.fit.target_seconds}, {"rows_seconds", rep.fit.rows_seconds},

@@ -16,6 +16,7 @@ namespace {
 constexpr char kManifest[] = "manifest.json";
 constexpr char kIndexFile[] = "index.bin.gz";
 constexpr char kAtlasFile[] = "atlas.bin.gz";
+constexpr char kViewFile[] = "view.bin.gz";
 // Limits that keep a hostile manifest from asking for absurd allocations:
 // 2048 cells per axis, and an atlas within WebGL2's guaranteed 3-D texture
 // size on every axis (2048 texels: 227 bricks).
@@ -50,7 +51,10 @@ nlohmann::json ManifestJson(const BakedAsset& a) {
     views.push_back({{"c2w", m}, {"fx", in.fx}, {"fy", in.fy}, {"cx", in.cx}, {"cy", in.cy},
                      {"width", in.width}, {"height", in.height}});
   }
-  return {{"format", kBakeFormat},
+  nlohmann::json files = {{"index", kIndexFile}, {"atlas", kAtlasFile}};
+  if (a.view_dependent()) files["view"] = kViewFile;
+  return {{"format", a.view_dependent() ? kBakeFormatViewDependent : kBakeFormat},
+          {"view_dependence", a.view_dependent() ? "linear" : "none"},
           {"views", views},
           {"kind", a.contracted ? "unbounded" : "bounded"},
           {"half_size", a.half_size},
@@ -69,15 +73,19 @@ nlohmann::json ManifestJson(const BakedAsset& a) {
           {"time_step", a.time_step},
           {"bricks", {a.bricks[0], a.bricks[1], a.bricks[2]}},
           {"num_bricks", a.num_bricks()},
-          {"files", {{"index", kIndexFile}, {"atlas", kAtlasFile}}}};
+          {"files", files}};
 }
 
-absl::Status ParseManifest(const std::string& text, BakedAsset* a) {
+// Parses the manifest; *view_dependent says whether it names a view file.
+absl::Status ParseManifest(const std::string& text, BakedAsset* a, bool* view_dependent) {
   nlohmann::json j = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
   if (j.is_discarded() || !j.is_object()) return absl::InvalidArgumentError("baked asset manifest: not a JSON object");
-  if (!j.contains("format") || !j["format"].is_number_integer() || j["format"].get<int>() != kBakeFormat) {
-    return absl::FailedPreconditionError(absl::StrCat("baked asset manifest: format must be ", kBakeFormat));
+  if (!j.contains("format") || !j["format"].is_number_integer() ||
+      (j["format"].get<int>() != kBakeFormat && j["format"].get<int>() != kBakeFormatViewDependent)) {
+    return absl::FailedPreconditionError(absl::StrCat("baked asset manifest: format must be ", kBakeFormat, " or ",
+                                                      kBakeFormatViewDependent));
   }
+  *view_dependent = j["format"].get<int>() == kBakeFormatViewDependent;
   try {
     a->contracted = j.at("kind").get<std::string>() == "unbounded";
     a->half_size = j.at("half_size").get<float>();
@@ -160,6 +168,10 @@ absl::Status BakedAsset::Validate() const {
     return absl::InvalidArgumentError(
         absl::StrFormat("baked asset: atlas has %zu bytes, expected %zu", atlas.size(), 4 * texels));
   }
+  if (!view.empty() && view.size() != 3 * atlas.size()) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("baked asset: view term has %zu bytes, expected %zu", view.size(), 3 * atlas.size()));
+  }
   const uint32_t capacity = uint32_t(bricks[0]) * bricks[1] * bricks[2];
   for (uint32_t e : index) {
     if (e > capacity) return absl::InvalidArgumentError("baked asset: index names a brick outside the atlas");
@@ -183,6 +195,12 @@ absl::StatusOr<std::vector<std::pair<std::string, std::string>>> SerializeBakedA
   files.emplace_back(kManifest, ManifestJson(asset).dump(1));
   files.emplace_back(kIndexFile, std::move(*index_gz));
   files.emplace_back(kAtlasFile, std::move(*atlas_gz));
+  if (asset.view_dependent()) {
+    absl::StatusOr<std::string> view_gz = GzipCompress(
+        std::string_view(reinterpret_cast<const char*>(asset.view.data()), asset.view.size()));
+    if (!view_gz.ok()) return view_gz.status();
+    files.emplace_back(kViewFile, std::move(*view_gz));
+  }
   return files;
 }
 
@@ -202,13 +220,18 @@ absl::Status SaveBakedAsset(const BakedAsset& asset, const std::string& dir) {
 
 absl::StatusOr<uint64_t> BakedAssetBytes(const std::string& dir) {
   uint64_t n = 0;
-  for (const char* name : {kManifest, kIndexFile, kAtlasFile}) {
+  for (const char* name : {kManifest, kIndexFile, kAtlasFile, kViewFile}) {
     std::error_code ec;
+    if (name == kViewFile && !std::filesystem::exists(std::filesystem::path(dir) / name, ec)) continue;
     const uintmax_t size = std::filesystem::file_size(std::filesystem::path(dir) / name, ec);
     if (ec) return absl::NotFoundError(absl::StrCat("baked asset: ", dir, "/", name, ": ", ec.message()));
     n += size;
   }
   return n;
+}
+
+bool IsBakedAssetFileName(const std::string& name) {
+  return name == kManifest || name == kIndexFile || name == kAtlasFile || name == kViewFile;
 }
 
 bool IsBakedAssetDir(const std::string& dir) {
@@ -220,7 +243,8 @@ absl::StatusOr<BakedAsset> LoadBakedAsset(const std::string& dir) {
   absl::StatusOr<std::string> manifest = ReadFileToString(dir + "/" + kManifest, "baked asset manifest");
   if (!manifest.ok()) return manifest.status();
   BakedAsset a;
-  if (absl::Status s = ParseManifest(*manifest, &a); !s.ok()) return s;
+  bool view_dependent = false;
+  if (absl::Status s = ParseManifest(*manifest, &a, &view_dependent); !s.ok()) return s;
   if (absl::Status s = ValidateShape(a); !s.ok()) return s;
   const size_t nb = size_t(a.blocks_per_axis());
   const std::array<int, 3> t = a.atlas_texels();
@@ -243,6 +267,14 @@ absl::StatusOr<BakedAsset> LoadBakedAsset(const std::string& dir) {
     a.index[i] = v;
   }
   a.atlas.assign(atlas->begin(), atlas->end());
+  if (view_dependent) {
+    absl::StatusOr<std::string> view_gz = ReadFileToString(dir + "/" + kViewFile, "baked asset view term");
+    if (!view_gz.ok()) return view_gz.status();
+    absl::StatusOr<std::string> view = GzipDecompress(*view_gz, 3 * atlas_bytes);
+    if (!view.ok()) return absl::DataLossError(absl::StrCat("baked asset view term: ", view.status().message()));
+    if (view->size() != 3 * atlas_bytes) return absl::DataLossError("baked asset: the view term does not match");
+    a.view.assign(view->begin(), view->end());
+  }
   if (absl::Status s = a.Validate(); !s.ok()) return s;
   return a;
 }

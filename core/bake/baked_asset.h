@@ -18,9 +18,17 @@
 // bricks_x x bricks_y x bricks_z bricks (texels: 9 bricks_x wide, x fastest),
 // which is also the 3-D texture the page uploads.
 //
+// View-dependent colour (optional, format 2): c(d) = c0 + H d for the
+// ray's model-space direction d, H a 3x3 matrix per lattice point, stored
+// as three more atlases of the same shape (k = x, y, z), RGB = 128 +
+// round(127 * (a / 255) * H[c][k]) (premultiplied like the colour, so it
+// interpolates the same way), A = 0. Renderers add sum_k d_k * (texel - 128)
+// / 127 to the blended colour before dividing by the blended code.
+//
 // Files (a folder; SaveBakedAsset / LoadBakedAsset): manifest.json (the
-// fields below, format 1), index.bin.gz (uint32 little-endian, (R/8)^3,
-// x fastest) and atlas.bin.gz (RGBA8), both gzip streams, which the page
+// fields below, format 1, or 2 with view dependence), index.bin.gz (uint32
+// little-endian, (R/8)^3, x fastest), atlas.bin.gz (RGBA8) and, format 2,
+// view.bin.gz (the three atlases back to back), gzip streams which the page
 // decodes with DecompressionStream.
 //
 // A value type without locking: concurrent const use is safe.
@@ -41,7 +49,8 @@
 
 namespace clnerf {
 
-inline constexpr int kBakeFormat = 1;
+inline constexpr int kBakeFormat = 1;                 // Diffuse colour.
+inline constexpr int kBakeFormatViewDependent = 2;    // Plus the view-dependent term.
 inline constexpr int kBakeBlock = 8;   // Cells per block side.
 inline constexpr int kBakeBrick = 9;   // Lattice points per brick side.
 
@@ -58,6 +67,7 @@ struct BakedAsset {
   std::vector<Camera> views;
   std::vector<uint32_t> index;  // (R/8)^3 entries, x fastest.
   std::vector<uint8_t> atlas;   // RGBA8 texels, 9 bricks x (x fastest) ...
+  std::vector<uint8_t> view;    // Empty, or 3 atlases: the view-dependent term.
 
   int blocks_per_axis() const { return resolution / kBakeBlock; }
   float cell() const { return 2.0f * half_size / float(resolution); }
@@ -68,22 +78,26 @@ struct BakedAsset {
     return {kBakeBrick * bricks[0], kBakeBrick * bricks[1], kBakeBrick * bricks[2]};
   }
   // Bytes of the raw (uncompressed) arrays.
-  size_t raw_bytes() const { return index.size() * 4 + atlas.size(); }
+  size_t raw_bytes() const { return index.size() * 4 + atlas.size() + view.size(); }
+  bool view_dependent() const { return !view.empty(); }
   // Sizes and ranges consistent (every index entry names a brick).
   absl::Status Validate() const;
 };
 
-// The asset's three files, name -> bytes (manifest.json, index.bin.gz,
-// atlas.bin.gz), e.g. for WriteDirectoryAtomically.
+// The asset's files, name -> bytes (manifest.json, index.bin.gz,
+// atlas.bin.gz, and view.bin.gz for format 2), e.g. for
+// WriteDirectoryAtomically.
 absl::StatusOr<std::vector<std::pair<std::string, std::string>>> SerializeBakedAsset(const BakedAsset& asset);
 // Writes them into `dir` (created if needed; files replaced atomically).
 absl::Status SaveBakedAsset(const BakedAsset& asset, const std::string& dir);
 // Reads a folder SaveBakedAsset wrote. NOT_FOUND without a manifest;
 // INVALID_ARGUMENT / DATA_LOSS for a corrupt or inconsistent one.
 absl::StatusOr<BakedAsset> LoadBakedAsset(const std::string& dir);
-// Bytes of the asset's three files in `dir` (what a browser downloads; other
+// Bytes of the asset's files in `dir` (what a browser downloads; other
 // files beside them, such as a copied viewer page, are not counted).
 absl::StatusOr<uint64_t> BakedAssetBytes(const std::string& dir);
+// The names of the files an asset may have (for servers that hand them out).
+bool IsBakedAssetFileName(const std::string& name);
 // True when `dir` holds a baked asset's manifest.
 bool IsBakedAssetDir(const std::string& dir);
 

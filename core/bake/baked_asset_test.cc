@@ -75,6 +75,34 @@ TEST(BakedAssetTest, SavedAssetLoadsBackTheSame) {
   EXPECT_NEAR(b->views[0].c2w(2, 3), -3.0f, 1e-6f);
 }
 
+// Format 2 carries the view-dependent term in view.bin.gz; a folder that
+// lost it, or a term of the wrong size, is refused.
+TEST(BakedAssetTest, AViewDependentAssetRoundTripsAsFormat2) {
+  BakedAsset a = SmallAsset();
+  a.view.resize(3 * a.atlas.size());
+  for (size_t i = 0; i < a.view.size(); ++i) a.view[i] = uint8_t((i * 13) % 253);
+  const std::string dir = TempDir("view");
+  ASSERT_TRUE(SaveBakedAsset(a, dir).ok());
+  absl::StatusOr<BakedAsset> b = LoadBakedAsset(dir);
+  ASSERT_TRUE(b.ok()) << b.status();
+  EXPECT_TRUE(b->view_dependent());
+  EXPECT_EQ(b->view, a.view);
+  EXPECT_EQ(b->atlas, a.atlas);
+  absl::StatusOr<std::string> manifest = ReadFileToString(dir + "/manifest.json", "m");
+  ASSERT_TRUE(manifest.ok());
+  EXPECT_NE(manifest->find("\"format\": 2"), std::string::npos) << *manifest;
+  EXPECT_TRUE(IsBakedAssetFileName("view.bin.gz"));
+  EXPECT_FALSE(IsBakedAssetFileName("../view.bin.gz"));
+  absl::StatusOr<uint64_t> bytes = BakedAssetBytes(dir);
+  ASSERT_TRUE(bytes.ok());
+  EXPECT_EQ(*bytes, std::filesystem::file_size(dir + "/manifest.json") + std::filesystem::file_size(dir + "/index.bin.gz") +
+                        std::filesystem::file_size(dir + "/atlas.bin.gz") + std::filesystem::file_size(dir + "/view.bin.gz"));
+  std::filesystem::remove(dir + "/view.bin.gz");
+  EXPECT_EQ(LoadBakedAsset(dir).status().code(), absl::StatusCode::kNotFound);
+  a.view.pop_back();
+  EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);
+}
+
 TEST(BakedAssetTest, InconsistentAssetsAreRefused) {
   BakedAsset a = SmallAsset();
   a.index[7] = 3;  // Only two bricks fit the atlas.

@@ -93,7 +93,7 @@ float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vec
 // density code (premultiplied), so interpolation weighs each corner's colour
 // by its density; this divides it back out.
 inline Eigen::Vector3f BakedColour(const Eigen::Vector4f& rgba) {
-  return (rgba.head<3>() / std::max(rgba[3], 1.0f / 255.0f)).cwiseMin(1.0f);
+  return (rgba.head<3>() / std::max(rgba[3], 1.0f / 255.0f)).cwiseMax(0.0f).cwiseMin(1.0f);
 }
 
 // Trilinear RGBA (0..255 per channel) of a 9^3 RGBA8 lattice `texel(x, y,

@@ -8,8 +8,11 @@
 namespace clnerf {
 namespace {
 
-// RGBA in [0, 1] at u of the brick that block (b[0], b[1], b[2]) names.
-bool SampleBlock(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
+// RGBA in [0, 1] at u of the brick that block (b[0], b[1], b[2]) names,
+// seen along d (the view-dependent term is added to the premultiplied
+// colour).
+bool SampleBlock(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], const Eigen::Vector3f& d,
+                 Eigen::Vector4f* rgba) {
   const int nb = a.blocks_per_axis();
   const uint32_t e = a.index[size_t(b[0]) + size_t(nb) * (size_t(b[1]) + size_t(nb) * size_t(b[2]))];
   if (e == 0) return false;
@@ -18,10 +21,20 @@ bool SampleBlock(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], 
                oz = size_t(brick / (bx * by)) * kBakeBrick;
   const std::array<int, 3> dims = a.atlas_texels();
   const float l[3] = {u[0] - float(kBakeBlock * b[0]), u[1] - float(kBakeBlock * b[1]), u[2] - float(kBakeBlock * b[2])};
-  *rgba = TrilinearBrick(l, [&](int x, int y, int z, int c) {
-            return float(a.atlas[4 * ((ox + size_t(x)) + size_t(dims[0]) * ((oy + size_t(y)) + size_t(dims[1]) * (oz + size_t(z)))) + size_t(c)]);
-          }) /
+  auto texel = [&](int x, int y, int z) {
+    return 4 * ((ox + size_t(x)) + size_t(dims[0]) * ((oy + size_t(y)) + size_t(dims[1]) * (oz + size_t(z))));
+  };
+  *rgba = TrilinearBrick(l, [&](int x, int y, int z, int c) { return float(a.atlas[texel(x, y, z) + size_t(c)]); }) /
           255.0f;
+  if (a.view_dependent()) {
+    const size_t plane = a.atlas.size();
+    for (int k = 0; k < 3; ++k) {
+      const Eigen::Vector4f h = TrilinearBrick(l, [&](int x, int y, int z, int c) {
+        return c == 3 ? 0.0f : float(a.view[size_t(k) * plane + texel(x, y, z) + size_t(c)]) - 128.0f;
+      });
+      rgba->head<3>() += d[k] * h.head<3>() / 127.0f;
+    }
+  }
   return true;
 }
 
@@ -30,7 +43,8 @@ bool SampleBlock(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], 
 BakedRay RenderBakedRay(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d) {
   BakedRay out;
   const float T = MarchBaked(
-      a, o, d, [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) { return SampleBlock(a, u, b, rgba); },
+      a, o, d,
+      [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) { return SampleBlock(a, u, b, d, rgba); },
       [&](int, float w, float t, const Eigen::Vector4f& rgba) {
         ++out.samples;
         out.rgb += w * BakedColour(rgba);

@@ -68,6 +68,41 @@ TEST(BakedRendererTest, AUniformBlockComposesAsItsClosedForm) {
   EXPECT_NEAR(miss.rgb[0], 1.0f, 1e-6f);
 }
 
+// Format 2: a uniform block whose colour depends on the viewing direction,
+// c(d) = c0 + H d. Rays along +z and -z see c0 + H_z and c0 - H_z, rays
+// along x see c0 + H_x, each to the term's 1/127 quantisation.
+TEST(BakedRendererTest, AViewDependentBlockShowsItsColourForEachDirection) {
+  BakedAsset a = EmptyAsset(false, 1.0f, 32, 1);
+  const Eigen::Vector3f c0(0.5f, 0.4f, 0.3f);
+  const uint8_t code = 200;
+  FillBlock(&a, 2, 2, 2, 0, c0, code);
+  const Eigen::Vector3f hx(0.2f, 0.0f, -0.1f), hz(-0.3f, 0.25f, 0.1f);
+  a.view.assign(3 * a.atlas.size(), 0);
+  const size_t plane = a.atlas.size();
+  for (size_t texel = 0; texel < plane / 4; ++texel) {
+    const float s = float(a.atlas[4 * texel + 3]) / 255.0f;
+    for (int k = 0; k < 3; ++k) {
+      for (int c = 0; c < 3; ++c) {
+        const float h = k == 0 ? hx[c] : (k == 2 ? hz[c] : 0.0f);
+        a.view[size_t(k) * plane + 4 * texel + size_t(c)] = uint8_t(128 + std::lround(127.0f * s * h));
+      }
+    }
+  }
+  ASSERT_TRUE(a.Validate().ok());
+  auto seen = [&](const Eigen::Vector3f& o, const Eigen::Vector3f& d) {
+    const BakedRay r = RenderBakedRay(a, o, d);
+    return Eigen::Vector3f((r.rgb - (1.0f - r.opacity) * a.background) / r.opacity);
+  };
+  const Eigen::Vector3f up = seen(Eigen::Vector3f(0.26f, 0.24f, -3.0f), Eigen::Vector3f(0, 0, 1));
+  const Eigen::Vector3f down = seen(Eigen::Vector3f(0.26f, 0.24f, 3.0f), Eigen::Vector3f(0, 0, -1));
+  const Eigen::Vector3f side = seen(Eigen::Vector3f(-3.0f, 0.24f, 0.26f), Eigen::Vector3f(1, 0, 0));
+  for (int c = 0; c < 3; ++c) {
+    EXPECT_NEAR(up[c], c0[c] + hz[c], 0.012f) << c;
+    EXPECT_NEAR(down[c], c0[c] - hz[c], 0.012f) << c;
+    EXPECT_NEAR(side[c], c0[c] + hx[c], 0.012f) << c;
+  }
+}
+
 TEST(BakedRendererTest, SkippingEmptyBlocksLandsOnEveryOccupiedOne) {
   // Two thin blocks far apart on one ray, empty space between and around:
   // the skips must reach both, each with its full depth of samples.

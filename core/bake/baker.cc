@@ -15,6 +15,9 @@ namespace clnerf {
 namespace {
 
 constexpr int kLattice = kBakeBrick * kBakeBrick * kBakeBrick;  // Points per brick.
+// View-dependent codes within this many steps of zero are written as zero:
+// lego_100's asset 4.33 -> 3.88 MB for 0.11 dB (2: 3.71 MB, 0.20 dB).
+constexpr long kViewDeadZone = 1;
 
 double Since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -252,9 +255,12 @@ void BakeColour(const NgpModel& model, int t, const std::vector<int>& kept, cons
 
 // Stage 6: the colours into the atlas, premultiplied by the density code
 // (so that interpolation weighs each corner's colour by its density; the
-// renderer divides by the interpolated code), 0 where they cannot show.
-void WriteColours(const std::vector<float>& rgb, BakedAsset* a) {
+// renderer divides by the interpolated code), 0 where they cannot show;
+// the view-dependent term (if any) likewise into its three atlases.
+void WriteColours(const std::vector<float>& rgb, const std::vector<float>& view, BakedAsset* a) {
   const int n = a->num_bricks();
+  const size_t plane = a->atlas.size();
+  if (!view.empty()) a->view.assign(3 * plane, 0);
 #pragma omp parallel for schedule(dynamic)
   for (int k = 0; k < n; ++k) {
     uint8_t code[kLattice];
@@ -266,6 +272,16 @@ void WriteColours(const std::vector<float>& rgb, BakedAsset* a) {
       for (int c = 0; c < 3; ++c) {
         const float v = rgb[3 * (size_t(k) * kLattice + size_t(i)) + c];
         px[c] = used[i] ? uint8_t(std::lround(255.0f * s * std::clamp(v, 0.0f, 1.0f))) : 0;
+      }
+      if (view.empty()) continue;
+      const size_t at = 4 * BrickTexel(*a, k, i);
+      for (int kk = 0; kk < 3; ++kk) {
+        for (int c = 0; c < 3; ++c) {
+          const float h = used[i] ? s * std::clamp(view[9 * (size_t(k) * kLattice + size_t(i)) + 3 * kk + c], -1.0f, 1.0f) : 0;
+          long q = std::lround(127.0f * h);
+          if (std::abs(q) <= kViewDeadZone) q = 0;
+          a->view[size_t(kk) * plane + at + size_t(c)] = uint8_t(128 + q);
+        }
       }
     }
   }
@@ -333,12 +349,15 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
   BakeColour(model, t, kept, dir, &w, &rgb);
   rep.colour_seconds = Since(t2);
   const auto t3 = std::chrono::steady_clock::now();
-  if (absl::Status s = FitBakedColours(model, t, cameras, a, options.fit, &rgb, &rep.fit); !s.ok()) {
+  std::vector<float> view;  // The view-dependent term (stage 5 fits it).
+  if (options.view_dependent && options.fit.rays > 0) view.assign(3 * rgb.size(), 0.0f);
+  if (absl::Status s = FitBakedColours(model, t, cameras, a, options.fit, &rgb, view.empty() ? nullptr : &view,
+                                       &rep.fit); !s.ok()) {
     omp_set_num_threads(saved_threads);
     return s;
   }
   rep.fit_seconds = Since(t3);
-  WriteColours(rgb, &a);
+  WriteColours(rgb, view, &a);
   omp_set_num_threads(saved_threads);
   rep.resolution = a.resolution;
   rep.candidate_blocks = int(w.blocks.size());

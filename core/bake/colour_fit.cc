@@ -55,7 +55,15 @@ struct Rows {
   std::vector<uint32_t> col;
   std::vector<float> val;
   std::vector<float> target;  // 3 per row.
+  std::vector<float> dir;     // 3 per row: the ray's direction (model space).
 };
+
+// The colour basis of a ray direction: 1 (diffuse), then d (view-dependent
+// colour of degree 1, c(d) = c0 + H d).
+inline void Basis(const float* d, int n, float* b) {
+  b[0] = 1.0f;
+  for (int k = 1; k < n; ++k) b[k] = d[k - 1];
+}
 
 // The 8 corners the last sample blended: lattice ids, their trilinear
 // weights times their density codes (in [0, 1]).
@@ -145,6 +153,7 @@ Rows BuildRows(const BakedAsset& a, const std::vector<float>& origins, const std
       }
       mine.start.push_back(int64_t(mine.col.size()));
       for (int c = 0; c < 3; ++c) mine.target.push_back(model_rgb[3 * size_t(r) + c] - T * a.background[c]);
+      mine.dir.insert(mine.dir.end(), d.data(), d.data() + 3);
     }
   }
   Rows all;
@@ -154,80 +163,133 @@ Rows BuildRows(const BakedAsset& a, const std::vector<float>& origins, const std
     all.col.insert(all.col.end(), p.col.begin(), p.col.end());
     all.val.insert(all.val.end(), p.val.begin(), p.val.end());
     all.target.insert(all.target.end(), p.target.begin(), p.target.end());
+    all.dir.insert(all.dir.end(), p.dir.begin(), p.dir.end());
   }
   return all;
 }
 
-// y (rows x 3) = A x (unknowns x 3).
-void MultiplyA(const Rows& A, const std::vector<float>& x, std::vector<float>* y) {
+// y (rows x 3) = A x. x holds `basis` x 3 values per unknown point
+// (basis-major, channel fastest); a ray weighs them by Basis(its direction).
+void MultiplyA(const Rows& A, int basis, const std::vector<float>& x, std::vector<float>* y) {
   const int64_t m = int64_t(A.start.size()) - 1;
   y->assign(size_t(3 * m), 0.0f);
 #pragma omp parallel for schedule(static)
   for (int64_t r = 0; r < m; ++r) {
-    float acc[3] = {0, 0, 0};
+    float acc[3] = {0, 0, 0}, b[4];
+    Basis(A.dir.data() + 3 * size_t(r), basis, b);
     for (int64_t k = A.start[r]; k < A.start[r + 1]; ++k) {
-      const float v = A.val[k];
-      const float* xc = x.data() + 3 * size_t(A.col[k]);
-      for (int c = 0; c < 3; ++c) acc[c] += v * xc[c];
+      const float* xc = x.data() + size_t(3 * basis) * A.col[k];
+      for (int e = 0; e < basis; ++e) {
+        const float v = A.val[k] * b[e];
+        for (int c = 0; c < 3; ++c) acc[c] += v * xc[3 * e + c];
+      }
     }
     for (int c = 0; c < 3; ++c) (*y)[3 * size_t(r) + c] = acc[c];
   }
 }
 
-// z (unknowns x 3) = A^T y (rows x 3), per-thread partial sums added up.
-void MultiplyAt(const Rows& A, const std::vector<float>& y, size_t unknowns, std::vector<std::vector<float>>* scratch,
-                std::vector<float>* z) {
+// A's columns (compressed sparse columns): for each unknown point, the rows
+// that blend it and their weights, so that A^T y is a gather per point
+// (parallel, no per-thread copies of the result to add up).
+struct Columns {
+  std::vector<int64_t> start;
+  std::vector<uint32_t> row;
+  std::vector<float> val;
+};
+
+Columns Transpose(const Rows& A, size_t unknowns) {
+  Columns C;
+  C.start.assign(unknowns + 1, 0);
+  for (uint32_t c : A.col) ++C.start[c + 1];
+  for (size_t j = 0; j < unknowns; ++j) C.start[j + 1] += C.start[j];
+  C.row.resize(A.col.size());
+  C.val.resize(A.col.size());
+  std::vector<int64_t> fill(C.start.begin(), C.start.end() - 1);
   const int64_t m = int64_t(A.start.size()) - 1;
-  const int threads = int(scratch->size());
-#pragma omp parallel num_threads(threads)
-  {
-    std::vector<float>& mine = (*scratch)[size_t(omp_get_thread_num())];
-    mine.assign(3 * unknowns, 0.0f);
-#pragma omp for schedule(static)
-    for (int64_t r = 0; r < m; ++r) {
-      const float* yr = y.data() + 3 * size_t(r);
-      for (int64_t k = A.start[r]; k < A.start[r + 1]; ++k) {
-        float* zc = mine.data() + 3 * size_t(A.col[k]);
-        for (int c = 0; c < 3; ++c) zc[c] += A.val[k] * yr[c];
-      }
+  for (int64_t r = 0; r < m; ++r) {
+    for (int64_t k = A.start[r]; k < A.start[r + 1]; ++k) {
+      const int64_t at = fill[A.col[k]]++;
+      C.row[at] = uint32_t(r);
+      C.val[at] = A.val[k];
     }
   }
-  z->assign(3 * unknowns, 0.0f);
-#pragma omp parallel for schedule(static)
-  for (int64_t i = 0; i < int64_t(3 * unknowns); ++i) {
-    float s = 0.0f;
-    for (const std::vector<float>& p : *scratch) s += p[size_t(i)];
-    (*z)[size_t(i)] = s;
+  return C;
+}
+
+// z = A^T y (the adjoint of MultiplyA).
+void MultiplyAt(const Rows& A, const Columns& C, int basis, const std::vector<float>& y, std::vector<float>* z) {
+  const int64_t unknowns = int64_t(C.start.size()) - 1;
+  z->assign(size_t(3 * basis) * size_t(unknowns), 0.0f);
+#pragma omp parallel for schedule(dynamic, 1024)
+  for (int64_t j = 0; j < unknowns; ++j) {
+    float acc[12] = {0};
+    for (int64_t k = C.start[j]; k < C.start[j + 1]; ++k) {
+      const size_t r = C.row[k];
+      float b[4];
+      Basis(A.dir.data() + 3 * r, basis, b);
+      const float* yr = y.data() + 3 * r;
+      for (int e = 0; e < basis; ++e) {
+        const float v = C.val[k] * b[e];
+        for (int c = 0; c < 3; ++c) acc[3 * e + c] += v * yr[c];
+      }
+    }
+    std::copy(acc, acc + 3 * basis, z->data() + size_t(3 * basis) * size_t(j));
   }
 }
 
 // Per-channel dot products of two (n x 3) arrays.
 Eigen::Array3d Dot3(const std::vector<float>& u, const std::vector<float>& v) {
-  Eigen::Array3d s = Eigen::Array3d::Zero();
-  for (size_t i = 0; i < u.size(); ++i) s[i % 3] += double(u[i]) * double(v[i]);
-  return s;
+  const int64_t n = int64_t(u.size() / 3);
+  double s0 = 0, s1 = 0, s2 = 0;
+#pragma omp parallel for schedule(static) reduction(+ : s0, s1, s2)
+  for (int64_t i = 0; i < n; ++i) {
+    s0 += double(u[3 * i]) * v[3 * i];
+    s1 += double(u[3 * i + 1]) * v[3 * i + 1];
+    s2 += double(u[3 * i + 2]) * v[3 * i + 2];
+  }
+  return Eigen::Array3d(s0, s1, s2);
+}
+
+// y += a (per channel) * x over (n x 3) arrays.
+void Axpy3(const Eigen::Array3d& a, const std::vector<float>& x, std::vector<float>* y) {
+  const int64_t n = int64_t(x.size() / 3);
+  const float a0 = float(a[0]), a1 = float(a[1]), a2 = float(a[2]);
+  float* yd = y->data();
+#pragma omp parallel for schedule(static)
+  for (int64_t i = 0; i < n; ++i) {
+    yd[3 * i] += a0 * x[3 * i];
+    yd[3 * i + 1] += a1 * x[3 * i + 1];
+    yd[3 * i + 2] += a2 * x[3 * i + 2];
+  }
 }
 
 // CGLS for min |A delta - r0|^2 + lambda |delta|^2, each channel its own
 // system over the same A. Returns delta.
-std::vector<float> SolveDamped(const Rows& A, const std::vector<float>& r0, size_t unknowns, double lambda,
-                               int iterations) {
-  std::vector<std::vector<float>> scratch(static_cast<size_t>(omp_get_max_threads()));
-  std::vector<float> delta(3 * unknowns, 0.0f), r = r0, s, q;
-  MultiplyAt(A, r, unknowns, &scratch, &s);
+std::vector<float> SolveDamped(const Rows& A, int basis, const std::vector<float>& r0, size_t unknowns,
+                               double lambda, int iterations) {
+  const Columns C = Transpose(A, unknowns);
+  std::vector<float> delta(size_t(3 * basis) * unknowns, 0.0f), r = r0, s, q;
+  MultiplyAt(A, C, basis, r, &s);
   std::vector<float> p = s;
   Eigen::Array3d gamma = Dot3(s, s);
   for (int it = 0; it < iterations; ++it) {
-    MultiplyA(A, p, &q);
+    MultiplyA(A, basis, p, &q);
     const Eigen::Array3d denom = Dot3(q, q) + lambda * Dot3(p, p);
     Eigen::Array3d alpha;
     for (int c = 0; c < 3; ++c) alpha[c] = denom[c] > 0 ? gamma[c] / denom[c] : 0.0;
-    for (size_t i = 0; i < delta.size(); ++i) delta[i] += float(alpha[i % 3]) * p[i];
-    for (size_t i = 0; i < r.size(); ++i) r[i] -= float(alpha[i % 3]) * q[i];
-    MultiplyAt(A, r, unknowns, &scratch, &s);
-    for (size_t i = 0; i < s.size(); ++i) s[i] -= float(lambda) * delta[i];
+    Axpy3(alpha, p, &delta);
+    Axpy3(-alpha, q, &r);
+    MultiplyAt(A, C, basis, r, &s);
+    Axpy3(Eigen::Array3d::Constant(-lambda), delta, &s);
     const Eigen::Array3d next = Dot3(s, s);
-    for (size_t i = 0; i < p.size(); ++i) p[i] = s[i] + float(gamma[i % 3] > 0 ? next[i % 3] / gamma[i % 3] : 0.0) * p[i];
+    Eigen::Array3d beta;
+    for (int c = 0; c < 3; ++c) beta[c] = gamma[c] > 0 ? next[c] / gamma[c] : 0.0;
+    // p = s + beta p.
+    const int64_t n = int64_t(p.size() / 3);
+#pragma omp parallel for schedule(static)
+    for (int64_t i = 0; i < n; ++i) {
+      for (int c = 0; c < 3; ++c) p[3 * i + c] = s[3 * i + c] + float(beta[c]) * p[3 * i + c];
+    }
     gamma = next;
   }
   return delta;
@@ -244,15 +306,17 @@ double Rms(const std::vector<float>& r) {
 absl::Status ColourFitOptions::Validate() const {
   if (rays < 0) return absl::InvalidArgumentError("bake: the colour fit's rays must be >= 0");
   if (iterations < 0 || iterations > 1000) return absl::InvalidArgumentError("bake: fit iterations must be in [0, 1000]");
+  if (max_view_nonzeros < 0) return absl::InvalidArgumentError("bake: max_view_nonzeros must be >= 0");
   if (!(prior > 0.0f && std::isfinite(prior))) return absl::InvalidArgumentError("bake: fit prior must be positive");
   return absl::OkStatus();
 }
 
 absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::vector<Camera>& cameras,
                              const BakedAsset& asset, const ColourFitOptions& options, std::vector<float>* rgb,
-                             ColourFitReport* report) {
+                             std::vector<float>* view, ColourFitReport* report) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;
-  if (rgb->size() != size_t(3 * kLattice) * size_t(asset.num_bricks())) {
+  if (rgb->size() != size_t(3 * kLattice) * size_t(asset.num_bricks()) ||
+      (view != nullptr && view->size() != 3 * rgb->size())) {
     return absl::InvalidArgumentError("bake: colour array does not match the atlas");
   }
   ColourFitReport rep;
@@ -283,12 +347,19 @@ absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::ve
     c = uint32_t(compact[c]);
   }
   const size_t unknowns = point.size();
-  std::vector<float> x0(3 * unknowns);
+  if (view != nullptr && int64_t(A.col.size()) > options.max_view_nonzeros) {
+    view->clear();
+    view = nullptr;
+  }
+  const int basis = view != nullptr ? 4 : 1;
+  rep.view_dependent = view != nullptr;
+  const size_t stride = size_t(3 * basis);
+  std::vector<float> x0(stride * unknowns, 0.0f);  // The field's colours; no view dependence.
   for (size_t j = 0; j < unknowns; ++j) {
-    for (int c = 0; c < 3; ++c) x0[3 * j + c] = (*rgb)[3 * size_t(point[j]) + c];
+    for (int c = 0; c < 3; ++c) x0[stride * j + c] = (*rgb)[3 * size_t(point[j]) + c];
   }
   std::vector<float> r0;
-  MultiplyA(A, x0, &r0);
+  MultiplyA(A, basis, x0, &r0);
   for (size_t i = 0; i < r0.size(); ++i) r0[i] = A.target[i] - r0[i];
   std::vector<double> diag(unknowns, 0.0);
   for (size_t k = 0; k < A.col.size(); ++k) diag[A.col[k]] += double(A.val[k]) * A.val[k];
@@ -297,17 +368,21 @@ absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::ve
   mean_diag = unknowns > 0 ? mean_diag / double(unknowns) : 1.0;
   rep.rows_seconds = Since(t0);
   t0 = std::chrono::steady_clock::now();
-  const std::vector<float> delta = SolveDamped(A, r0, unknowns, options.prior * mean_diag, options.iterations);
-  for (size_t j = 0; j < unknowns; ++j) {
-    for (int c = 0; c < 3; ++c) {
-      (*rgb)[3 * size_t(point[j]) + c] = std::clamp(x0[3 * j + c] + delta[3 * j + c], 0.0f, 1.0f);
-    }
+  const std::vector<float> delta =
+      SolveDamped(A, basis, r0, unknowns, options.prior * mean_diag, options.iterations);
+  // Clamped to what the atlases store: colour in [0, 1], H in [-1, 1].
+  std::vector<float> fitted(stride * unknowns);
+  for (size_t i = 0; i < fitted.size(); ++i) {
+    const bool diffuse = i % stride < 3;
+    fitted[i] = std::clamp(x0[i] + delta[i], diffuse ? 0.0f : -1.0f, 1.0f);
   }
-  std::vector<float> fitted(3 * unknowns), r1;
   for (size_t j = 0; j < unknowns; ++j) {
-    for (int c = 0; c < 3; ++c) fitted[3 * j + c] = (*rgb)[3 * size_t(point[j]) + c];
+    for (int c = 0; c < 3; ++c) (*rgb)[3 * size_t(point[j]) + c] = fitted[stride * j + c];
+    if (view == nullptr) continue;
+    for (int e = 0; e < 9; ++e) (*view)[9 * size_t(point[j]) + e] = fitted[stride * j + 3 + e];
   }
-  MultiplyA(A, fitted, &r1);
+  std::vector<float> r1;
+  MultiplyA(A, basis, fitted, &r1);
   for (size_t i = 0; i < r1.size(); ++i) r1[i] = A.target[i] - r1[i];
   rep.solve_seconds = Since(t0);
   rep.rays = int64_t(A.start.size()) - 1;

@@ -41,6 +41,11 @@ struct ColourFitOptions {
   // training rays: on fox_8's test views prior 0.1 lost 0.46 dB against no
   // fit, 1 gained 0.36, 10 gained 0.57, 30 0.49, 100 0.35 (docs/baking.md).
   float prior = 10.0f;
+  // The view-dependent term (4x the unknowns) is fitted only while A has at
+  // most this many entries; above it the fit is diffuse (the term's solve
+  // cost grows faster than the entries: fox_8 19.4 M entries 4.5 s, beer_2's
+  // haze 44.5 M entries 19.4 s, for +0.02 dB there).
+  int64_t max_view_nonzeros = 30'000'000;
   absl::Status Validate() const;
 };
 
@@ -48,6 +53,7 @@ struct ColourFitReport {
   long long rays = 0;           // Rays in the fit.
   long long unknowns = 0;       // Lattice points some ray blends.
   long long nonzeros = 0;       // Entries of A.
+  bool view_dependent = false;  // The view-dependent term was fitted.
   double rms_before = 0, rms_after = 0;  // Residual on the rays (colour units).
   double target_seconds = 0, rows_seconds = 0, solve_seconds = 0;
 };
@@ -57,9 +63,14 @@ struct ColourFitReport {
 // of every brick (brick-major, 9^3 points x fastest, as the atlas's bricks):
 // the first guess on entry, the fitted colours (clamped to [0, 1]) on return.
 // `cameras` are world-space training cameras; `time_step` the model's.
+// `view` (optional): 9 floats per lattice point, the view-dependent term H
+// of c(d) = c0 + H d (d the ray's model-space direction; H column-major,
+// k = x, y, z then channel), fitted with c0 from zero, clamped to [-1, 1];
+// null = diffuse colours only. Cleared when A is too large for it
+// (max_view_nonzeros): the fit is then diffuse.
 absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::vector<Camera>& cameras,
                              const BakedAsset& asset, const ColourFitOptions& options, std::vector<float>* rgb,
-                             ColourFitReport* report = nullptr);
+                             std::vector<float>* view = nullptr, ColourFitReport* report = nullptr);
 
 }  // namespace clnerf
 

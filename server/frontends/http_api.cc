@@ -386,7 +386,7 @@ void HttpApi::Register(httplib::Server* server) {
 
   // A version's baked asset for the browser (issue 41): ?version=N (0 =
   // deployed) &time=T (default latest) &file=manifest.json|index.bin.gz|
-  // atlas.bin.gz. index/atlas are gzip streams sent as they are (no
+  // atlas.bin.gz|view.bin.gz. The arrays are gzip streams sent as they are (no
   // Content-Encoding: the page decodes them with DecompressionStream).
   server->Get("/api/asset", [this](const httplib::Request& req, httplib::Response& res) {
     absl::StatusOr<std::shared_ptr<ModelHost>> place = PlaceOf(*places_, req);

@@ -339,9 +339,9 @@ absl::StatusOr<std::shared_ptr<const Servable>> ModelHost::Snapshot(int64_t vers
 }
 
 absl::StatusOr<AssetFile> ModelHost::Asset(int64_t version, std::optional<int> time_step, const std::string& file) {
-  if (file != "manifest.json" && file != "index.bin.gz" && file != "atlas.bin.gz") {
+  if (!IsBakedAssetFileName(file)) {
     return absl::InvalidArgumentError(absl::StrCat("asset file '", EscapeForLog(file, 64),
-                                                   "' is not manifest.json, index.bin.gz or atlas.bin.gz"));
+                                                   "' is not manifest.json, index.bin.gz, atlas.bin.gz or view.bin.gz"));
   }
   if (time_step.has_value() && *time_step < 0) {
     return absl::InvalidArgumentError(absl::StrCat("time step ", *time_step, " is negative"));
@@ -383,7 +383,7 @@ absl::StatusOr<AssetFile> ModelHost::Asset(int64_t version, std::optional<int> t
                    rep.total_seconds);
     }
   }
-  absl::StatusOr<std::string> bytes = ReadFileToString(dir + "/" + file, "baked asset file");
+  absl::StatusOr<std::string> bytes = ReadFileToString(dir + "/" + file, "baked asset file");  // NOT_FOUND: a diffuse asset's view.bin.gz.
   if (!bytes.ok()) return bytes.status();
   out.bytes = *std::move(bytes);
   out.etag = absl::StrCat("\"v", v, "-t", t, "-", file, "-", out.bytes.size(), "-",

@@ -98,7 +98,7 @@ struct CameraList {
 struct AssetFile {
   int64_t version = 0;
   int time_step = 0;
-  std::string name;   // manifest.json, index.bin.gz or atlas.bin.gz.
+  std::string name;   // manifest.json, index.bin.gz, atlas.bin.gz or view.bin.gz.
   std::string bytes;  // index/atlas: gzip streams, sent as they are.
   std::string etag;   // Quoted, for ETag / If-None-Match.
   bool baked_now = false;  // This request baked the time step.

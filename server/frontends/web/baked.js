@@ -21,6 +21,10 @@ precision highp usampler3D;
 precision highp sampler3D;
 uniform usampler3D uIndex;
 uniform sampler3D uAtlas;
+uniform sampler3D uView0;  // View-dependent term (format 2): H's columns x, y, z.
+uniform sampler3D uView1;
+uniform sampler3D uView2;
+uniform int uViewDep;
 uniform mat3 uRot;        // Camera to model axes.
 uniform vec3 uOrigin;     // Camera centre, model space.
 uniform vec4 uIntr;       // fx, fy, cx, cy.
@@ -102,10 +106,16 @@ void main() {
       int brick = int(e - 1u);
       ivec3 bo = ivec3(brick % uBricks.x, (brick / uBricks.x) % uBricks.y, brick / (uBricks.x * uBricks.y)) * 9;
       vec3 l = clamp(u - vec3(b * kBlock), 0.0, 8.0);
-      vec4 s = texture(uAtlas, (vec3(bo) + l + 0.5) / uAtlasDims);
+      vec3 tc = (vec3(bo) + l + 0.5) / uAtlasDims;
+      vec4 s = texture(uAtlas, tc);
+      if (uViewDep == 1) {  // c(d) = c0 + H d, premultiplied like c0; codes 128 + 127 v.
+        s.rgb += d.x * (texture(uView0, tc).rgb * 255.0 - 128.0) / 127.0 +
+                 d.y * (texture(uView1, tc).rgb * 255.0 - 128.0) / 127.0 +
+                 d.z * (texture(uView2, tc).rgb * 255.0 - 128.0) / 127.0;
+      }
       float a0 = min(s.a * s.a, kMaxAlpha);
       float alpha = 1.0 - exp(log(1.0 - a0) * (dt / cell));
-      C += T * alpha * min(s.rgb / max(s.a, 1.0 / 255.0), vec3(1.0));  // Premultiplied by the code.
+      C += T * alpha * clamp(s.rgb / max(s.a, 1.0 / 255.0), vec3(0.0), vec3(1.0));  // Premultiplied by the code.
       T *= 1.0 - alpha;
       t += dt;
     }
@@ -152,11 +162,14 @@ class BakedRenderer {
     const res = await fetch(url("manifest.json"));
     if (!res.ok) throw new Error(`manifest.json: HTTP ${res.status}`);
     const m = await res.json();
-    if (m.format !== 1) throw new Error(`baked asset format ${m.format} is not supported`);
-    const [index, atlas] = await Promise.all([fetchGunzip(url(m.files.index)), fetchGunzip(url(m.files.atlas))]);
+    if (m.format !== 1 && m.format !== 2) throw new Error(`baked asset format ${m.format} is not supported`);
+    const viewDep = m.format === 2;
+    const [index, atlas, view] = await Promise.all([fetchGunzip(url(m.files.index)), fetchGunzip(url(m.files.atlas)),
+                                                    viewDep ? fetchGunzip(url(m.files.view)) : null]);
     const gl = this.gl, nb = m.resolution / m.block;
     const dims = m.bricks.map((b) => b * m.brick);
-    if (index.byteLength !== nb * nb * nb * 4 || atlas.byteLength !== dims[0] * dims[1] * dims[2] * 4) {
+    if (index.byteLength !== nb * nb * nb * 4 || atlas.byteLength !== dims[0] * dims[1] * dims[2] * 4 ||
+        (view && view.byteLength !== 3 * atlas.byteLength)) {
       throw new Error("baked asset arrays do not match the manifest");
     }
     const max3d = gl.getParameter(gl.MAX_3D_TEXTURE_SIZE);
@@ -177,7 +190,8 @@ class BakedRenderer {
       gl.enableVertexAttribArray(loc);
       gl.vertexAttribPointer(loc, 2, gl.FLOAT, false, 0, 0);
     }
-    for (const t of [this.indexTex, this.atlasTex]) if (t) gl.deleteTexture(t);
+    for (const t of [this.indexTex, this.atlasTex, ...(this.viewTex || [])]) if (t) gl.deleteTexture(t);
+    this.viewTex = [];
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
     this.indexTex = gl.createTexture();
     gl.activeTexture(gl.TEXTURE0);
@@ -196,9 +210,26 @@ class BakedRenderer {
                           [gl.TEXTURE_WRAP_R, gl.CLAMP_TO_EDGE]]) {
       gl.texParameteri(gl.TEXTURE_3D, k, v);
     }
+    const linear = () => {
+      for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_MAG_FILTER, gl.LINEAR],
+                            [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE],
+                            [gl.TEXTURE_WRAP_R, gl.CLAMP_TO_EDGE]]) {
+        gl.texParameteri(gl.TEXTURE_3D, k, v);
+      }
+    };
+    for (let k = 0; view && k < 3; ++k) {
+      const t = gl.createTexture();
+      gl.activeTexture(gl.TEXTURE2 + k);
+      gl.bindTexture(gl.TEXTURE_3D, t);
+      gl.texImage3D(gl.TEXTURE_3D, 0, gl.RGBA8, dims[0], dims[1], dims[2], 0, gl.RGBA, gl.UNSIGNED_BYTE,
+                    view.subarray(k * atlas.byteLength, (k + 1) * atlas.byteLength));
+      linear();
+      this.viewTex.push(t);
+    }
+    this.viewDep = !!view;
     this.manifest = m;
     this.dims = dims;
-    this.bytes = index.byteLength + atlas.byteLength;
+    this.bytes = index.byteLength + atlas.byteLength + (view ? view.byteLength : 0);
     return m;
   }
 
@@ -229,6 +260,10 @@ class BakedRenderer {
     const u = (n) => this.uniforms[n] !== undefined ? this.uniforms[n] : (this.uniforms[n] = gl.getUniformLocation(p, n));
     gl.uniform1i(u("uIndex"), 0);
     gl.uniform1i(u("uAtlas"), 1);
+    gl.uniform1i(u("uView0"), 2);
+    gl.uniform1i(u("uView1"), 3);
+    gl.uniform1i(u("uView2"), 4);
+    gl.uniform1i(u("uViewDep"), this.viewDep ? 1 : 0);
     gl.uniformMatrix3fv(u("uRot"), false, rot);
     gl.uniform3fv(u("uOrigin"), o);
     gl.uniform4f(u("uIntr"), cam.fx, cam.fy, cam.cx, cam.cy);
