@@ -103,36 +103,6 @@ bool SampleCodes(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], 
   return true;
 }
 
-// One ray's row: march the asset, collect each corner's share of the pixel
-// (sample weight * trilinear weight * code / blended code), merge repeats.
-// Returns the final transmittance.
-float RayRow(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
-             std::vector<std::pair<uint32_t, float>>* row) {
-  row->clear();
-  Corners c;
-  const float T = MarchBaked(
-      a, o, d, [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
-        return SampleCodes(a, u, b, &c, rgba);
-      },
-      [&](int, float weight, float, const Eigen::Vector4f& rgba) {
-        const float s = weight / std::max(rgba[3], 1.0f / 255.0f);
-        for (int k = 0; k < 8; ++k) {
-          if (c.wa[k] > 0.0f) row->emplace_back(c.id[k], s * c.wa[k]);
-        }
-      });
-  std::sort(row->begin(), row->end(), [](const auto& x, const auto& y) { return x.first < y.first; });
-  size_t out = 0;
-  for (size_t i = 0; i < row->size(); ++i) {
-    if (out > 0 && (*row)[out - 1].first == (*row)[i].first) {
-      (*row)[out - 1].second += (*row)[i].second;
-    } else {
-      (*row)[out++] = (*row)[i];
-    }
-  }
-  row->resize(out);
-  return T;
-}
-
 Rows BuildRows(const BakedAsset& a, const std::vector<float>& origins, const std::vector<float>& dirs,
                const std::vector<float>& model_rgb) {
   const int n = int(origins.size() / 3);
@@ -145,7 +115,7 @@ Rows BuildRows(const BakedAsset& a, const std::vector<float>& origins, const std
 #pragma omp for schedule(static)
     for (int r = 0; r < n; ++r) {
       const Eigen::Vector3f o(origins.data() + 3 * size_t(r)), d(dirs.data() + 3 * size_t(r));
-      const float T = RayRow(a, o, d, &row);
+      const float T = BakedRayWeights(a, o, d, &row);
       if (row.empty()) continue;  // Nothing to fit: the ray sees only background.
       for (const auto& [id, v] : row) {
         mine.col.push_back(id);
@@ -302,6 +272,36 @@ double Rms(const std::vector<float>& r) {
 }
 
 }  // namespace
+
+// One ray's row: march the asset, collect each corner's share of the pixel
+// (sample weight * trilinear weight * code / blended code), merge repeats.
+// Returns the final transmittance.
+float BakedRayWeights(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
+                      std::vector<std::pair<uint32_t, float>>* row) {
+  row->clear();
+  Corners c;
+  const float T = MarchBaked(
+      a, o, d, [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
+        return SampleCodes(a, u, b, &c, rgba);
+      },
+      [&](int, float weight, float, const Eigen::Vector4f& rgba) {
+        const float s = weight / std::max(rgba[3], 1.0f / 255.0f);
+        for (int k = 0; k < 8; ++k) {
+          if (c.wa[k] > 0.0f) row->emplace_back(c.id[k], s * c.wa[k]);
+        }
+      });
+  std::sort(row->begin(), row->end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+  size_t out = 0;
+  for (size_t i = 0; i < row->size(); ++i) {
+    if (out > 0 && (*row)[out - 1].first == (*row)[i].first) {
+      (*row)[out - 1].second += (*row)[i].second;
+    } else {
+      (*row)[out++] = (*row)[i];
+    }
+  }
+  row->resize(out);
+  return T;
+}
 
 absl::Status ColourFitOptions::Validate() const {
   if (rays < 0) return absl::InvalidArgumentError("bake: the colour fit's rays must be >= 0");

@@ -21,6 +21,8 @@
 #ifndef CLNERF_CORE_BAKE_COLOUR_FIT_H_
 #define CLNERF_CORE_BAKE_COLOUR_FIT_H_
 
+#include <cstdint>
+#include <utility>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -57,6 +59,14 @@ struct ColourFitReport {
   double rms_before = 0, rms_after = 0;  // Residual on the rays (colour units).
   double target_seconds = 0, rows_seconds = 0, solve_seconds = 0;
 };
+
+// One ray's pixel as a linear function of the lattice colours (a row of the
+// fit's A): pixel = sum_j w_j (c0_j + H_j d) + T background over lattice
+// points j = brick * 9^3 + local index, with c0_j the colour before
+// premultiplication. Fills (j, w_j) sorted by j and returns T. Marches as
+// the reference renderer does (only the atlas's density codes are read).
+float BakedRayWeights(const BakedAsset& asset, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
+                      std::vector<std::pair<uint32_t, float>>* weights);
 
 // `asset` holds the grid: index, and the density codes in the atlas's alpha
 // (its colour channels are not read). `rgb` holds 3 floats per lattice point
