@@ -53,7 +53,9 @@ def main():
                     "--size", "32", "--train-views", "20", "--test-views", "2"], check=True)
     # Small batches, as the server tests train (server_test_util.h: TinyServerOptions).
     with open(f"{work}/config.json", "w") as f:
-        f.write('{"batch_rays": 512, "target_samples": 8192}')
+        # Each publish bakes for the browser (issue 41); this test looks at
+        # server frames, so a coarse bake keeps the updates quick.
+        f.write('{"batch_rays": 512, "target_samples": 8192, "bake": {"resolution": 64, "fit_rays": 4096}}')
     server = Server(args.server, f"{work}/store", f"{args.out}/server.log",
                     ["--iters", str(args.iters), "--config", f"{work}/config.json",
                      "--log-level", "debug"])  # Every request and its status (and why, when refused).
