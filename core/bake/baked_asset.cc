@@ -222,7 +222,8 @@ absl::StatusOr<uint64_t> BakedAssetBytes(const std::string& dir) {
   uint64_t n = 0;
   for (const char* name : {kManifest, kIndexFile, kAtlasFile, kViewFile}) {
     std::error_code ec;
-    if (name == kViewFile && !std::filesystem::exists(std::filesystem::path(dir) / name, ec)) continue;
+    const bool optional = std::string_view(name) == kViewFile;  // Format 2 only.
+    if (optional && !std::filesystem::exists(std::filesystem::path(dir) / name, ec)) continue;
     const uintmax_t size = std::filesystem::file_size(std::filesystem::path(dir) / name, ec);
     if (ec) return absl::NotFoundError(absl::StrCat("baked asset: ", dir, "/", name, ": ", ec.message()));
     n += size;

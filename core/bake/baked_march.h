@@ -7,6 +7,7 @@
 #define CLNERF_CORE_BAKE_BAKED_MARCH_H_
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 #include "core/bake/baked_asset.h"
@@ -96,22 +97,55 @@ inline Eigen::Vector3f BakedColour(const Eigen::Vector4f& rgba) {
   return (rgba.head<3>() / std::max(rgba[3], 1.0f / 255.0f)).cwiseMax(0.0f).cwiseMin(1.0f);
 }
 
+// The brick block b names (its index entry - 1), or -1 for an empty block.
+inline int64_t BlockBrick(const BakedAsset& a, const int b[3]) {
+  const int nb = a.blocks_per_axis();
+  return int64_t(a.index[size_t(b[0]) + size_t(nb) * (size_t(b[1]) + size_t(nb) * size_t(b[2]))]) - 1;
+}
+
+// The atlas texel (RGBA8: bytes 4 x this) of lattice point (x, y, z) of
+// `brick`.
+inline size_t BrickTexel(const BakedAsset& a, uint32_t brick, int x, int y, int z) {
+  const uint32_t bx = uint32_t(a.bricks[0]), by = uint32_t(a.bricks[1]);
+  const std::array<int, 3> dims = a.atlas_texels();
+  const size_t ox = size_t(brick % bx) * kBakeBrick, oy = size_t((brick / bx) % by) * kBakeBrick,
+               oz = size_t(brick / (bx * by)) * kBakeBrick;
+  return (ox + size_t(x)) + size_t(dims[0]) * ((oy + size_t(y)) + size_t(dims[1]) * (oz + size_t(z)));
+}
+
+// The lattice cell holding local coordinates l in [0, 8]^3 (clamped) and the
+// trilinear weights of its 8 corners: corner bits 0, 1, 2 step x, y, z.
+struct BrickCell {
+  int i0[3];
+  float f[3];
+  int x(int corner) const { return i0[0] + (corner & 1); }
+  int y(int corner) const { return i0[1] + ((corner >> 1) & 1); }
+  int z(int corner) const { return i0[2] + (corner >> 2); }
+  float weight(int corner) const {
+    const int dx = corner & 1, dy = (corner >> 1) & 1, dz = corner >> 2;
+    return (dx ? f[0] : 1.0f - f[0]) * (dy ? f[1] : 1.0f - f[1]) * (dz ? f[2] : 1.0f - f[2]);
+  }
+};
+
+inline BrickCell LocateInBrick(const float l_in[3]) {
+  BrickCell cell;
+  for (int k = 0; k < 3; ++k) {
+    const float l = std::clamp(l_in[k], 0.0f, float(kBakeBlock));
+    cell.i0[k] = std::min(int(l), kBakeBlock - 1);
+    cell.f[k] = l - float(cell.i0[k]);
+  }
+  return cell;
+}
+
 // Trilinear RGBA (0..255 per channel) of a 9^3 RGBA8 lattice `texel(x, y,
 // z, c)` at local coordinates l in [0, 8]^3.
 template <class Texel>
 Eigen::Vector4f TrilinearBrick(const float l_in[3], Texel&& texel) {
-  int i0[3];
-  float f[3];
-  for (int k = 0; k < 3; ++k) {
-    const float l = std::clamp(l_in[k], 0.0f, float(kBakeBlock));
-    i0[k] = std::min(int(l), kBakeBlock - 1);
-    f[k] = l - float(i0[k]);
-  }
+  const BrickCell cell = LocateInBrick(l_in);
   Eigen::Vector4f acc = Eigen::Vector4f::Zero();
   for (int corner = 0; corner < 8; ++corner) {
-    const int dx = corner & 1, dy = (corner >> 1) & 1, dz = corner >> 2;
-    const float w = (dx ? f[0] : 1.0f - f[0]) * (dy ? f[1] : 1.0f - f[1]) * (dz ? f[2] : 1.0f - f[2]);
-    for (int c = 0; c < 4; ++c) acc[c] += w * texel(i0[0] + dx, i0[1] + dy, i0[2] + dz, c);
+    const float w = cell.weight(corner);
+    for (int c = 0; c < 4; ++c) acc[c] += w * texel(cell.x(corner), cell.y(corner), cell.z(corner), c);
   }
   return acc;
 }

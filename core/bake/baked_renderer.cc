@@ -13,17 +13,10 @@ namespace {
 // colour).
 bool SampleBlock(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], const Eigen::Vector3f& d,
                  Eigen::Vector4f* rgba) {
-  const int nb = a.blocks_per_axis();
-  const uint32_t e = a.index[size_t(b[0]) + size_t(nb) * (size_t(b[1]) + size_t(nb) * size_t(b[2]))];
-  if (e == 0) return false;
-  const uint32_t brick = e - 1, bx = uint32_t(a.bricks[0]), by = uint32_t(a.bricks[1]);
-  const size_t ox = size_t(brick % bx) * kBakeBrick, oy = size_t((brick / bx) % by) * kBakeBrick,
-               oz = size_t(brick / (bx * by)) * kBakeBrick;
-  const std::array<int, 3> dims = a.atlas_texels();
+  const int64_t brick = BlockBrick(a, b);
+  if (brick < 0) return false;
   const float l[3] = {u[0] - float(kBakeBlock * b[0]), u[1] - float(kBakeBlock * b[1]), u[2] - float(kBakeBlock * b[2])};
-  auto texel = [&](int x, int y, int z) {
-    return 4 * ((ox + size_t(x)) + size_t(dims[0]) * ((oy + size_t(y)) + size_t(dims[1]) * (oz + size_t(z))));
-  };
+  auto texel = [&](int x, int y, int z) { return 4 * BrickTexel(a, uint32_t(brick), x, y, z); };
   *rgba = TrilinearBrick(l, [&](int x, int y, int z, int c) { return float(a.atlas[texel(x, y, z) + size_t(c)]); }) /
           255.0f;
   if (a.view_dependent()) {

@@ -44,12 +44,7 @@ Eigen::Vector3f LatticePoint(const BakedAsset& a, int block, int i) {
 
 // Texel index (RGBA8 units) in the atlas of lattice point i of brick k.
 size_t BrickTexel(const BakedAsset& a, int k, int i) {
-  const std::array<int, 3> dims = a.atlas_texels();
-  const int side = a.bricks[0];
-  const size_t x = size_t(k % side) * kBakeBrick + size_t(i % kBakeBrick),
-               y = size_t((k / side) % a.bricks[1]) * kBakeBrick + size_t((i / kBakeBrick) % kBakeBrick),
-               z = size_t(k / (side * a.bricks[1])) * kBakeBrick + size_t(i / (kBakeBrick * kBakeBrick));
-  return x + size_t(dims[0]) * (y + size_t(dims[1]) * z);
+  return BrickTexel(a, uint32_t(k), i % kBakeBrick, (i / kBakeBrick) % kBakeBrick, i / (kBakeBrick * kBakeBrick));
 }
 
 // Stage 1: blocks overlapping occupied occupancy cells, probed on a stride

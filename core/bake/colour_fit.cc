@@ -74,28 +74,16 @@ struct Corners {
 
 // Samples the density codes of `a` at u in block b, recording the corners.
 bool SampleCodes(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], Corners* c, Eigen::Vector4f* rgba) {
-  const int nb = a.blocks_per_axis();
-  const uint32_t e = a.index[size_t(b[0]) + size_t(nb) * (size_t(b[1]) + size_t(nb) * size_t(b[2]))];
-  if (e == 0) return false;
-  const uint32_t brick = e - 1, bx = uint32_t(a.bricks[0]), by = uint32_t(a.bricks[1]);
-  const size_t ox = size_t(brick % bx) * kBakeBrick, oy = size_t((brick / bx) % by) * kBakeBrick,
-               oz = size_t(brick / (bx * by)) * kBakeBrick;
-  const std::array<int, 3> dims = a.atlas_texels();
-  int i0[3];
-  float f[3];
-  for (int k = 0; k < 3; ++k) {
-    const float l = std::clamp(u[k] - float(kBakeBlock * b[k]), 0.0f, float(kBakeBlock));
-    i0[k] = std::min(int(l), kBakeBlock - 1);
-    f[k] = l - float(i0[k]);
-  }
+  const int64_t brick = BlockBrick(a, b);
+  if (brick < 0) return false;
+  const float l[3] = {u[0] - float(kBakeBlock * b[0]), u[1] - float(kBakeBlock * b[1]), u[2] - float(kBakeBlock * b[2])};
+  const BrickCell cell = LocateInBrick(l);
   float A = 0.0f;
   for (int corner = 0; corner < 8; ++corner) {
-    const int dx = corner & 1, dy = (corner >> 1) & 1, dz = corner >> 2;
-    const int x = i0[0] + dx, y = i0[1] + dy, z = i0[2] + dz;
-    const float w = (dx ? f[0] : 1.0f - f[0]) * (dy ? f[1] : 1.0f - f[1]) * (dz ? f[2] : 1.0f - f[2]);
-    const size_t texel = (ox + size_t(x)) + size_t(dims[0]) * ((oy + size_t(y)) + size_t(dims[1]) * (oz + size_t(z)));
-    const float code = float(a.atlas[4 * texel + 3]) / 255.0f;
-    c->id[corner] = brick * uint32_t(kLattice) + uint32_t(x + kBakeBrick * (y + kBakeBrick * z));
+    const int x = cell.x(corner), y = cell.y(corner), z = cell.z(corner);
+    const float w = cell.weight(corner);
+    const float code = float(a.atlas[4 * BrickTexel(a, uint32_t(brick), x, y, z) + 3]) / 255.0f;
+    c->id[corner] = uint32_t(brick) * uint32_t(kLattice) + uint32_t(x + kBakeBrick * (y + kBakeBrick * z));
     c->wa[corner] = w * code;
     A += w * code;
   }
