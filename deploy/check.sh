@@ -315,11 +315,12 @@ if runtime_pkgs:
         report("SKIP", "docker: runtime package names not verified (no dpkg-query or apt-cache)")
     else:
         unknown = []
+        installed = set()
+        if dpkg_q:  # One call for every package (unknown names only add an error line).
+            rc, out = run([dpkg_q, "-W", "-f=${Package} ${Status}\\n"] + list(runtime_pkgs))
+            installed = {l.split()[0] for l in out.splitlines() if l.endswith(" installed") and " " in l}
         for p in runtime_pkgs:
-            known = False
-            if dpkg_q:
-                rc, out = run([dpkg_q, "-W", "-f=${Status}", p])
-                known = rc == 0 and "installed" in out
+            known = p in installed
             if not known and aptc:
                 rc, out = run([aptc, "show", "--no-all-versions", p])
                 known = rc == 0 and re.search(r"(?m)^Package: ", out) is not None
@@ -337,18 +338,34 @@ def needed_libs(binary):
     rc, out = run([tool, "-d", binary])
     return re.findall(r"\(NEEDED\)\s+Shared library: \[([^\]]+)\]", out) if rc == 0 else None
 
-def lib_package(lib, ldcache):
+def lib_candidates(lib, ldcache):
     cands = []
     if lib in ldcache:
         cands += [ldcache[lib], os.path.realpath(ldcache[lib])]
     for d in ("/lib/x86_64-linux-gnu", "/usr/lib/x86_64-linux-gnu", "/lib", "/usr/lib", "/lib64"):
         cands.append(os.path.join(d, lib))
+    out = []
     for c in cands:
-        for path in {c, os.path.realpath(c)}:
-            rc, out = run(["dpkg", "-S", path])
-            if rc == 0 and out.strip():
-                first = out.strip().splitlines()[0].rsplit(": ", 1)[0]
-                return {x.strip().split(":")[0] for x in first.split(",")}
+        for path in (c, os.path.realpath(c)):
+            if path not in out:
+                out.append(path)
+    return out
+
+def path_owners(paths):
+    """dpkg -S over every path at once (one call: each reads dpkg's database)."""
+    rc, out = run(["dpkg", "-S"] + sorted(set(paths)), timeout=60)
+    owners = {}
+    for line in out.splitlines():
+        if ": /" not in line or line.startswith("dpkg-query:"):
+            continue
+        pkgs, path = line.rsplit(": ", 1)
+        owners.setdefault(path.strip(), {x.strip().split(":")[0] for x in pkgs.split(",")})
+    return owners
+
+def lib_package(lib, ldcache, owners):
+    for path in lib_candidates(lib, ldcache):
+        if path in owners:
+            return owners[path]
     return None
 
 bins = [b for b in (os.environ["CLNERF_SERVER"], os.environ["CLNERF_CLIENT"]) if os.access(b, os.X_OK)]
@@ -376,8 +393,9 @@ else:
             report("FAIL", f"docker: cannot read NEEDED entries of {b}")
             continue
         missing, unowned = [], []
+        owners = path_owners([c for lib in libs for c in lib_candidates(lib, ldcache)])
         for lib in libs:
-            pk = lib_package(lib, ldcache)
+            pk = lib_package(lib, ldcache, owners)
             if pk is None:
                 unowned.append(lib)
             elif not pk & (set(runtime_pkgs) | BASE_IMAGE_PKGS):

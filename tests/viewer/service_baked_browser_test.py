@@ -62,9 +62,9 @@ def main():
     run_client(args.client, ["scans", "--out", f"{work}/scans", "--scans", "2", "--size", "32", "--train-views",
                              "20", "--test-views", "2"], subprocess_env, "scans")
     with open(f"{work}/config.json", "w") as f:
-        f.write('{"batch_rays": 512, "target_samples": 8192, "bake": {"resolution": 128}}')
+        f.write('{"batch_rays": 512, "target_samples": 8192, "bake": {"resolution": 128, "fit_rays": 16384}}')
     server = Server(args.server, f"{work}/store", f"{args.out}/server.log",
-                    ["--iters", "120", "--config", f"{work}/config.json", "--log-level", "debug"])
+                    ["--iters", "120", "--first-scan-iters", "300", "--config", f"{work}/config.json", "--log-level", "debug"])
     env = dict(os.environ, CLNERF_SERVER=f"127.0.0.1:{server.grpc}")
     driver = None
     try:
