@@ -9,7 +9,7 @@ PKGS=(
   libgrpc-dev libgrpc++-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libabsl-dev libeigen3-dev libopenimageio-dev openimageio-tools libspdlog-dev libfmt-dev
   libgtest-dev libgmock-dev nlohmann-json3-dev libcli11-dev zlib1g-dev
-  python3 python3-matplotlib linux-perf valgrind
+  python3
   clang libclang-rt-dev libomp-dev
   libcpp-httplib-dev prometheus-cpp-dev
   etcd-server
@@ -17,6 +17,12 @@ PKGS=(
   # for unposed uploads, ffmpeg for video frames.
   libopencv-dev colmap ffmpeg
 )
+# Charts of the benchmarks (bench/*.py draw them when matplotlib is there) and
+# the profilers (perf, callgrind): CLNERF_BENCH_TOOLS=1 adds them. CI and a
+# first run need neither.
+if [ "${CLNERF_BENCH_TOOLS:-0}" = 1 ]; then
+  PKGS+=(python3-matplotlib linux-perf valgrind)
+fi
 # The web viewer's end-to-end test drives a real headless Chromium
 # (CLNERF_NO_BROWSER=1 skips these, e.g. for an image that builds no tests).
 if [ "${CLNERF_NO_BROWSER:-0}" != 1 ]; then
