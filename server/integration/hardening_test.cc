@@ -270,7 +270,7 @@ TEST_F(ServerFixture, AJobCrashedAtAnyPublishStepIsKnownAfterRestart) {
     const std::string store = TempDir("srv_crash");
     {
       std::ofstream cfg(store + ".json");
-      cfg << R"({"batch_rays": 512, "target_samples": 8192,)"
+      cfg << R"({"batch_rays": 512, "target_samples": 8192, "bake": {"resolution": 64, "visibility_rays": 4096, "fit_rays": 2048},)"
           << R"( "gate": {"min_new_psnr": 8, "min_replay_consistency_psnr": 10, "max_replay_drop_db": 10}})";
     }
     ServerProcess proc(absl::StrCat("CLNERF_CRASH_AT=", point),

@@ -58,7 +58,7 @@ class ReplicasTest : public ::testing::Test {
     ASSERT_EQ(etcd_.Start(root_ + "/etcd"), "");
     store_ = root_ + "/store";
     std::ofstream(root_ + "/config.json")
-        << R"({"batch_rays": 512, "target_samples": 8192,)"
+        << R"({"batch_rays": 512, "target_samples": 8192, "bake": {"resolution": 64, "visibility_rays": 4096, "fit_rays": 2048},)"
         << R"( "gate": {"min_new_psnr": 8, "min_replay_consistency_psnr": 10, "max_replay_drop_db": 10}})";
     scene_ = testing_util::TinyScans(3);
   }
