@@ -83,6 +83,10 @@ int main(int argc, char** argv) {
                  "(e.g. 512MB, 2GB; 0 = half the machine's memory)")
       ->transform(CLI::AsSizeValue(false))
       ->capture_default_str();
+  app.add_option("--asset-memory-budget", o.asset_memory_budget,
+                 "Bytes of baked-asset files kept in memory for viewers across places (e.g. 64MB; 0 = none)")
+      ->transform(CLI::AsSizeValue(false))
+      ->capture_default_str();
   app.add_option("--etcd", o.etcd,
                  "etcd's HOST:PORT: run as one of several replicas sharing --store (default: a single server)");
   app.add_option("--etcd-prefix", o.etcd_prefix, "Key prefix of this deployment in etcd")->capture_default_str();

@@ -74,6 +74,7 @@ absl::Status ServerOptions::Validate() const {
   }
   if (!etcd_prefix.empty() && etcd_prefix[0] != '/') return absl::InvalidArgumentError("etcd_prefix must start with '/'");
   if (model_memory_budget < 0) return absl::InvalidArgumentError("model_memory_budget must be >= 0 (0 = auto)");
+  if (asset_memory_budget < 0) return absl::InvalidArgumentError("asset_memory_budget must be >= 0 (0 = no cache)");
   if (keep_versions < 0) return absl::InvalidArgumentError("keep_versions must be >= 0");
   if (!(shutdown_grace_seconds >= 0)) return absl::InvalidArgumentError("shutdown_grace_seconds must be >= 0");
   if (update.method == ContinualMethod::kEWC) {
@@ -221,6 +222,7 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "lease_ttl_seconds") s = Get(*it, "lease_ttl_seconds", &o->lease_ttl_seconds);
     else if (k == "replica_poll_seconds") s = Get(*it, "replica_poll_seconds", &o->replica_poll_seconds);
     else if (k == "model_memory_budget") s = Get(*it, "model_memory_budget", &o->model_memory_budget);
+    else if (k == "asset_memory_budget") s = Get(*it, "asset_memory_budget", &o->asset_memory_budget);
     else if (k == "keep_versions") s = Get(*it, "keep_versions", &o->keep_versions);
     else if (k == "shutdown_grace_seconds") s = Get(*it, "shutdown_grace_seconds", &o->shutdown_grace_seconds);
     else if (k == "iterations_per_update") s = Get(*it, k.c_str(), &o->update.train.iterations);

@@ -89,6 +89,10 @@ struct ServerOptions {
   // evicted under it, so the resident bytes can exceed the budget by those.
   // 0 = auto: half the machine's physical memory.
   int64_t model_memory_budget = 0;
+  // Bytes of baked-asset files (GET /api/asset) kept in memory across places,
+  // least recently used evicted first: many viewers of one version cost one
+  // read of each file. 0 = none (every request reads the file).
+  int64_t asset_memory_budget = int64_t(64) << 20;
   int keep_versions = 0;                // Versions kept on disk (oldest pruned, never the deployed one); 0 = all.
   double shutdown_grace_seconds = 20;   // In-flight RPCs get this long on shutdown.
 

@@ -58,6 +58,16 @@ Metrics::Metrics() : registry_(std::make_shared<prometheus::Registry>()) {
                              .Help("Seconds spent baking time steps on request")
                              .Register(r)
                              .Add({});
+  asset_file_reads_ = &BuildCounter()
+                           .Name("clnerf_asset_file_reads_total")
+                           .Help("Baked-asset files read from disk (asset cache misses)")
+                           .Register(r)
+                           .Add({});
+  asset_file_read_bytes_ = &BuildCounter()
+                                .Name("clnerf_asset_file_read_bytes_total")
+                                .Help("Bytes of baked-asset files read from disk")
+                                .Register(r)
+                                .Add({});
   gate_refusals_ = &BuildCounter()
                         .Name("clnerf_gate_refusals_total")
                         .Help("Updates the deployment gate refused")
@@ -102,6 +112,11 @@ void Metrics::AssetServed(absl::StatusCode code, int64_t bytes) {
 void Metrics::AssetBaked(double seconds) {
   asset_bakes_->Increment();
   asset_bake_seconds_->Increment(seconds);
+}
+
+void Metrics::AssetFileRead(int64_t bytes) {
+  asset_file_reads_->Increment();
+  asset_file_read_bytes_->Increment(double(bytes));
 }
 
 void Metrics::UpdateDone(const std::string& outcome, double seconds) {

@@ -44,6 +44,9 @@ class Metrics {
   // time steps baked on request.
   void AssetServed(absl::StatusCode code, int64_t bytes);
   void AssetBaked(double seconds);
+  // An asset file read from disk into the asset cache (a cache miss): with
+  // many viewers of one version this stays at one per file.
+  void AssetFileRead(int64_t bytes);
   // outcome: "published", "refused" (by the gate), "failed", "cancelled".
   void UpdateDone(const std::string& outcome, double seconds);
   void ModelLoaded(double seconds);
@@ -69,6 +72,8 @@ class Metrics {
   prometheus::Counter* asset_bytes_;
   prometheus::Counter* asset_bakes_;
   prometheus::Counter* asset_bake_seconds_;
+  prometheus::Counter* asset_file_reads_;
+  prometheus::Counter* asset_file_read_bytes_;
   prometheus::Counter* gate_refusals_;
   prometheus::Counter* loads_;
   prometheus::Counter* load_failures_;

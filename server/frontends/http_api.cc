@@ -414,9 +414,14 @@ void HttpApi::Register(httplib::Server* server) {
       res.status = 304;
       return;
     }
-    host->metrics().AssetServed(absl::StatusCode::kOk, int64_t(a->bytes.size()));
+    const std::shared_ptr<const AssetBlob> blob = a->blob;
+    host->metrics().AssetServed(absl::StatusCode::kOk, int64_t(blob->bytes.size()));
     const char* type = file == "manifest.json" ? "application/json" : "application/octet-stream";
-    res.set_content(std::move(a->bytes), type);
+    // Sent from the shared, cached bytes (no copy per viewer).
+    res.set_content_provider(blob->bytes.size(), type,
+                             [blob](size_t offset, size_t length, httplib::DataSink& sink) {
+                               return sink.write(blob->bytes.data() + offset, std::min<size_t>(length, 1 << 16));
+                             });
   });
 
   server->Get("/api/jobs", [this](const httplib::Request& req, httplib::Response& res) {

@@ -514,6 +514,17 @@ TEST_F(HttpApiTest, BakedAssetsAreServedWithEtagsAndOtherTimeStepsBakedOnRequest
   ASSERT_TRUE(again);
   EXPECT_EQ(again->status, 304);
   EXPECT_TRUE(again->body.empty());
+  // More viewers of the same version cost no more reads: each file was read
+  // from disk once (asset_files.h) and is sent from memory.
+  const double reads = metric("clnerf_asset_file_reads_total");
+  EXPECT_EQ(reads, double(names.size()));
+  for (int i = 0; i < 5; ++i) {
+    auto r = http_->Get("/api/asset?version=2&time=1&file=atlas.bin.gz");
+    ASSERT_TRUE(r);
+    EXPECT_EQ(r->status, 200);
+    EXPECT_EQ(r->body, first->body);
+  }
+  EXPECT_EQ(metric("clnerf_asset_file_reads_total"), reads);
 
   // Time step 0 of version 2 is baked on its first request, once.
   auto past = http_->Get("/api/asset?version=2&time=0");

@@ -45,6 +45,7 @@ ModelHost::ModelHost(const ServerOptions& options, SharedServices shared)
       trainings_(std::move(shared.trainings)),
       render_slots_(std::move(shared.render_slots)),
       coordinator_(shared.coordinator),
+      assets_(shared.assets ? shared.assets : std::make_shared<AssetFiles>(options.asset_memory_budget, metrics_)),
       cores_(std::max(1, int(std::thread::hardware_concurrency()))) {}
 
 absl::StatusOr<std::unique_ptr<ModelHost>> ModelHost::Open(const ServerOptions& options, SharedServices shared,
@@ -383,11 +384,11 @@ absl::StatusOr<AssetFile> ModelHost::Asset(int64_t version, std::optional<int> t
                    rep.total_seconds);
     }
   }
-  absl::StatusOr<std::string> bytes = ReadFileToString(dir + "/" + file, "baked asset file");  // NOT_FOUND: a diffuse asset's view.bin.gz.
-  if (!bytes.ok()) return bytes.status();
-  out.bytes = *std::move(bytes);
-  out.etag = absl::StrCat("\"v", v, "-t", t, "-", file, "-", out.bytes.size(), "-",
-                          absl::Hex(std::hash<std::string>()(out.bytes)), "\"");
+  // NOT_FOUND: a diffuse asset's view.bin.gz.
+  absl::StatusOr<std::shared_ptr<const AssetBlob>> blob = assets_->Get(dir + "/" + file);
+  if (!blob.ok()) return blob.status();
+  out.etag = absl::StrCat("\"v", v, "-t", t, "-", file, "-", (*blob)->digest, "\"");
+  out.blob = *std::move(blob);
   return out;
 }
 

@@ -54,6 +54,7 @@
 #include "core/pose/photo_localization.h"
 #include "server/cluster/coordinator.h"
 #include "server/jobs/job_tracker.h"
+#include "server/places/asset_files.h"
 #include "server/common/metrics.h"
 #include "server/jobs/training_scheduler.h"
 #include "server/store/model_registry.h"
@@ -99,7 +100,7 @@ struct AssetFile {
   int64_t version = 0;
   int time_step = 0;
   std::string name;   // manifest.json, index.bin.gz, atlas.bin.gz or view.bin.gz.
-  std::string bytes;  // index/atlas: gzip streams, sent as they are.
+  std::shared_ptr<const AssetBlob> blob;  // The bytes (index/atlas/view: gzip streams, sent as they are).
   std::string etag;   // Quoted, for ETag / If-None-Match.
   bool baked_now = false;  // This request baked the time step.
 };
@@ -134,6 +135,9 @@ struct SharedServices {
   bool defer_model_load = false;
   // Replicas sharing the store (coordinator.h); null: a single server.
   std::shared_ptr<Coordinator> coordinator;
+  // Baked-asset files in memory under --asset-memory-budget (null: the host
+  // makes its own with that budget).
+  std::shared_ptr<AssetFiles> assets;
 };
 
 struct HostInfo {
@@ -266,6 +270,7 @@ class ModelHost {
   const std::shared_ptr<TrainingScheduler> trainings_;
   const std::shared_ptr<RenderSlots> render_slots_;
   const std::shared_ptr<Coordinator> coordinator_;  // Null: a single server.
+  const std::shared_ptr<AssetFiles> assets_;
   const int cores_;                     // For adaptive render threads.
   std::atomic<bool> stopping_{false};
   std::atomic<bool> deleted_{false};

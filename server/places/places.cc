@@ -43,6 +43,7 @@ absl::StatusOr<SharedServices> MakeSharedServices(const ServerOptions& options) 
   s.trainings = std::make_shared<TrainingScheduler>(options.max_concurrent_trainings);
   s.render_slots = std::make_shared<RenderSlots>(options.render_concurrency);
   s.models = MakeServableCache(ResolvedModelMemoryBudget(options), s.metrics);
+  s.assets = std::make_shared<AssetFiles>(options.asset_memory_budget, s.metrics);
   s.defer_model_load = true;  // Warm-up (below) loads them after the ports open.
   return s;
 }

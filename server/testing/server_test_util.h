@@ -63,6 +63,14 @@ inline ServerOptions TinyServerOptions(const std::string& store, int iterations 
   o.bake.resolution = 64;
   o.bake.visibility_rays = 1 << 12;
   o.bake.fit.rays = 1 << 11;
+  if (kThreadSanitizerBuild) {
+    // ~50x slower under TSan: the place-frame check and the bake still run
+    // on their threads, on less work (RendersDuringAnUpdate: 100 s).
+    o.registration.max_references = 4;
+    o.bake.resolution = 32;
+    o.bake.visibility_rays = 1 << 10;
+    o.bake.fit.rays = 1 << 9;
+  }
   return o;
 }
 
