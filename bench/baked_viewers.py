@@ -8,8 +8,8 @@ the viewer with frames=baked. Each draws the baked asset and is dragged, so
 it draws more frames. Then it reads the server's /metrics and prints JSON
 and a human line: server renders (the claim: 0), asset requests and bytes
 sent, asset files read from disk (the claim: once each, however many
-viewers), the server's CPU seconds over the viewing, and each browser's time
-to its first baked frame.
+viewers), the server's CPU seconds over the viewing beside what it uses
+idle in as long, and each browser's time to its first baked frame.
 
 Usage: baked_viewers.py --server BIN --client BIN --out DIR [--viewers 20] [--data DIR]
 (bench/baked_viewers.sh runs it with the built binaries.) Never run beside
@@ -63,7 +63,12 @@ def main():
         before = {k: metric(server.http, k) for k in (
             "clnerf_renders_total", "clnerf_asset_requests_total", "clnerf_asset_bytes_total",
             "clnerf_asset_file_reads_total", "clnerf_asset_bakes_total")}
-        cpu0 = cpu_seconds(server.proc.pid)
+        # The server's own background work (job polls, metrics) while idle,
+        # for comparison with the viewing below.
+        idle0, t_idle = cpu_seconds(server.proc.pid), time.time()
+        time.sleep(20)
+        idle_rate = (cpu_seconds(server.proc.pid) - idle0) / (time.time() - t_idle)
+        cpu0, t_view = cpu_seconds(server.proc.pid), time.time()
         url = f"http://127.0.0.1:{server.http}/#frames=baked&res=400x300"
         first_frame = []
         for i in range(args.viewers):
@@ -86,6 +91,7 @@ def main():
                 fail(f"browser {i} showed a server frame while frames=baked")
             drawn += len(frames(d))
         cpu = cpu_seconds(server.proc.pid) - cpu0
+        view_seconds = time.time() - t_view
         after = {k: metric(server.http, k) for k in before}
         delta = {k: after[k] - before[k] for k in before}
         files = delta["clnerf_asset_file_reads_total"]
@@ -95,13 +101,15 @@ def main():
             "asset_requests": delta["clnerf_asset_requests_total"],
             "asset_bytes_sent": delta["clnerf_asset_bytes_total"],
             "asset_file_reads": files, "asset_bakes": delta["clnerf_asset_bakes_total"],
-            "server_cpu_seconds": round(cpu, 3),
+            "server_cpu_seconds": round(cpu, 3), "viewing_seconds": round(view_seconds, 1),
+            "server_idle_cpu_seconds_per_second": round(idle_rate, 4),
             "first_frame_seconds": {"min": round(min(first_frame), 2), "max": round(max(first_frame), 2)}}}
         print(json.dumps(result))
         print(f"{args.viewers} browsers drew {drawn} baked frames; the server rendered "
               f"{delta['clnerf_renders_total']:.0f}, answered {delta['clnerf_asset_requests_total']:.0f} asset "
               f"requests ({delta['clnerf_asset_bytes_total'] / 1e6:.2f} MB sent), read {files:.0f} files from disk "
-              f"and used {cpu:.2f} CPU s")
+              f"and used {cpu:.2f} CPU s over {view_seconds:.0f} s (idle: {idle_rate * view_seconds:.2f} CPU s "
+              f"in as long)")
         if args.json_out:
             with open(args.json_out, "w") as f:
                 json.dump(result, f, indent=1)
