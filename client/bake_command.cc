@@ -2,6 +2,7 @@
 // `clnerf eval --model DIR` on such an asset (the C++ reference renderer).
 #include <cstdio>
 
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "client/commands.h"
 #include "client/verb_set.h"
@@ -10,10 +11,28 @@
 #include "core/continual/replay_memory.h"
 #include "core/data/dataset.h"
 #include "core/io/checkpoint.h"
+#include "core/io/durable_file.h"
 #include "nlohmann/json.hpp"
+#include "server/frontends/web_assets.h"
 
 namespace clnerf {
+
+// The standalone page's files, compiled in from server/frontends/web/
+// (client/CMakeLists.txt).
+const WebAsset* FindBakedPageFile(std::string_view path);
+
 namespace {
+
+// baked.html and baked.js beside the asset, so the folder is a page that any
+// static web server shows (python3 -m http.server in it).
+absl::Status WriteStandalonePage(const std::string& dir) {
+  for (const char* name : {"baked.html", "baked.js"}) {
+    const WebAsset* f = FindBakedPageFile(std::string("/") + name);
+    if (f == nullptr) return absl::InternalError(absl::StrCat("the standalone page's ", name, " is not compiled in"));
+    if (absl::Status s = AtomicWriteFile(dir + "/" + name, f->body); !s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
 
 // The cameras to bake with: the model file's own (a service version keeps
 // every scan's cameras in its replay memory), else --data's training views.
@@ -85,6 +104,7 @@ int RunBake(const BakeArgs& a) {
   absl::StatusOr<BakedAsset> asset = BakeModel(ck->model, a.time_step, *cams, o, &rep);
   if (!asset.ok()) return Fail(asset.status());
   if (absl::Status s = SaveBakedAsset(*asset, a.out); !s.ok()) return Fail(s);
+  if (absl::Status s = WriteStandalonePage(a.out); !s.ok()) return Fail(s);
   absl::StatusOr<uint64_t> stored = BakedAssetBytes(a.out);
   if (!stored.ok()) return Fail(stored.status());
   const uint64_t bytes = *stored;
@@ -95,6 +115,8 @@ int RunBake(const BakeArgs& a) {
               double(asset->raw_bytes()) / 1e6, double(bytes) / 1e6, rep.total_seconds, rep.density_seconds,
               rep.visibility_seconds, rep.colour_seconds, rep.fit_seconds, rep.fit.rays, rep.fit.rms_before,
               rep.fit.rms_after);
+  std::printf("view it: python3 -m http.server -d %s 8000, then open http://localhost:8000/baked.html\n",
+              a.out.c_str());
   nlohmann::json j = {{"model", a.model},          {"out", a.out},
                       {"time_step", asset->time_step}, {"resolution", rep.resolution},
                       {"candidate_blocks", rep.candidate_blocks}, {"kept_blocks", rep.kept_blocks},

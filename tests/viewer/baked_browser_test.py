@@ -2,7 +2,7 @@
 """The baked asset in a real headless Chromium with software WebGL2.
 
 Trains a small procedural object with the real CLI (`clnerf demo`), bakes it
-(`clnerf bake`), renders a fixed camera with the C++ reference renderer
+(`clnerf bake`, which writes the standalone page beside the asset), renders a fixed camera with the C++ reference renderer
 (`clnerf render --model DIR --pose ...`), serves the asset folder with the
 standalone page (web/baked.html + baked.js) from a static HTTP server on
 loopback, and checks in Debian's chromium (SwiftShader WebGL2):
@@ -127,8 +127,13 @@ def main():
     rw, rh, ref = read_png_rgba(f"{args.out}/reference.png")
     if (rw, rh) != (W, H):
         fail(f"reference render is {rw}x{rh}")
+    # `clnerf bake` writes the standalone page beside the asset (compiled in
+    # from --web): the folder is served as it is.
     for f in ("baked.html", "baked.js"):
-        shutil.copy(os.path.join(args.web, f), asset)
+        if not os.path.exists(os.path.join(asset, f)):
+            fail(f"clnerf bake did not write {f} beside the asset")
+        if open(os.path.join(asset, f), "rb").read() != open(os.path.join(args.web, f), "rb").read():
+            fail(f"the {f} clnerf bake wrote differs from {args.web}/{f}")
     srv = serve(asset)
     base = f"http://127.0.0.1:{srv.server_address[1]}/baked.html"
     driver = start_chromium(window="1000,800", software_webgl=True, script_timeout=120)
