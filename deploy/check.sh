@@ -7,6 +7,7 @@
 #   DEPLOY_DIR     directory to check (default: the directory of this script)
 #   CLNERF_SERVER  server binary for the flag check (default build/server/clnerf-server)
 #   CLNERF_CLIENT  client binary for the health-check flags (default build/client/clnerf)
+#   CLNERF_IMAGE_CODEC  image codec module the binaries load (default build/core/libclnerf_oiio.so)
 #   PYTHON         interpreter (default /usr/bin/python3, else python3 on PATH)
 #   CHECK_NO_PYYAML=1  behave as if PyYAML were missing (tests the fallback)
 #
@@ -29,7 +30,8 @@
 #   docker   build stage runs scripts/install-deps.sh with the portable flags,
 #            Dockerfile.dockerignore keeps the sources, runtime packages are
 #            known to dpkg/apt-cache and cover the NEEDED libraries of the
-#            built binaries
+#            built binaries and of the image codec module, which the
+#            runtime copies to /usr/local/lib/clnerf/
 #   compose  one service, named store volume, CLNERF_TOKEN, stop_grace_period >= 60s
 #   consistency  listen port, store path and health check agree across
 #            Dockerfile, compose, systemd and k8s
@@ -43,6 +45,7 @@ export CHECK_ROOT=$ROOT
 export DEPLOY_DIR=${DEPLOY_DIR:-$ROOT/deploy}
 export CLNERF_SERVER=${CLNERF_SERVER:-$ROOT/build/server/clnerf-server}
 export CLNERF_CLIENT=${CLNERF_CLIENT:-$ROOT/build/client/clnerf}
+export CLNERF_IMAGE_CODEC=${CLNERF_IMAGE_CODEC:-$ROOT/build/core/libclnerf_oiio.so}
 
 PY=${PYTHON:-/usr/bin/python3}
 if [ ! -x "$PY" ]; then PY=$(command -v python3 || true); fi
@@ -261,6 +264,10 @@ if os.path.exists(paths["dockerfile"]):
         check("clnerf-server" in copies and re.search(r"/clnerf(\s|$)", copies) is not None
               and "/usr/local/bin" in copies,
               "docker: runtime copies clnerf-server and clnerf to /usr/local/bin")
+        # The binaries load OpenImageIO from a module (core/data/image_codec.h)
+        # beside them or in ../lib/clnerf/.
+        check(re.search(r"libclnerf_oiio\.so\s+/usr/local/lib/clnerf/?(\s|$)", copies) is not None,
+              "docker: runtime copies the image codec module to /usr/local/lib/clnerf/")
         user = [r for o, r in rt["ins"] if o == "USER"]
         check(bool(user) and user[-1].split(":")[0] not in ("root", "0"),
               "docker: runtime runs as a non-root USER", user[-1] if user else "no USER")
@@ -369,6 +376,8 @@ def lib_package(lib, ldcache, owners):
     return None
 
 bins = [b for b in (os.environ["CLNERF_SERVER"], os.environ["CLNERF_CLIENT"]) if os.access(b, os.X_OK)]
+if bins and os.path.isfile(os.environ["CLNERF_IMAGE_CODEC"]):
+    bins.append(os.environ["CLNERF_IMAGE_CODEC"])
 if not runtime_pkgs:
     pass
 elif not bins:

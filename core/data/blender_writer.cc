@@ -5,7 +5,6 @@
 #include <filesystem>
 #include <fstream>
 
-#include <OpenImageIO/imageio.h>
 #include <nlohmann/json.hpp>
 
 #include "absl/strings/str_cat.h"
@@ -53,36 +52,6 @@ absl::Status CheckSplit(const std::vector<View>& views, const std::vector<std::v
     if (alpha != nullptr && (*alpha)[i].size() != v.image.num_pixels()) {
       return absl::InvalidArgumentError(absl::StrCat(where, ": alpha size does not match image"));
     }
-  }
-  return absl::OkStatus();
-}
-
-// Writes an 8-bit RGBA PNG whose colours are straight (unassociated) alpha,
-// as in NeRF-synthetic files. OpenImageIO treats in-memory RGBA as
-// premultiplied and divides by alpha on write unless told otherwise, so the
-// buffer is flagged as unassociated here (core/data/image.cc's WriteImageRGBA does
-// not do this yet).
-absl::Status WriteStraightRgbaPng(const std::string& path, const Image& straight,
-                                  const std::vector<float>& alpha) {
-  std::error_code ec;
-  const fs::path parent = fs::path(path).parent_path();
-  if (!parent.empty()) fs::create_directories(parent, ec);
-  if (ec) return absl::InternalError(absl::StrCat("cannot create '", parent.string(), "'"));
-  std::vector<uint8_t> px(straight.num_pixels() * 4);
-  auto to_u8 = [](float v) { return uint8_t(std::lround(std::clamp(v, 0.0f, 1.0f) * 255.0f)); };
-  for (size_t i = 0; i < straight.num_pixels(); ++i) {
-    for (int c = 0; c < 3; ++c) px[i * 4 + c] = to_u8(straight.rgb[i * 3 + c]);
-    px[i * 4 + 3] = to_u8(alpha[i]);
-  }
-  auto out = OIIO::ImageOutput::create(path);
-  if (!out) return absl::InternalError(absl::StrCat("no PNG writer for '", path, "'"));
-  OIIO::ImageSpec spec(straight.width, straight.height, 4, OIIO::TypeDesc::UINT8);
-  spec.attribute("oiio:UnassociatedAlpha", 1);
-  if (!out->open(path, spec) || !out->write_image(OIIO::TypeDesc::UINT8, px.data())) {
-    return absl::InternalError(absl::StrCat("cannot write '", path, "': ", out->geterror()));
-  }
-  if (!out->close()) {
-    return absl::InternalError(absl::StrCat("cannot write '", path, "': ", out->geterror()));
   }
   return absl::OkStatus();
 }
@@ -146,7 +115,7 @@ absl::Status WriteSplit(const std::vector<View>& views,
       }
     }
     const std::string path = (fs::path(dir) / image_split / (stem + ".png")).string();
-    absl::Status s = WriteStraightRgbaPng(path, straight, a);
+    absl::Status s = WriteImageRGBA(path, straight, a);
     if (!s.ok()) return s;
   }
   return WriteJson((fs::path(dir) / ("transforms_" + json_split + ".json")).string(),

@@ -1,14 +1,12 @@
 #include "core/data/image.h"
 
-#include <OpenImageIO/filesystem.h>
-#include <OpenImageIO/imageio.h>
-
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <memory>
 
 #include "absl/strings/str_cat.h"
+#include "core/data/image_codec.h"
 
 namespace clnerf {
 namespace {
@@ -46,49 +44,29 @@ absl::StatusOr<Image> FromPixels(const std::vector<float>& px, int w, int h, int
   return out;
 }
 
-absl::StatusOr<std::vector<float>> ReadAll(OIIO::ImageInput* in, const std::string& name, int* w,
-                                           int* h, int* nc) {
-  const OIIO::ImageSpec& spec = in->spec();
-  *w = spec.width;
-  *h = spec.height;
-  *nc = spec.nchannels;
-  if (*w <= 0 || *h <= 0 || *nc <= 0 || size_t(*w) * size_t(*h) > (size_t(1) << 28)) {
-    return absl::InvalidArgumentError(absl::StrCat("image '", name, "' has an invalid size"));
-  }
-  std::vector<float> px(size_t(*w) * *h * *nc);
-  if (!in->read_image(0, 0, 0, *nc, OIIO::TypeDesc::FLOAT, px.data())) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("cannot decode image '", name, "': ", in->geterror()));
-  }
-  return px;
-}
-
-// Decodes an opened input, composites alpha, and closes it.
-absl::StatusOr<Image> ReadOpened(OIIO::ImageInput* in, const std::string& name,
-                                 const Eigen::Vector3f& background) {
-  int w, h, nc;
-  auto px = ReadAll(in, name, &w, &h, &nc);
-  const bool premult = in->spec().get_int_attribute("oiio:UnassociatedAlpha", 0) == 0;
-  in->close();
-  if (!px.ok()) return px.status();
-  return FromPixels(*px, w, h, nc, premult, background, name);
+// Composites a decoded image (see FromPixels).
+absl::StatusOr<Image> FromRaw(const absl::StatusOr<RawImage>& raw, const std::string& name,
+                              const Eigen::Vector3f& background) {
+  if (!raw.ok()) return raw.status();
+  return FromPixels(raw->px, raw->width, raw->height, raw->channels, raw->premultiplied, background, name);
 }
 
 }  // namespace
 
 absl::StatusOr<Image> ReadImage(const std::string& path, const Eigen::Vector3f& background) {
+  auto raw = ReadImageChannels(path);
+  if (!raw.ok()) return raw.status();
+  return FromRaw(raw, path, background);
+}
+
+absl::StatusOr<RawImage> ReadImageChannels(const std::string& path) {
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) {
     return absl::NotFoundError(absl::StrCat("image file not found: ", path));
   }
-  OIIO::ImageSpec config;
-  config.attribute("oiio:UnassociatedAlpha", 1);
-  auto in = OIIO::ImageInput::open(path, &config);
-  if (!in) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("cannot open image '", path, "': ", OIIO::geterror()));
-  }
-  return ReadOpened(in.get(), path, background);
+  auto codec = GetImageCodec();
+  if (!codec.ok()) return codec.status();
+  return (*codec)->ReadFile(path);
 }
 
 absl::StatusOr<ImageSize> ReadImageSize(const std::string& path) {
@@ -96,17 +74,14 @@ absl::StatusOr<ImageSize> ReadImageSize(const std::string& path) {
   if (!std::filesystem::is_regular_file(path, ec)) {
     return absl::NotFoundError(absl::StrCat("image file not found: ", path));
   }
-  auto in = OIIO::ImageInput::open(path);
-  if (!in) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("cannot open image '", path, "': ", OIIO::geterror()));
-  }
-  const ImageSize size{in->spec().width, in->spec().height};
-  in->close();
-  if (size.width <= 0 || size.height <= 0) {
+  auto codec = GetImageCodec();
+  if (!codec.ok()) return codec.status();
+  auto header = (*codec)->ReadHeader(path);
+  if (!header.ok()) return header.status();
+  if (header->width <= 0 || header->height <= 0) {
     return absl::InvalidArgumentError(absl::StrCat("image '", path, "' has an invalid size"));
   }
-  return size;
+  return ImageSize{header->width, header->height};
 }
 
 std::string SniffImageExtension(const std::string& b) {
@@ -124,19 +99,11 @@ absl::StatusOr<Image> DecodeImage(const std::string& bytes, const std::string& n
   if (bytes.empty()) {
     return absl::InvalidArgumentError(absl::StrCat("image '", name_hint, "' is empty"));
   }
-  OIIO::Filesystem::IOMemReader mem(bytes.data(), bytes.size());
-  OIIO::ImageSpec config;
-  void* ptr = &mem;
-  config.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &ptr);
-  config.attribute("oiio:UnassociatedAlpha", 1);
   std::string ext = std::filesystem::path(name_hint).extension().string();
   if (ext.empty()) ext = ".png";
-  auto in = OIIO::ImageInput::open(std::string("memory") + ext, &config);
-  if (!in) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("cannot decode image '", name_hint, "': ", OIIO::geterror()));
-  }
-  return ReadOpened(in.get(), name_hint, background);
+  auto codec = GetImageCodec();
+  if (!codec.ok()) return codec.status();
+  return FromRaw((*codec)->Decode(bytes, ext, name_hint), name_hint, background);
 }
 
 namespace {
@@ -172,41 +139,20 @@ absl::Status WriteU8(const std::string& path, int w, int h, int nc, const std::v
   std::error_code ec;
   auto parent = std::filesystem::path(path).parent_path();
   if (!parent.empty()) std::filesystem::create_directories(parent, ec);
-  auto out = OIIO::ImageOutput::create(path);
-  if (!out) {
-    return absl::InvalidArgumentError(
-        absl::StrCat("no image writer for '", path, "': ", OIIO::geterror()));
-  }
-  OIIO::ImageSpec spec(w, h, nc, OIIO::TypeDesc::UINT8);
-  // Our RGBA buffers hold straight (unassociated) colour.
-  if (nc == 4) spec.attribute("oiio:UnassociatedAlpha", 1);
-  if (!out->open(path, spec) || !out->write_image(OIIO::TypeDesc::UINT8, px.data())) {
-    return absl::InternalError(absl::StrCat("cannot write '", path, "': ", out->geterror()));
-  }
-  out->close();
-  return absl::OkStatus();
+  auto codec = GetImageCodec();
+  if (!codec.ok()) return codec.status();
+  return (*codec)->WriteFile(path, w, h, nc, px.data());
 }
 uint8_t ToU8(float v) { return uint8_t(std::lround(std::clamp(v, 0.0f, 1.0f) * 255.0f)); }
 
-// Encodes 8-bit pixels in memory through OIIO's writer for `ext` ("png",
+// Encodes 8-bit pixels in memory through the codec's writer for `ext` ("png",
 // "jpg"); `quality` (1..100) is passed on for JPEG.
 absl::StatusOr<std::string> EncodeU8(const char* ext, int w, int h, int nc, const std::vector<uint8_t>& px,
                                      int quality = 0) {
   if (w <= 0 || h <= 0) return absl::InvalidArgumentError("cannot encode an empty image");
-  const std::string name = absl::StrCat("memory.", ext);
-  std::vector<unsigned char> buf;
-  OIIO::Filesystem::IOVecOutput vec(buf);
-  auto out = OIIO::ImageOutput::create(name);
-  if (!out) return absl::InternalError(absl::StrCat("no ", ext, " writer: ", OIIO::geterror()));
-  OIIO::ImageSpec spec(w, h, nc, OIIO::TypeDesc::UINT8);
-  void* ptr = &vec;
-  spec.attribute("oiio:ioproxy", OIIO::TypeDesc::PTR, &ptr);
-  if (quality > 0) spec.attribute("Compression", absl::StrCat("jpeg:", quality));
-  if (!out->open(name, spec) || !out->write_image(OIIO::TypeDesc::UINT8, px.data())) {
-    return absl::InternalError(absl::StrCat("cannot encode ", ext, ": ", out->geterror()));
-  }
-  out->close();
-  return std::string(buf.begin(), buf.end());
+  auto codec = GetImageCodec();
+  if (!codec.ok()) return codec.status();
+  return (*codec)->Encode(ext, w, h, nc, px.data(), quality);
 }
 
 absl::StatusOr<std::string> EncodeU8Png(int w, int h, int nc, const std::vector<uint8_t>& px) {

@@ -1,5 +1,6 @@
 // Image: a dense float RGB image with an optional per-pixel mask, and the
-// OpenImageIO-backed functions that read and write it.
+// functions that read and write it (through OpenImageIO, loaded on first use:
+// core/data/image_codec.h).
 //
 // Pixel values are stored interleaved (r, g, b) in row-major order, in [0, 1],
 // in the image's own encoding (sRGB PNG/JPEG values are not linearised, as in
@@ -16,6 +17,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "Eigen/Core"
+#include "core/data/image_codec.h"
 
 namespace clnerf {
 
@@ -48,6 +50,10 @@ struct Mask {
 // is missing, INVALID_ARGUMENT if it cannot be decoded.
 absl::StatusOr<Image> ReadImage(const std::string& path,
                                 const Eigen::Vector3f& background = Eigen::Vector3f::Ones());
+
+// An image file's channels as stored (alpha straight and not composited,
+// grey not replicated). Errors as ReadImage().
+absl::StatusOr<RawImage> ReadImageChannels(const std::string& path);
 
 // The width and height of an image file, from its header only (no pixels are
 // decoded). Errors as ReadImage().

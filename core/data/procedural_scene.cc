@@ -8,7 +8,6 @@
 #include <limits>
 #include <utility>
 
-#include <OpenImageIO/imageio.h>
 #include <nlohmann/json.hpp>
 
 #include "absl/strings/str_cat.h"

@@ -8,10 +8,10 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "core/data/image.h"
 #include "core/data/stopwatch.h"
 #include "core/pose/process.h"
 #include "opencv2/core.hpp"
-#include "opencv2/imgcodecs.hpp"
 #include "opencv2/imgproc.hpp"
 
 namespace clnerf {
@@ -26,8 +26,14 @@ absl::Status VideoFrameOptions::Validate() const {
 }
 
 double Sharpness(const std::string& image_file) {
-  cv::Mat grey = cv::imread(image_file, cv::IMREAD_GRAYSCALE);
-  if (grey.empty()) return -1;
+  auto image = ReadImage(image_file);
+  if (!image.ok() || image->empty()) return -1;
+  // Grey levels on OpenCV's 0..255 scale (Rec. 601 luma, as IMREAD_GRAYSCALE).
+  cv::Mat grey(image->height, image->width, CV_32F);
+  for (int y = 0; y < image->height; ++y) {
+    float* row = grey.ptr<float>(y);
+    for (int x = 0; x < image->width; ++x) row[x] = 255.0f * Luma(image->pixel(x, y));
+  }
   cv::Mat lap;
   cv::Laplacian(grey, lap, CV_32F);
   cv::Scalar mean, stddev;
