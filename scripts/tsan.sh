@@ -20,10 +20,28 @@ FILTER=${1:-'ModelRegistry*:JobTracker*:TrainingScheduler*:ModelCache*:ServerFix
 # every other server test under TSan; a filter given here uses them all.
 TARGET=server_concurrency_tests
 if [ $# -gt 0 ]; then TARGET=server_tests; fi
-GEN=()
-if [ ! -f build-tsan/CMakeCache.txt ] && command -v ninja > /dev/null; then GEN=(-G Ninja); fi
-cmake -S . -B build-tsan "${GEN[@]}" -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCLNERF_TSAN=ON > build-tsan.configure.log 2>&1 || {
-  cat build-tsan.configure.log; exit 1; }
+# The core modules that run on one thread of the update worker (data,
+# train, pose, bake) are linked uninstrumented from the plain build
+# (CMakeLists.txt: CLNERF_TSAN_PLAIN_KERNELS_FROM; in CI the test stage has
+# built them, so this is a no-op): TSan compiles and checks what threads
+# share. TSAN_PLAIN_BUILD= (empty) instruments everything.
+PLAIN=${TSAN_PLAIN_BUILD-build}
+gen() { if [ ! -f "$1/CMakeCache.txt" ] && command -v ninja > /dev/null; then echo "-G Ninja"; fi; }
+PLAIN_FLAGS=()
+if [ -n "$PLAIN" ]; then
+  # shellcheck disable=SC2046  # gen prints the generator flag words.
+  if [ ! -f "$PLAIN/CMakeCache.txt" ]; then
+    cmake -S . -B "$PLAIN" $(gen "$PLAIN") -DCMAKE_BUILD_TYPE=Release > "$PLAIN.configure.log" 2>&1 || {
+      cat "$PLAIN.configure.log"; exit 1; }
+  fi
+  cmake --build "$PLAIN" -j "${JOBS:-$(nproc)}" --target clnerf_data clnerf_train clnerf_pose clnerf_bake clnerf_oiio
+  PLAIN_FLAGS=(-DCLNERF_TSAN_PLAIN_KERNELS_FROM="$(cd "$PLAIN" && pwd)")
+else
+  PLAIN_FLAGS=(-DCLNERF_TSAN_PLAIN_KERNELS_FROM=)
+fi
+# shellcheck disable=SC2046
+cmake -S . -B build-tsan $(gen build-tsan) -DCMAKE_BUILD_TYPE=RelWithDebInfo -DCLNERF_TSAN=ON "${PLAIN_FLAGS[@]}" \
+  > build-tsan.configure.log 2>&1 || { cat build-tsan.configure.log; exit 1; }
 cmake --build build-tsan -j "${JOBS:-$(nproc)}" --target "$TARGET"
 OMP_NUM_THREADS=1 OMP_THREAD_LIMIT=1 TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1 suppressions=$PWD/scripts/tsan.supp" \
   "./build-tsan/tests/$TARGET" --gtest_filter="$FILTER" --gtest_brief=1

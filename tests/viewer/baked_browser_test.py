@@ -111,7 +111,7 @@ def main():
     os.makedirs(args.out, exist_ok=True)
     work = tempfile.mkdtemp(prefix="clnerf_baked_")
     env = dict(os.environ)
-    run_client(args.client, ["demo", "--out", f"{work}/demo", "--iters", "150", "--size", "48"], env, "demo")
+    run_client(args.client, ["demo", "--out", f"{work}/demo", "--iters", "50", "--size", "48"], env, "demo")
     asset = f"{work}/asset"
     print(run_client(args.client, ["bake", "--model", f"{work}/demo/model.clnerf", "--data", f"{work}/demo/scene",
                                    "--out", asset, "--resolution", "128", "--fit-rays", "16384"], env, "bake").strip())
