@@ -67,7 +67,7 @@ TEST(ColmapSfmTest, PosesAnUnposedScanUpToASimilarity) {
   if (!ColmapInstalled()) GTEST_SKIP() << "colmap is not installed (scripts/install-deps.sh installs it)";
   const std::string dir = TempDir("colmap_sfm");
   std::vector<std::string> photos;
-  absl::StatusOr<Scene> scene = OrbitPhotos(400, 300, 32, dir, &photos);
+  absl::StatusOr<Scene> scene = OrbitPhotos(400, 300, 24, dir, &photos);
   ASSERT_TRUE(scene.ok()) << scene.status();
   std::vector<Camera> truth;
   for (const View& v : scene->train) truth.push_back(v.camera);

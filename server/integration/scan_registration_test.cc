@@ -49,7 +49,7 @@ TEST_F(ServerFixture, LaterScansAreRegisteredIntoThePlacesFrame) {
   // frames within a few percent.
   ServerOptions o = TinyServerOptions(store, 100);
   o.first_scan_iterations = 800;
-  o.update.model.grid.levels = 16;
+  o.update.model.grid.levels = 12;
   o.update.capacity.max_log2_table_size = 16;
   o.gate.min_new_psnr = 12.0f;
   StartServer(o);
