@@ -5,6 +5,7 @@
 #include <fstream>
 #include <random>
 
+#include "core/testing/temp_dir.h"
 #include "gtest/gtest.h"
 
 namespace clnerf {
@@ -12,12 +13,7 @@ namespace {
 
 namespace fs = std::filesystem;
 
-std::string FreshDir() {
-  const std::string d = ::testing::TempDir() + "/clnerf_durable_" + std::to_string(std::random_device{}());
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
+std::string FreshDir() { return testing_util::FreshTempDir("durable"); }
 
 void Touch(const std::string& path) { std::ofstream(path) << "x"; }
 

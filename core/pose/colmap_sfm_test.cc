@@ -14,6 +14,7 @@
 #include "core/pose/process.h"
 #include "core/pose/sfm.h"
 #include "core/pose/similarity.h"
+#include "core/testing/temp_dir.h"
 #include "gtest/gtest.h"
 
 namespace clnerf {
@@ -23,12 +24,7 @@ namespace fs = std::filesystem;
 
 bool ColmapInstalled() { return std::system("command -v colmap > /dev/null 2>&1") == 0; }
 
-std::string TempDir(const std::string& name) {
-  const std::string dir = ::testing::TempDir() + "/clnerf_" + name + "_" + std::to_string(std::random_device{}());
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
+std::string TempDir(const std::string& name) { return testing_util::FreshTempDir(name); }
 
 // A textured orbit (the procedural backdrop scene, one test view) at
 // width x height with `views` training views, each written to `dir` as

@@ -12,6 +12,7 @@
 #include "core/data/image.h"
 #include "core/data/procedural_scene.h"
 #include "core/pose/process.h"
+#include "core/testing/temp_dir.h"
 #include "gtest/gtest.h"
 
 namespace clnerf {
@@ -21,12 +22,7 @@ namespace fs = std::filesystem;
 
 bool FfmpegInstalled() { return std::system("command -v ffmpeg > /dev/null 2>&1 && command -v ffprobe > /dev/null 2>&1") == 0; }
 
-std::string VideoTempDir(const std::string& name) {
-  const std::string dir = ::testing::TempDir() + "/clnerf_" + name + "_" + std::to_string(std::random_device{}());
-  fs::remove_all(dir);
-  fs::create_directories(dir);
-  return dir;
-}
+std::string VideoTempDir(const std::string& name) { return testing_util::FreshTempDir(name); }
 
 // A (2r+1)^2 box blur, edges clamped.
 Image BoxBlur(const Image& in, int r) {

@@ -11,19 +11,16 @@
 #include "absl/strings/str_cat.h"
 #include "core/data/image.h"
 #include "core/data/procedural_scene.h"
+#include "core/testing/temp_dir.h"
 #include "gtest/gtest.h"
 #include "server/store/scan_store.h"
 
 namespace clnerf {
 namespace testing_util {
 
-// A fresh empty directory under the test temp dir.
-inline std::string TempDir(const std::string& name) {
-  std::string dir = absl::StrCat(::testing::TempDir(), "/clnerf_", name, "_", std::random_device{}());
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
-  return dir;
-}
+// A fresh empty directory under the test temp dir, removed when the test
+// passes (core/testing/temp_dir.h).
+inline std::string TempDir(const std::string& name) { return FreshTempDir(name); }
 
 // `steps` time steps of the procedural changing scene, tiny.
 inline Scene TinyScans(int steps, int size = 24, int train = 12, int test = 3) {
