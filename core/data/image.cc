@@ -51,6 +51,15 @@ absl::StatusOr<Image> FromRaw(const absl::StatusOr<RawImage>& raw, const std::st
   return FromPixels(raw->px, raw->width, raw->height, raw->channels, raw->premultiplied, background, name);
 }
 
+// The codec, for an image file that exists (NOT_FOUND otherwise).
+absl::StatusOr<const ImageCodec*> CodecForFile(const std::string& path) {
+  std::error_code ec;
+  if (!std::filesystem::is_regular_file(path, ec)) {
+    return absl::NotFoundError(absl::StrCat("image file not found: ", path));
+  }
+  return GetImageCodec();
+}
+
 }  // namespace
 
 absl::StatusOr<Image> ReadImage(const std::string& path, const Eigen::Vector3f& background) {
@@ -60,21 +69,13 @@ absl::StatusOr<Image> ReadImage(const std::string& path, const Eigen::Vector3f& 
 }
 
 absl::StatusOr<RawImage> ReadImageChannels(const std::string& path) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) {
-    return absl::NotFoundError(absl::StrCat("image file not found: ", path));
-  }
-  auto codec = GetImageCodec();
+  auto codec = CodecForFile(path);
   if (!codec.ok()) return codec.status();
   return (*codec)->ReadFile(path);
 }
 
 absl::StatusOr<ImageSize> ReadImageSize(const std::string& path) {
-  std::error_code ec;
-  if (!std::filesystem::is_regular_file(path, ec)) {
-    return absl::NotFoundError(absl::StrCat("image file not found: ", path));
-  }
-  auto codec = GetImageCodec();
+  auto codec = CodecForFile(path);
   if (!codec.ok()) return codec.status();
   auto header = (*codec)->ReadHeader(path);
   if (!header.ok()) return header.status();

@@ -46,16 +46,13 @@ absl::StatusOr<const ImageCodec*> LoadImageCodec(const std::vector<std::string>&
       absl::StrAppend(&tried, "\n  ", path, ": ", dlerror());
       continue;
     }
-#define CLNERF_STR2(x) #x
-#define CLNERF_STR(x) CLNERF_STR2(x)
-    auto entry = reinterpret_cast<Entry>(dlsym(handle, CLNERF_STR(CLNERF_IMAGE_CODEC_ENTRY)));
-    if (entry == nullptr || entry() == nullptr) {
-      absl::StrAppend(&tried, "\n  ", path, ": no entry point " CLNERF_STR(CLNERF_IMAGE_CODEC_ENTRY));
+    auto entry = reinterpret_cast<Entry>(dlsym(handle, kImageCodecEntryName));
+    const ImageCodec* codec = entry != nullptr ? entry() : nullptr;
+    if (codec == nullptr) {
+      absl::StrAppend(&tried, "\n  ", path, ": no entry point ", kImageCodecEntryName);
       continue;
     }
-#undef CLNERF_STR
-#undef CLNERF_STR2
-    return entry();
+    return codec;
   }
   return absl::UnavailableError(absl::StrCat(
       "cannot load the image codec module (", kModuleName,

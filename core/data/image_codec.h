@@ -75,8 +75,10 @@ std::vector<std::string> ImageCodecCandidates();
 // path and why it failed (missing, not loadable, no entry point).
 absl::StatusOr<const ImageCodec*> LoadImageCodec(const std::vector<std::string>& candidates);
 
-// The module's entry point (extern "C", versioned with the interface).
+// The module's entry point (extern "C", versioned with the interface), and
+// its name for dlsym.
 #define CLNERF_IMAGE_CODEC_ENTRY clnerf_image_codec_v1
+inline constexpr char kImageCodecEntryName[] = "clnerf_image_codec_v1";
 
 }  // namespace clnerf
 
