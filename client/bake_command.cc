@@ -1,6 +1,7 @@
 // `clnerf bake`: a model baked into the asset the browser renders, and
 // `clnerf eval --model DIR` on such an asset (the C++ reference renderer).
 #include <cstdio>
+#include <map>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -82,6 +83,16 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
   c->add_flag("--view-dependent,!--diffuse", a->bake.view_dependent,
               "Fit a view-dependent colour term too (c0 + H d per lattice point), or only diffuse colours")
       ->capture_default_str();
+  c->add_option("--view-term", a->bake.view_term,
+                "Where rays apply the view-dependent term: median (once per ray, format 3) or sample (every sample, "
+                "format 2)")
+      ->transform(CLI::CheckedTransformer(
+          std::map<std::string, BakedViewTerm>{{"median", BakedViewTerm::kAtMedian},
+                                               {"sample", BakedViewTerm::kPerSample}}))
+      ->capture_default_str();
+  c->add_option("--step-cells", a->bake.step_cells, "Ray step in cells (1 or 0.5)")
+      ->check(CLI::IsMember({0.5f, 1.0f}))
+      ->capture_default_str();
   c->add_option("--fit-iters", a->bake.fit.iterations, "Colour-fit solver iterations")->capture_default_str();
   c->add_option("--fit-prior", a->bake.fit.prior, "Colour-fit damping towards the field's own colours")
       ->capture_default_str();
@@ -125,6 +136,8 @@ int RunBake(const BakeArgs& a) {
                       {"density_seconds", rep.density_seconds},   {"visibility_seconds", rep.visibility_seconds},
                       {"colour_seconds", rep.colour_seconds},     {"fit_seconds", rep.fit_seconds},
                       {"view_dependent", asset->view_dependent()},
+                      {"view_term", asset->view_term == BakedViewTerm::kAtMedian ? "median" : "sample"},
+                      {"step_cells", asset->step_cells},
                       {"fit", {{"rays", rep.fit.rays}, {"unknowns", rep.fit.unknowns}, {"nonzeros", rep.fit.nonzeros},
                                {"rms_before", rep.fit.rms_before}, {"rms_after", rep.fit.rms_after},
                                {"target_seconds", rep.fit.target_seconds}, {"rows_seconds", rep.fit.rows_seconds},

@@ -1,5 +1,6 @@
 #include "core/bake/baked_asset.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -53,8 +54,9 @@ nlohmann::json ManifestJson(const BakedAsset& a) {
   }
   nlohmann::json files = {{"index", kIndexFile}, {"atlas", kAtlasFile}};
   if (a.view_dependent()) files["view"] = kViewFile;
-  return {{"format", a.view_dependent() ? kBakeFormatViewDependent : kBakeFormat},
-          {"view_dependence", a.view_dependent() ? "linear" : "none"},
+  const bool per_sample = a.view_term == BakedViewTerm::kPerSample;
+  return {{"format", !a.view_dependent() ? kBakeFormat : per_sample ? kBakeFormatViewDependent : kBakeFormatViewAtMedian},
+          {"view_dependence", !a.view_dependent() ? "none" : per_sample ? "linear" : "linear at the median sample"},
           {"views", views},
           {"kind", a.contracted ? "unbounded" : "bounded"},
           {"half_size", a.half_size},
@@ -80,12 +82,13 @@ nlohmann::json ManifestJson(const BakedAsset& a) {
 absl::Status ParseManifest(const std::string& text, BakedAsset* a, bool* view_dependent) {
   nlohmann::json j = nlohmann::json::parse(text, nullptr, /*allow_exceptions=*/false);
   if (j.is_discarded() || !j.is_object()) return absl::InvalidArgumentError("baked asset manifest: not a JSON object");
-  if (!j.contains("format") || !j["format"].is_number_integer() ||
-      (j["format"].get<int>() != kBakeFormat && j["format"].get<int>() != kBakeFormatViewDependent)) {
-    return absl::FailedPreconditionError(absl::StrCat("baked asset manifest: format must be ", kBakeFormat, " or ",
-                                                      kBakeFormatViewDependent));
+  const int format = j.contains("format") && j["format"].is_number_integer() ? j["format"].get<int>() : -1;
+  if (format != kBakeFormat && format != kBakeFormatViewDependent && format != kBakeFormatViewAtMedian) {
+    return absl::FailedPreconditionError(absl::StrCat("baked asset manifest: format must be ", kBakeFormat, ", ",
+                                                      kBakeFormatViewDependent, " or ", kBakeFormatViewAtMedian));
   }
-  *view_dependent = j["format"].get<int>() == kBakeFormatViewDependent;
+  *view_dependent = format != kBakeFormat;
+  a->view_term = format == kBakeFormatViewDependent ? BakedViewTerm::kPerSample : BakedViewTerm::kAtMedian;
   try {
     a->contracted = j.at("kind").get<std::string>() == "unbounded";
     a->half_size = j.at("half_size").get<float>();
@@ -94,6 +97,12 @@ absl::Status ParseManifest(const std::string& text, BakedAsset* a, bool* view_de
     a->normalization.scale = j.at("scale").get<float>();
     a->normalization.bound = j.at("bound").get<float>();
     a->time_step = j.at("time_step").get<int>();
+    // The step in cells (0.5 before format 3; absent in none of them).
+    a->step_cells = 0.5f;
+    if (j.contains("step") && a->resolution > 0 && a->half_size > 0.0f) {
+      const float ratio = j.at("step").get<float>() * float(a->resolution) / (2.0f * a->half_size);
+      a->step_cells = std::abs(ratio - 0.5f) < 1e-3f ? 0.5f : std::abs(ratio - 1.0f) < 1e-3f ? 1.0f : ratio;
+    }
     const auto& rot = j.at("rotation");
     if (!rot.is_array() || rot.size() != 9) return absl::InvalidArgumentError("baked asset manifest: bad rotation");
     for (int k = 0; k < 9; ++k) a->normalization.rotation(k / 3, k % 3) = rot[k].get<float>();
@@ -140,6 +149,11 @@ absl::Status ValidateShape(const BakedAsset& a) {
       return absl::InvalidArgumentError(absl::StrFormat("baked asset: %d bricks on atlas axis %d", a.bricks[k], k));
     }
   }
+  if (a.step_cells != 0.5f && a.step_cells != 1.0f) {
+    // Also what a manifest's "step" must give: 0.5 or 1 cell (exact in
+    // binary, so both renderers march the same samples).
+    return absl::InvalidArgumentError(absl::StrFormat("baked asset: step of %g cells (must be 0.5 or 1)", a.step_cells));
+  }
   if (!(a.normalization.scale > 0.0f) || !a.normalization.center.allFinite() ||
       !a.normalization.rotation.allFinite() || !a.background.allFinite() || a.time_step < 0) {
     return absl::InvalidArgumentError("baked asset: bad normalisation, background or time step");
@@ -171,6 +185,9 @@ absl::Status BakedAsset::Validate() const {
   if (!view.empty() && view.size() != 3 * atlas.size()) {
     return absl::InvalidArgumentError(
         absl::StrFormat("baked asset: view term has %zu bytes, expected %zu", view.size(), 3 * atlas.size()));
+  }
+  if (!block_distance.empty() && block_distance.size() != index.size()) {
+    return absl::InvalidArgumentError("baked asset: block distances do not match the index");
   }
   const uint32_t capacity = uint32_t(bricks[0]) * bricks[1] * bricks[2];
   for (uint32_t e : index) {
@@ -222,7 +239,7 @@ absl::StatusOr<uint64_t> BakedAssetBytes(const std::string& dir) {
   uint64_t n = 0;
   for (const char* name : {kManifest, kIndexFile, kAtlasFile, kViewFile}) {
     std::error_code ec;
-    const bool optional = std::string_view(name) == kViewFile;  // Format 2 only.
+    const bool optional = std::string_view(name) == kViewFile;  // Formats 2 and 3 only.
     if (optional && !std::filesystem::exists(std::filesystem::path(dir) / name, ec)) continue;
     const uintmax_t size = std::filesystem::file_size(std::filesystem::path(dir) / name, ec);
     if (ec) return absl::NotFoundError(absl::StrCat("baked asset: ", dir, "/", name, ": ", ec.message()));
@@ -277,7 +294,36 @@ absl::StatusOr<BakedAsset> LoadBakedAsset(const std::string& dir) {
     a.view.assign(view->begin(), view->end());
   }
   if (absl::Status s = a.Validate(); !s.ok()) return s;
+  ComputeBlockDistances(&a);
   return a;
+}
+
+void ComputeBlockDistances(BakedAsset* asset) {
+  const int nb = asset->blocks_per_axis();
+  const size_t n = size_t(nb) * nb * nb;
+  std::vector<uint8_t>& dist = asset->block_distance;
+  dist.assign(n, 255);
+  for (size_t i = 0; i < n && i < asset->index.size(); ++i) {
+    if (asset->index[i] != 0) dist[i] = 0;
+  }
+  // Forward then backward raster passes, each taking the minimum over the
+  // whole 26-neighbourhood plus one: exact for the chessboard metric.
+  for (int pass = 0; pass < 2; ++pass) {
+    for (size_t s = 0; s < n; ++s) {
+      const size_t i = pass == 0 ? s : n - 1 - s;
+      if (dist[i] == 0) continue;
+      const int x = int(i % size_t(nb)), y = int((i / size_t(nb)) % size_t(nb)), z = int(i / (size_t(nb) * nb));
+      int best = dist[i];
+      for (int dz = std::max(z - 1, 0); dz <= std::min(z + 1, nb - 1); ++dz) {
+        for (int dy = std::max(y - 1, 0); dy <= std::min(y + 1, nb - 1); ++dy) {
+          for (int dx = std::max(x - 1, 0); dx <= std::min(x + 1, nb - 1); ++dx) {
+            best = std::min(best, int(dist[size_t(dx) + size_t(nb) * (size_t(dy) + size_t(nb) * size_t(dz))]) + 1);
+          }
+        }
+      }
+      dist[i] = uint8_t(std::min(best, 255));
+    }
+  }
 }
 
 Camera BakedModelCamera(const BakedAsset& asset, const Camera& world) {

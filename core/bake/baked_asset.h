@@ -18,18 +18,32 @@
 // bricks_x x bricks_y x bricks_z bricks (texels: 9 bricks_x wide, x fastest),
 // which is also the 3-D texture the page uploads.
 //
-// View-dependent colour (optional, format 2): c(d) = c0 + H d for the
-// ray's model-space direction d, H a 3x3 matrix per lattice point, stored
-// as three more atlases of the same shape (k = x, y, z), RGB = 128 +
-// round(127 * (a / 255) * H[c][k]) (premultiplied like the colour, so it
-// interpolates the same way), A = 0. Renderers add sum_k d_k * (texel - 128)
-// / 127 to the blended colour before dividing by the blended code.
+// View-dependent colour (optional): c(d) = c0 + H d for the ray's
+// model-space direction d, H a 3x3 matrix per lattice point, stored as three
+// more atlases of the same shape (k = x, y, z), RGB = 128 + round(127 * (a /
+// 255) * H[c][k]) (premultiplied like the colour, so it interpolates the
+// same way), A = 0. Two ways to apply it:
+//   format 2 (per sample): every sample adds sum_k d_k * (texel - 128) / 127
+//     to its blended colour before dividing by the blended code;
+//   format 3 (at the median, the default): the term is read once per ray, at
+//     the first sample after which the transmittance is below 1/2 (none if
+//     it never is): the pixel gains (1 - T) * sum_k d_k * (texel - 128) /
+//     127 / (blended code there), T the ray's final transmittance. Three
+//     texture reads per pixel instead of three per sample.
+//
+// Rays step `step_cells` cells (1 for assets baked now; 0.5 for older
+// ones, whose manifests say so in "step").
 //
 // Files (a folder; SaveBakedAsset / LoadBakedAsset): manifest.json (the
-// fields below, format 1, or 2 with view dependence), index.bin.gz (uint32
-// little-endian, (R/8)^3, x fastest), atlas.bin.gz (RGBA8) and, format 2,
-// view.bin.gz (the three atlases back to back), gzip streams which the page
-// decodes with DecompressionStream.
+// fields below; format 1 diffuse, 2 or 3 with the view term), index.bin.gz
+// (uint32 little-endian, (R/8)^3, x fastest), atlas.bin.gz (RGBA8) and,
+// formats 2 and 3, view.bin.gz (the three atlases back to back), gzip
+// streams which the page decodes with DecompressionStream.
+//
+// Renderers skip empty space by `block_distance` (derived, not stored): for
+// each block the chessboard distance, in blocks, to the nearest occupied
+// one, so a ray in an empty block with distance D jumps past the (2D - 1)^3
+// blocks around it, which are all empty.
 //
 // A value type without locking: concurrent const use is safe.
 #ifndef CLNERF_CORE_BAKE_BAKED_ASSET_H_
@@ -50,9 +64,13 @@
 namespace clnerf {
 
 inline constexpr int kBakeFormat = 1;                 // Diffuse colour.
-inline constexpr int kBakeFormatViewDependent = 2;    // Plus the view-dependent term.
+inline constexpr int kBakeFormatViewDependent = 2;    // Plus the view-dependent term, per sample.
+inline constexpr int kBakeFormatViewAtMedian = 3;     // Plus the view-dependent term, once per ray.
 inline constexpr int kBakeBlock = 8;   // Cells per block side.
 inline constexpr int kBakeBrick = 9;   // Lattice points per brick side.
+
+// Where a ray applies the view-dependent term (formats 2 and 3).
+enum class BakedViewTerm { kPerSample, kAtMedian };
 
 struct BakedAsset {
   bool contracted = false;      // Unbounded scene: the field space is contracted.
@@ -68,11 +86,18 @@ struct BakedAsset {
   std::vector<uint32_t> index;  // (R/8)^3 entries, x fastest.
   std::vector<uint8_t> atlas;   // RGBA8 texels, 9 bricks x (x fastest) ...
   std::vector<uint8_t> view;    // Empty, or 3 atlases: the view-dependent term.
+  BakedViewTerm view_term = BakedViewTerm::kAtMedian;
+  float step_cells = 1.0f;      // The ray step in cells: 1, or 0.5 (assets before format 3).
+  // Derived from `index` by ComputeBlockDistances (LoadBakedAsset and
+  // BakeModel call it): (R/8)^3 chessboard distances in blocks to the
+  // nearest occupied block (0 = occupied, capped at 255). Empty = not
+  // computed: renderers then skip one empty block at a time.
+  std::vector<uint8_t> block_distance;
 
   int blocks_per_axis() const { return resolution / kBakeBlock; }
   float cell() const { return 2.0f * half_size / float(resolution); }
-  // The model-space step along a ray inside the inner cube (half a cell).
-  float step() const { return 0.5f * cell(); }
+  // The model-space step along a ray inside the inner cube.
+  float step() const { return step_cells * cell(); }
   int num_bricks() const;
   std::array<int, 3> atlas_texels() const {
     return {kBakeBrick * bricks[0], kBakeBrick * bricks[1], kBakeBrick * bricks[2]};
@@ -85,7 +110,7 @@ struct BakedAsset {
 };
 
 // The asset's files, name -> bytes (manifest.json, index.bin.gz,
-// atlas.bin.gz, and view.bin.gz for format 2), e.g. for
+// atlas.bin.gz, and view.bin.gz for formats 2 and 3), e.g. for
 // WriteDirectoryAtomically.
 absl::StatusOr<std::vector<std::pair<std::string, std::string>>> SerializeBakedAsset(const BakedAsset& asset);
 // Writes them into `dir` (created if needed; files replaced atomically).
@@ -100,6 +125,10 @@ absl::StatusOr<uint64_t> BakedAssetBytes(const std::string& dir);
 bool IsBakedAssetFileName(const std::string& name);
 // True when `dir` holds a baked asset's manifest.
 bool IsBakedAssetDir(const std::string& dir);
+
+// Fills asset->block_distance from its index (two raster passes over the
+// 26-neighbourhood; exact for the chessboard distance).
+void ComputeBlockDistances(BakedAsset* asset);
 
 // The model-space camera of a world-space one (as NgpModel::ToModelCamera).
 Camera BakedModelCamera(const BakedAsset& asset, const Camera& world);

@@ -75,10 +75,13 @@ TEST(BakedAssetTest, SavedAssetLoadsBackTheSame) {
   EXPECT_NEAR(b->views[0].c2w(2, 3), -3.0f, 1e-6f);
 }
 
-// Format 2 carries the view-dependent term in view.bin.gz; a folder that
-// lost it, or a term of the wrong size, is refused.
-TEST(BakedAssetTest, AViewDependentAssetRoundTripsAsFormat2) {
+// Formats 2 and 3 carry the view-dependent term in view.bin.gz (applied at
+// every sample, or at the median; older assets step half a cell); a folder
+// that lost it, or a term of the wrong size, is refused.
+TEST(BakedAssetTest, AViewDependentAssetRoundTripsAsFormat2And3) {
   BakedAsset a = SmallAsset();
+  a.view_term = BakedViewTerm::kPerSample;
+  a.step_cells = 0.5f;
   a.view.resize(3 * a.atlas.size());
   for (size_t i = 0; i < a.view.size(); ++i) a.view[i] = uint8_t((i * 13) % 253);
   const std::string dir = TempDir("view");
@@ -88,9 +91,23 @@ TEST(BakedAssetTest, AViewDependentAssetRoundTripsAsFormat2) {
   EXPECT_TRUE(b->view_dependent());
   EXPECT_EQ(b->view, a.view);
   EXPECT_EQ(b->atlas, a.atlas);
+  EXPECT_EQ(b->view_term, BakedViewTerm::kPerSample);
+  EXPECT_EQ(b->step_cells, 0.5f);
+  EXPECT_EQ(b->block_distance.size(), b->index.size());  // Derived on load.
   absl::StatusOr<std::string> manifest = ReadFileToString(dir + "/manifest.json", "m");
   ASSERT_TRUE(manifest.ok());
   EXPECT_NE(manifest->find("\"format\": 2"), std::string::npos) << *manifest;
+  a.view_term = BakedViewTerm::kAtMedian;
+  a.step_cells = 1.0f;
+  const std::string dir3 = TempDir("view3");
+  ASSERT_TRUE(SaveBakedAsset(a, dir3).ok());
+  absl::StatusOr<BakedAsset> c = LoadBakedAsset(dir3);
+  ASSERT_TRUE(c.ok()) << c.status();
+  EXPECT_EQ(c->view_term, BakedViewTerm::kAtMedian);
+  EXPECT_EQ(c->step_cells, 1.0f);
+  manifest = ReadFileToString(dir3 + "/manifest.json", "m");
+  ASSERT_TRUE(manifest.ok());
+  EXPECT_NE(manifest->find("\"format\": 3"), std::string::npos) << *manifest;
   EXPECT_TRUE(IsBakedAssetFileName("view.bin.gz"));
   EXPECT_FALSE(IsBakedAssetFileName("../view.bin.gz"));
   absl::StatusOr<uint64_t> bytes = BakedAssetBytes(dir);
@@ -109,6 +126,12 @@ TEST(BakedAssetTest, InconsistentAssetsAreRefused) {
   EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);
   a = SmallAsset();
   a.resolution = 36;
+  EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);
+  a = SmallAsset();
+  a.step_cells = 0.75f;  // Only 1 or 0.5.
+  EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);
+  a = SmallAsset();
+  a.block_distance.assign(3, 0);
   EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);
   a = SmallAsset();
   a.atlas.pop_back();

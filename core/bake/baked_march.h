@@ -69,12 +69,21 @@ float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vec
     const int block = b[0] + nb * (b[1] + nb * b[2]);
     Eigen::Vector4f rgba;
     if (!sample(block, u, b, &rgba)) {
-      // An empty block: skipped at once where it lies in model space
-      // unchanged (by whole steps, so samples stay on t0 + (k + 1/2) step).
-      const Eigen::Vector3f lo(float(b[0]) * block_size - B, float(b[1]) * block_size - B,
-                               float(b[2]) * block_size - B);
-      const Eigen::Vector3f hi = lo.array() + block_size;
-      if (!a.contracted || (lo.cwiseAbs().maxCoeff() <= 1.0f && hi.cwiseAbs().maxCoeff() <= 1.0f)) {
+      // An empty block, and every block within its distance D - 1 (cube of
+      // blocks around it) is empty too: skipped at once where that cube lies
+      // in model space unchanged (for unbounded scenes: clipped to the inner
+      // cube), by whole steps, so samples stay on t0 + (k + 1/2) step.
+      const float D = float(a.block_distance.empty() ? 1 : std::max<int>(1, a.block_distance[size_t(block)])) - 1.0f;
+      Eigen::Vector3f lo, hi;
+      for (int k = 0; k < 3; ++k) {
+        lo[k] = (float(b[k]) - D) * block_size - B;
+        hi[k] = (float(b[k]) + D + 1.0f) * block_size - B;
+      }
+      if (a.contracted) {
+        lo = lo.cwiseMax(-1.0f);
+        hi = hi.cwiseMin(1.0f);
+      }
+      if (!a.contracted || r <= 1.0f) {
         t += std::max(1.0f, std::ceil((BakedExitT(o, d, lo, hi) - t) / step)) * step;
       } else {
         t += dt;

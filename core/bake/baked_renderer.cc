@@ -8,26 +8,39 @@
 namespace clnerf {
 namespace {
 
+// Local coordinates l of cell coordinates u in block b.
+inline void LocalInBlock(const Eigen::Vector3f& u, const int b[3], float l[3]) {
+  for (int k = 0; k < 3; ++k) l[k] = u[k] - float(kBakeBlock * b[k]);
+}
+
+// The view-dependent term at local coordinates l of `brick`, premultiplied
+// by the density code like the colour (H d in [0, 1] colour units times
+// the blended code): sum_k d_k (texel_k - 128) / 127.
+Eigen::Vector3f ViewTerm(const BakedAsset& a, int64_t brick, const float l[3], const Eigen::Vector3f& d) {
+  const size_t plane = a.atlas.size();
+  Eigen::Vector3f out = Eigen::Vector3f::Zero();
+  for (int k = 0; k < 3; ++k) {
+    const Eigen::Vector4f h = TrilinearBrick(l, [&](int x, int y, int z, int c) {
+      return c == 3 ? 0.0f : float(a.view[size_t(k) * plane + 4 * BrickTexel(a, uint32_t(brick), x, y, z) + size_t(c)]) - 128.0f;
+    });
+    out += d[k] * h.head<3>() / 127.0f;
+  }
+  return out;
+}
+
 // RGBA in [0, 1] at u of the brick that block (b[0], b[1], b[2]) names,
-// seen along d (the view-dependent term is added to the premultiplied
-// colour).
+// seen along d (format 2: the view-dependent term is added to the
+// premultiplied colour). Records the brick and local coordinates.
 bool SampleBlock(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], const Eigen::Vector3f& d,
-                 Eigen::Vector4f* rgba) {
+                 Eigen::Vector4f* rgba, int64_t* brick_out, float l[3]) {
   const int64_t brick = BlockBrick(a, b);
   if (brick < 0) return false;
-  const float l[3] = {u[0] - float(kBakeBlock * b[0]), u[1] - float(kBakeBlock * b[1]), u[2] - float(kBakeBlock * b[2])};
-  auto texel = [&](int x, int y, int z) { return 4 * BrickTexel(a, uint32_t(brick), x, y, z); };
-  *rgba = TrilinearBrick(l, [&](int x, int y, int z, int c) { return float(a.atlas[texel(x, y, z) + size_t(c)]); }) /
-          255.0f;
-  if (a.view_dependent()) {
-    const size_t plane = a.atlas.size();
-    for (int k = 0; k < 3; ++k) {
-      const Eigen::Vector4f h = TrilinearBrick(l, [&](int x, int y, int z, int c) {
-        return c == 3 ? 0.0f : float(a.view[size_t(k) * plane + texel(x, y, z) + size_t(c)]) - 128.0f;
-      });
-      rgba->head<3>() += d[k] * h.head<3>() / 127.0f;
-    }
-  }
+  LocalInBlock(u, b, l);
+  *brick_out = brick;
+  *rgba = TrilinearBrick(l, [&](int x, int y, int z, int c) {
+            return float(a.atlas[4 * BrickTexel(a, uint32_t(brick), x, y, z) + size_t(c)]);
+          }) / 255.0f;
+  if (a.view_dependent() && a.view_term == BakedViewTerm::kPerSample) rgba->head<3>() += ViewTerm(a, brick, l, d);
   return true;
 }
 
@@ -35,15 +48,29 @@ bool SampleBlock(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], 
 
 BakedRay RenderBakedRay(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d) {
   BakedRay out;
+  int64_t brick = -1, median_brick = -1;
+  float l[3] = {0, 0, 0}, median_l[3] = {0, 0, 0}, median_code = 0.0f, T_run = 1.0f;
   const float T = MarchBaked(
       a, o, d,
-      [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) { return SampleBlock(a, u, b, d, rgba); },
+      [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
+        return SampleBlock(a, u, b, d, rgba, &brick, l);
+      },
       [&](int, float w, float t, const Eigen::Vector4f& rgba) {
         ++out.samples;
         out.rgb += w * BakedColour(rgba);
         out.depth += w * t;
+        const float next = T_run - w;
+        if (median_brick < 0 && T_run >= 0.5f && next < 0.5f) {  // The median sample (format 3).
+          median_brick = brick;
+          std::copy(l, l + 3, median_l);
+          median_code = rgba[3];
+        }
+        T_run = next;
       });
-  out.rgb += T * a.background;
+  if (a.view_dependent() && a.view_term == BakedViewTerm::kAtMedian && median_brick >= 0) {
+    out.rgb += (1.0f - T) * ViewTerm(a, median_brick, median_l, d) / std::max(median_code, 1.0f / 255.0f);
+  }
+  out.rgb = (out.rgb + T * a.background).cwiseMax(0.0f).cwiseMin(1.0f);
   out.opacity = 1.0f - T;
   return out;
 }

@@ -1,6 +1,8 @@
 #include "core/bake/baked_renderer.h"
 
+#include <algorithm>
 #include <cmath>
+#include <random>
 
 #include "core/data/contraction.h"
 #include "gtest/gtest.h"
@@ -39,40 +41,47 @@ void FillBlock(BakedAsset* a, int bx, int by, int bz, int k, const Eigen::Vector
   }
 }
 
-// Opacity of `samples` half-cell steps through a uniform code.
-float ClosedFormOpacity(uint8_t code, int samples) {
+// Opacity of `samples` steps of `step_cells` through a uniform code.
+float ClosedFormOpacity(uint8_t code, int samples, float step_cells) {
   const float a = float(code) / 255.0f;
-  return 1.0f - std::pow(1.0f - a * a, 0.5f * float(samples));
+  return 1.0f - std::pow(1.0f - a * a, step_cells * float(samples));
 }
 
 TEST(BakedRendererTest, AUniformBlockComposesAsItsClosedForm) {
-  // 32^3 cells over [-1, 1]^3: blocks of 0.5; block (2, 2, 2) spans [0, 0.5]^3.
-  BakedAsset a = EmptyAsset(false, 1.0f, 32, 1);
-  const Eigen::Vector3f colour(0.8f, 0.2f, 0.4f);
-  FillBlock(&a, 2, 2, 2, 0, colour, 100);
-  ASSERT_TRUE(a.Validate().ok());
-  const BakedRay r = RenderBakedRay(a, Eigen::Vector3f(0.26f, 0.24f, -3.0f), Eigen::Vector3f(0, 0, 1));
-  // The block is 8 cells deep: 16 half-cell samples (one more or less at the
-  // lattice's phase).
-  EXPECT_GE(r.samples, 15);
-  EXPECT_LE(r.samples, 17);
-  EXPECT_NEAR(r.opacity, ClosedFormOpacity(100, r.samples), 1e-5f);
-  for (int c = 0; c < 3; ++c) EXPECT_NEAR(r.rgb[c], r.opacity * colour[c] + (1.0f - r.opacity), 2e-3f);
-  // Depth: the weights sit between the block's faces (z = 3 to 3.5 from the origin).
-  EXPECT_GT(r.depth / r.opacity, 3.0f);
-  EXPECT_LT(r.depth / r.opacity, 3.5f);
-  // A ray that misses the block sees the background only.
-  const BakedRay miss = RenderBakedRay(a, Eigen::Vector3f(-0.3f, 0.24f, -3.0f), Eigen::Vector3f(0, 0, 1));
-  EXPECT_EQ(miss.samples, 0);
-  EXPECT_FLOAT_EQ(miss.opacity, 0.0f);
-  EXPECT_NEAR(miss.rgb[0], 1.0f, 1e-6f);
+  for (float step_cells : {1.0f, 0.5f}) {
+    // 32^3 cells over [-1, 1]^3: blocks of 0.5; block (2, 2, 2) spans [0, 0.5]^3.
+    BakedAsset a = EmptyAsset(false, 1.0f, 32, 1);
+    a.step_cells = step_cells;
+    const Eigen::Vector3f colour(0.8f, 0.2f, 0.4f);
+    FillBlock(&a, 2, 2, 2, 0, colour, 100);
+    ASSERT_TRUE(a.Validate().ok());
+    const BakedRay r = RenderBakedRay(a, Eigen::Vector3f(0.26f, 0.24f, -3.0f), Eigen::Vector3f(0, 0, 1));
+    // The block is 8 cells deep: 8 / step_cells samples (one more or less
+    // at the lattice's phase).
+    const int expected = int(8.0f / step_cells);
+    EXPECT_GE(r.samples, expected - 1);
+    EXPECT_LE(r.samples, expected + 1);
+    EXPECT_NEAR(r.opacity, ClosedFormOpacity(100, r.samples, step_cells), 1e-5f);
+    for (int c = 0; c < 3; ++c) EXPECT_NEAR(r.rgb[c], r.opacity * colour[c] + (1.0f - r.opacity), 2e-3f);
+    // Depth: the weights sit between the block's faces (z = 3 to 3.5 from the origin).
+    EXPECT_GT(r.depth / r.opacity, 3.0f);
+    EXPECT_LT(r.depth / r.opacity, 3.5f);
+    // A ray that misses the block sees the background only.
+    const BakedRay miss = RenderBakedRay(a, Eigen::Vector3f(-0.3f, 0.24f, -3.0f), Eigen::Vector3f(0, 0, 1));
+    EXPECT_EQ(miss.samples, 0);
+    EXPECT_FLOAT_EQ(miss.opacity, 0.0f);
+    EXPECT_NEAR(miss.rgb[0], 1.0f, 1e-6f);
+  }
 }
 
-// Format 2: a uniform block whose colour depends on the viewing direction,
-// c(d) = c0 + H d. Rays along +z and -z see c0 + H_z and c0 - H_z, rays
-// along x see c0 + H_x, each to the term's 1/127 quantisation.
+// A uniform block whose colour depends on the viewing direction, c(d) = c0
+// + H d. Rays along +z and -z see c0 + H_z and c0 - H_z, rays along x see
+// c0 + H_x, each to the term's 1/127 quantisation, whether the term is
+// applied at every sample (format 2) or once at the median (format 3).
 TEST(BakedRendererTest, AViewDependentBlockShowsItsColourForEachDirection) {
+  for (BakedViewTerm term : {BakedViewTerm::kAtMedian, BakedViewTerm::kPerSample}) {
   BakedAsset a = EmptyAsset(false, 1.0f, 32, 1);
+  a.view_term = term;
   const Eigen::Vector3f c0(0.5f, 0.4f, 0.3f);
   const uint8_t code = 200;
   FillBlock(&a, 2, 2, 2, 0, c0, code);
@@ -101,27 +110,82 @@ TEST(BakedRendererTest, AViewDependentBlockShowsItsColourForEachDirection) {
     EXPECT_NEAR(down[c], c0[c] - hz[c], 0.012f) << c;
     EXPECT_NEAR(side[c], c0[c] + hx[c], 0.012f) << c;
   }
+  }
 }
 
 TEST(BakedRendererTest, SkippingEmptyBlocksLandsOnEveryOccupiedOne) {
   // Two thin blocks far apart on one ray, empty space between and around:
-  // the skips must reach both, each with its full depth of samples.
-  BakedAsset a = EmptyAsset(false, 1.0f, 64, 2);
-  FillBlock(&a, 5, 7, 1, 0, Eigen::Vector3f(1, 0, 0), 60);
-  FillBlock(&a, 5, 7, 6, 1, Eigen::Vector3f(0, 0, 1), 60);
-  const float cell = a.cell();
-  const Eigen::Vector3f o(-1.0f + (5 * 8 + 4.3f) * cell, -1.0f + (7 * 8 + 3.7f) * cell, -2.0f);
-  const BakedRay r = RenderBakedRay(a, o, Eigen::Vector3f(0, 0, 1));
-  EXPECT_GE(r.samples, 31);
-  EXPECT_LE(r.samples, 33);
-  EXPECT_NEAR(r.opacity, ClosedFormOpacity(60, r.samples), 1e-5f);
-  EXPECT_GT(r.rgb[0], r.rgb[2]);  // The red block is in front.
-  EXPECT_GT(r.rgb[2], 0.0f);
-  // Oblique rays see the same total as marching without skips would: each
-  // block's samples are spaced one step apart along the ray.
-  const Eigen::Vector3f d = Eigen::Vector3f(0.05f, -0.03f, 1.0f).normalized();
-  const BakedRay s = RenderBakedRay(a, o - 2.0f * d.cwiseProduct(Eigen::Vector3f(1, 1, 0)), d);
-  EXPECT_NEAR(s.opacity, ClosedFormOpacity(60, s.samples), 1e-5f);
+  // the skips must reach both, each with its full depth of samples, with
+  // and without the distance map.
+  for (bool distances : {false, true}) {
+    BakedAsset a = EmptyAsset(false, 1.0f, 64, 2);
+    FillBlock(&a, 5, 7, 1, 0, Eigen::Vector3f(1, 0, 0), 60);
+    FillBlock(&a, 5, 7, 6, 1, Eigen::Vector3f(0, 0, 1), 60);
+    if (distances) ComputeBlockDistances(&a);
+    const float cell = a.cell();
+    const Eigen::Vector3f o(-1.0f + (5 * 8 + 4.3f) * cell, -1.0f + (7 * 8 + 3.7f) * cell, -2.0f);
+    const BakedRay r = RenderBakedRay(a, o, Eigen::Vector3f(0, 0, 1));
+    EXPECT_GE(r.samples, 15);
+    EXPECT_LE(r.samples, 17);
+    EXPECT_NEAR(r.opacity, ClosedFormOpacity(60, r.samples, 1.0f), 1e-5f);
+    EXPECT_GT(r.rgb[0], r.rgb[2]);  // The red block is in front.
+    EXPECT_GT(r.rgb[2], 0.0f);
+    // Oblique rays see the same total as marching without skips would: each
+    // block's samples are spaced one step apart along the ray.
+    const Eigen::Vector3f d = Eigen::Vector3f(0.05f, -0.03f, 1.0f).normalized();
+    const BakedRay s = RenderBakedRay(a, o - 2.0f * d.cwiseProduct(Eigen::Vector3f(1, 1, 0)), d);
+    EXPECT_NEAR(s.opacity, ClosedFormOpacity(60, s.samples, 1.0f), 1e-5f);
+  }
+}
+
+// The chessboard distances match brute force, and marching with them sees
+// the same samples as skipping one block at a time, over random sparse
+// grids, bounded and contracted.
+TEST(BakedRendererTest, BlockDistancesSkipOnlyEmptySpace) {
+  std::mt19937 rng(11);
+  for (bool contracted : {false, true}) {
+    BakedAsset a = EmptyAsset(contracted, contracted ? 2.0f : 1.0f, 128, 6);
+    const int nb = a.blocks_per_axis();
+    std::uniform_int_distribution<int> pick(0, nb - 1);
+    for (int k = 0; k < 6; ++k) {
+      FillBlock(&a, pick(rng), pick(rng), pick(rng), k, Eigen::Vector3f(0.2f * k, 0.5f, 0.9f), uint8_t(40 + 30 * k));
+    }
+    ComputeBlockDistances(&a);
+    for (int i = 0; i < nb * nb * nb; ++i) {
+      const int x = i % nb, y = (i / nb) % nb, z = i / (nb * nb);
+      int best = 255;
+      for (int j = 0; j < nb * nb * nb; ++j) {
+        if (a.index[size_t(j)] == 0) continue;
+        best = std::min(best, std::max({std::abs(j % nb - x), std::abs((j / nb) % nb - y), std::abs(j / (nb * nb) - z)}));
+      }
+      ASSERT_EQ(int(a.block_distance[size_t(i)]), best) << i;
+    }
+    BakedAsset plain = a;
+    plain.block_distance.clear();
+    std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+    std::vector<Eigen::Vector3f> centres;  // Model space (the inner cube's part when contracted).
+    for (int i = 0; i < nb * nb * nb; ++i) {
+      if (a.index[size_t(i)] == 0) continue;
+      const Eigen::Vector3f c((i % nb + 0.5f) / nb, ((i / nb) % nb + 0.5f) / nb, (i / (nb * nb) + 0.5f) / nb);
+      centres.push_back((2.0f * c.array() - 1.0f) * a.half_size);
+    }
+    int hits = 0;
+    for (int r = 0; r < 400; ++r) {
+      const Eigen::Vector3f o = Eigen::Vector3f(u(rng), u(rng), u(rng)) * (contracted ? 0.9f : 2.5f);
+      // Half the rays aim at an occupied block (through the contraction's
+      // inverse when it lies in the shell), half go anywhere.
+      Eigen::Vector3f aim = centres[size_t(r) % centres.size()];
+      const float q = aim.cwiseAbs().maxCoeff();
+      if (contracted && q > 1.0f) aim *= (1.0f / (2.0f - q)) / q;
+      const Eigen::Vector3f d = r % 2 ? Eigen::Vector3f(u(rng), u(rng), u(rng)).normalized() : Eigen::Vector3f((aim - o).normalized());
+      const BakedRay fast = RenderBakedRay(a, o, d), slow = RenderBakedRay(plain, o, d);
+      ASSERT_EQ(fast.samples, slow.samples) << r;
+      EXPECT_NEAR(fast.opacity, slow.opacity, 1e-5f);
+      for (int c = 0; c < 3; ++c) EXPECT_NEAR(fast.rgb[c], slow.rgb[c], 1e-5f);
+      hits += fast.samples > 0;
+    }
+    EXPECT_GT(hits, 100) << "contracted " << contracted;
+  }
 }
 
 TEST(BakedRendererTest, TheFarShellIsReachedThroughTheContraction) {
@@ -135,8 +199,10 @@ TEST(BakedRendererTest, TheFarShellIsReachedThroughTheContraction) {
   EXPECT_GT(hit.opacity, 0.99f);
   EXPECT_NEAR(hit.rgb[1], 1.0f, 0.01f);
   const float depth = hit.depth / hit.opacity;
-  EXPECT_GT(depth, 1.9f);  // Where contract(x) = 1.5: x = 2.
-  EXPECT_LT(depth, 2.2f);
+  // Where contract(x) = 1.5: x = 2; the first sample lands within a step
+  // (cell r^2 = 0.25 there) past it.
+  EXPECT_GT(depth, 1.9f);
+  EXPECT_LT(depth, 2.3f);
   const BakedRay miss = RenderBakedRay(a, o, Eigen::Vector3f(-1, 0, 0));
   EXPECT_FLOAT_EQ(miss.opacity, 0.0f);
 }

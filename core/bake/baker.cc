@@ -294,6 +294,7 @@ absl::Status BakeOptions::Validate() const {
     return absl::InvalidArgumentError("bake: min_block_weight must be in [0, 1)");
   }
   if (threads < 0) return absl::InvalidArgumentError("bake: threads must be >= 0");
+  if (step_cells != 0.5f && step_cells != 1.0f) return absl::InvalidArgumentError("bake: step_cells must be 0.5 or 1");
   return fit.Validate();
 }
 
@@ -326,6 +327,8 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
   a.normalization = model.normalization();
   a.background = model.background();
   a.time_step = t;
+  a.step_cells = options.step_cells;
+  a.view_term = options.view_term;
   for (int k = 0; k < 4 && k < int(cameras.size()); ++k) a.views.push_back(cameras[k * cameras.size() / 4]);
   FindCandidates(model, &w);
   BakeDensity(model, t, &w);
@@ -342,6 +345,7 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
   const auto t2 = std::chrono::steady_clock::now();
   std::vector<float> rgb;
   BakeColour(model, t, kept, dir, &w, &rgb);
+  ComputeBlockDistances(&a);
   rep.colour_seconds = Since(t2);
   const auto t3 = std::chrono::steady_clock::now();
   std::vector<float> view;  // The view-dependent term (stage 5 fits it).

@@ -53,6 +53,11 @@ struct BakeOptions {
   // views: fox_8 25.96 -> 27.74 dB, lego_100 30.04 -> 30.64, flower_4
   // 25.58 -> 25.83 (docs/baking.md); assets 11-23 % larger.
   bool view_dependent = true;
+  // Where rays apply that term: once, at the median sample (format 3), or
+  // at every sample (format 2). See docs/baking.md for what each costs.
+  BakedViewTerm view_term = BakedViewTerm::kAtMedian;
+  // The ray step in cells: 1 or 0.5 (every asset before format 3).
+  float step_cells = 1.0f;
   absl::Status Validate() const;
 };
 

@@ -54,9 +54,15 @@ struct Rows {
   std::vector<int64_t> start = {0};
   std::vector<uint32_t> col;
   std::vector<float> val;
+  std::vector<uint8_t> kind;  // Per entry: kDiffuseEntry, kViewEntry or both.
   std::vector<float> target;  // 3 per row.
   std::vector<float> dir;     // 3 per row: the ray's direction (model space).
 };
+
+// What an entry of A weighs: the point's diffuse colour c0, its
+// view-dependent term H (times the ray's direction), or both (format 2,
+// where every sample applies H).
+constexpr uint8_t kDiffuseEntry = 1, kViewEntry = 2;
 
 // The colour basis of a ray direction: 1 (diffuse), then d (view-dependent
 // colour of degree 1, c(d) = c0 + H d).
@@ -91,23 +97,31 @@ bool SampleCodes(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], 
   return true;
 }
 
+// `view`: also the entries of the view-dependent term.
 Rows BuildRows(const BakedAsset& a, const std::vector<float>& origins, const std::vector<float>& dirs,
-               const std::vector<float>& model_rgb) {
+               const std::vector<float>& model_rgb, bool view) {
   const int n = int(origins.size() / 3);
   const int threads = omp_get_max_threads();
   std::vector<Rows> part(static_cast<size_t>(threads));
 #pragma omp parallel num_threads(threads)
   {
     Rows& mine = part[size_t(omp_get_thread_num())];
-    std::vector<std::pair<uint32_t, float>> row;
+    std::vector<std::pair<uint32_t, float>> row, view_row;
 #pragma omp for schedule(static)
     for (int r = 0; r < n; ++r) {
       const Eigen::Vector3f o(origins.data() + 3 * size_t(r)), d(dirs.data() + 3 * size_t(r));
-      const float T = BakedRayWeights(a, o, d, &row);
+      const float T = BakedRayWeights(a, o, d, &row, view ? &view_row : nullptr);
       if (row.empty()) continue;  // Nothing to fit: the ray sees only background.
+      const bool shared = view && a.view_term == BakedViewTerm::kPerSample;
       for (const auto& [id, v] : row) {
         mine.col.push_back(id);
         mine.val.push_back(v);
+        mine.kind.push_back(shared ? kDiffuseEntry | kViewEntry : kDiffuseEntry);
+      }
+      for (size_t k = 0; view && !shared && k < view_row.size(); ++k) {
+        mine.col.push_back(view_row[k].first);
+        mine.val.push_back(view_row[k].second);
+        mine.kind.push_back(kViewEntry);
       }
       mine.start.push_back(int64_t(mine.col.size()));
       for (int c = 0; c < 3; ++c) mine.target.push_back(model_rgb[3 * size_t(r) + c] - T * a.background[c]);
@@ -120,6 +134,7 @@ Rows BuildRows(const BakedAsset& a, const std::vector<float>& origins, const std
     for (size_t i = 1; i < p.start.size(); ++i) all.start.push_back(base + p.start[i]);
     all.col.insert(all.col.end(), p.col.begin(), p.col.end());
     all.val.insert(all.val.end(), p.val.begin(), p.val.end());
+    all.kind.insert(all.kind.end(), p.kind.begin(), p.kind.end());
     all.target.insert(all.target.end(), p.target.begin(), p.target.end());
     all.dir.insert(all.dir.end(), p.dir.begin(), p.dir.end());
   }
@@ -137,7 +152,8 @@ void MultiplyA(const Rows& A, int basis, const std::vector<float>& x, std::vecto
     Basis(A.dir.data() + 3 * size_t(r), basis, b);
     for (int64_t k = A.start[r]; k < A.start[r + 1]; ++k) {
       const float* xc = x.data() + size_t(3 * basis) * A.col[k];
-      for (int e = 0; e < basis; ++e) {
+      const int first = (A.kind[k] & kDiffuseEntry) ? 0 : 1, last = (A.kind[k] & kViewEntry) ? basis : 1;
+      for (int e = first; e < last; ++e) {
         const float v = A.val[k] * b[e];
         for (int c = 0; c < 3; ++c) acc[c] += v * xc[3 * e + c];
       }
@@ -153,6 +169,7 @@ struct Columns {
   std::vector<int64_t> start;
   std::vector<uint32_t> row;
   std::vector<float> val;
+  std::vector<uint8_t> kind;
 };
 
 Columns Transpose(const Rows& A, size_t unknowns) {
@@ -162,6 +179,7 @@ Columns Transpose(const Rows& A, size_t unknowns) {
   for (size_t j = 0; j < unknowns; ++j) C.start[j + 1] += C.start[j];
   C.row.resize(A.col.size());
   C.val.resize(A.col.size());
+  C.kind.resize(A.col.size());
   std::vector<int64_t> fill(C.start.begin(), C.start.end() - 1);
   const int64_t m = int64_t(A.start.size()) - 1;
   for (int64_t r = 0; r < m; ++r) {
@@ -169,6 +187,7 @@ Columns Transpose(const Rows& A, size_t unknowns) {
       const int64_t at = fill[A.col[k]]++;
       C.row[at] = uint32_t(r);
       C.val[at] = A.val[k];
+      C.kind[at] = A.kind[k];
     }
   }
   return C;
@@ -186,7 +205,8 @@ void MultiplyAt(const Rows& A, const Columns& C, int basis, const std::vector<fl
       float b[4];
       Basis(A.dir.data() + 3 * r, basis, b);
       const float* yr = y.data() + 3 * r;
-      for (int e = 0; e < basis; ++e) {
+      const int first = (C.kind[k] & kDiffuseEntry) ? 0 : 1, last = (C.kind[k] & kViewEntry) ? basis : 1;
+      for (int e = first; e < last; ++e) {
         const float v = C.val[k] * b[e];
         for (int c = 0; c < 3; ++c) acc[3 * e + c] += v * yr[c];
       }
@@ -261,23 +281,10 @@ double Rms(const std::vector<float>& r) {
 
 }  // namespace
 
-// One ray's row: march the asset, collect each corner's share of the pixel
-// (sample weight * trilinear weight * code / blended code), merge repeats.
-// Returns the final transmittance.
-float BakedRayWeights(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
-                      std::vector<std::pair<uint32_t, float>>* row) {
-  row->clear();
-  Corners c;
-  const float T = MarchBaked(
-      a, o, d, [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
-        return SampleCodes(a, u, b, &c, rgba);
-      },
-      [&](int, float weight, float, const Eigen::Vector4f& rgba) {
-        const float s = weight / std::max(rgba[3], 1.0f / 255.0f);
-        for (int k = 0; k < 8; ++k) {
-          if (c.wa[k] > 0.0f) row->emplace_back(c.id[k], s * c.wa[k]);
-        }
-      });
+namespace {
+
+// Sorts (id, weight) pairs by id and merges repeated ids.
+void MergeRepeats(std::vector<std::pair<uint32_t, float>>* row) {
   std::sort(row->begin(), row->end(), [](const auto& x, const auto& y) { return x.first < y.first; });
   size_t out = 0;
   for (size_t i = 0; i < row->size(); ++i) {
@@ -288,6 +295,50 @@ float BakedRayWeights(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen
     }
   }
   row->resize(out);
+}
+
+}  // namespace
+
+// One ray's row: march the asset, collect each corner's share of the pixel
+// (sample weight * trilinear weight * code / blended code), merge repeats;
+// for the view term at the median, the median sample's corners times the
+// ray's opacity. Returns the final transmittance.
+float BakedRayWeights(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
+                      std::vector<std::pair<uint32_t, float>>* row,
+                      std::vector<std::pair<uint32_t, float>>* view_row) {
+  row->clear();
+  Corners c, median;
+  bool has_median = false;
+  float T_run = 1.0f;
+  const float T = MarchBaked(
+      a, o, d, [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
+        return SampleCodes(a, u, b, &c, rgba);
+      },
+      [&](int, float weight, float, const Eigen::Vector4f& rgba) {
+        const float s = weight / std::max(rgba[3], 1.0f / 255.0f);
+        for (int k = 0; k < 8; ++k) {
+          if (c.wa[k] > 0.0f) row->emplace_back(c.id[k], s * c.wa[k]);
+        }
+        const float next = T_run - weight;
+        if (!has_median && T_run >= 0.5f && next < 0.5f) {
+          has_median = true;
+          median = c;
+          for (float& v : median.wa) v /= std::max(rgba[3], 1.0f / 255.0f);
+        }
+        T_run = next;
+      });
+  MergeRepeats(row);
+  if (view_row != nullptr) {
+    if (a.view_term == BakedViewTerm::kPerSample) {
+      *view_row = *row;
+    } else {
+      view_row->clear();
+      for (int k = 0; has_median && k < 8; ++k) {
+        if (median.wa[k] > 0.0f) view_row->emplace_back(median.id[k], (1.0f - T) * median.wa[k]);
+      }
+      MergeRepeats(view_row);
+    }
+  }
   return T;
 }
 
@@ -323,7 +374,10 @@ absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::ve
   RenderRays(model, origins.data(), dirs.data(), n, time_step, ro, model_rgb.data(), nullptr, nullptr);
   rep.target_seconds = Since(t0);
   t0 = std::chrono::steady_clock::now();
-  Rows A = BuildRows(asset, origins, dirs, model_rgb);
+  const bool want_view = view != nullptr;
+  Rows A = BuildRows(asset, origins, dirs, model_rgb, want_view);
+  int64_t view_entries = 0;  // Entries that weigh H (format 2: all of them).
+  for (uint8_t k : A.kind) view_entries += (k & kViewEntry) != 0;
   // Columns renumbered to the lattice points some ray blends.
   std::vector<int32_t> compact(rgb->size() / 3, -1);
   std::vector<uint32_t> point;  // Compact -> lattice id.
@@ -335,9 +389,24 @@ absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::ve
     c = uint32_t(compact[c]);
   }
   const size_t unknowns = point.size();
-  if (view != nullptr && int64_t(A.col.size()) > options.max_view_nonzeros) {
+  if (view != nullptr && view_entries > options.max_view_nonzeros) {
     view->clear();
     view = nullptr;
+    // Diffuse only: the view-only entries go (their points stay unknowns
+    // that only the prior holds, at their first guess).
+    Rows D;
+    for (int64_t r = 0; r + 1 < int64_t(A.start.size()); ++r) {
+      for (int64_t k = A.start[r]; k < A.start[r + 1]; ++k) {
+        if (!(A.kind[k] & kDiffuseEntry)) continue;
+        D.col.push_back(A.col[k]);
+        D.val.push_back(A.val[k]);
+        D.kind.push_back(kDiffuseEntry);
+      }
+      D.start.push_back(int64_t(D.col.size()));
+    }
+    D.target = std::move(A.target);
+    D.dir = std::move(A.dir);
+    A = std::move(D);
   }
   const int basis = view != nullptr ? 4 : 1;
   rep.view_dependent = view != nullptr;
@@ -350,7 +419,9 @@ absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::ve
   MultiplyA(A, basis, x0, &r0);
   for (size_t i = 0; i < r0.size(); ++i) r0[i] = A.target[i] - r0[i];
   std::vector<double> diag(unknowns, 0.0);
-  for (size_t k = 0; k < A.col.size(); ++k) diag[A.col[k]] += double(A.val[k]) * A.val[k];
+  for (size_t k = 0; k < A.col.size(); ++k) {
+    if (A.kind[k] & kDiffuseEntry) diag[A.col[k]] += double(A.val[k]) * A.val[k];
+  }
   double mean_diag = 0;
   for (double v : diag) mean_diag += v;
   mean_diag = unknowns > 0 ? mean_diag / double(unknowns) : 1.0;

@@ -44,9 +44,10 @@ struct ColourFitOptions {
   // fit, 1 gained 0.36, 10 gained 0.57, 30 0.49, 100 0.35 (docs/baking.md).
   float prior = 10.0f;
   // The view-dependent term (4x the unknowns) is fitted only while A has at
-  // most this many entries; above it the fit is diffuse (the term's solve
-  // cost grows faster than the entries: fox_8 19.4 M entries 4.5 s, beer_2's
-  // haze 44.5 M entries 19.4 s, for +0.02 dB there).
+  // most this many entries that weigh it; above it the fit is diffuse.
+  // Format 2 applied the term at every sample, so every entry weighed it
+  // (fox_8 19.4 M entries 4.5 s, beer_2's haze 44.5 M entries 19.4 s, for
+  // +0.02 dB there); format 3 applies it once per ray, at most 8 entries.
   int64_t max_view_nonzeros = 30'000'000;
   absl::Status Validate() const;
 };
@@ -61,12 +62,16 @@ struct ColourFitReport {
 };
 
 // One ray's pixel as a linear function of the lattice colours (a row of the
-// fit's A): pixel = sum_j w_j (c0_j + H_j d) + T background over lattice
-// points j = brick * 9^3 + local index, with c0_j the colour before
-// premultiplication. Fills (j, w_j) sorted by j and returns T. Marches as
-// the reference renderer does (only the atlas's density codes are read).
+// fit's A): pixel = sum_j w_j c0_j + sum_j v_j H_j d + T background over
+// lattice points j = brick * 9^3 + local index, with c0_j the colour before
+// premultiplication. Fills (j, w_j) sorted by j and returns T. `view_row`
+// (optional) gets (j, v_j): for format 3 (asset.view_term kAtMedian) the
+// median sample's corners times (1 - T), for format 2 the same as the
+// w_j. Marches as the reference renderer does (only the atlas's density
+// codes are read).
 float BakedRayWeights(const BakedAsset& asset, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
-                      std::vector<std::pair<uint32_t, float>>* weights);
+                      std::vector<std::pair<uint32_t, float>>* weights,
+                      std::vector<std::pair<uint32_t, float>>* view_row = nullptr);
 
 // `asset` holds the grid: index, and the density codes in the atlas's alpha
 // (its colour channels are not read). `rgb` holds 3 floats per lattice point
@@ -75,7 +80,8 @@ float BakedRayWeights(const BakedAsset& asset, const Eigen::Vector3f& o, const E
 // `cameras` are world-space training cameras; `time_step` the model's.
 // `view` (optional): 9 floats per lattice point, the view-dependent term H
 // of c(d) = c0 + H d (d the ray's model-space direction; H column-major,
-// k = x, y, z then channel), fitted with c0 from zero, clamped to [-1, 1];
+// k = x, y, z then channel), applied as asset.view_term says, fitted with
+// c0 from zero, clamped to [-1, 1];
 // null = diffuse colours only. Cleared when A is too large for it
 // (max_view_nonzeros): the fit is then diffuse.
 absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::vector<Camera>& cameras,

@@ -73,24 +73,33 @@ void PointColour(const BakedAsset& a, uint32_t j, Eigen::Vector3f* c0, Eigen::Ma
 }
 
 // The pixel the weights predict for the asset's own colours.
-Eigen::Vector3f Predicted(const BakedAsset& a, const std::vector<std::pair<uint32_t, float>>& w, float T,
-                          const Eigen::Vector3f& d) {
+Eigen::Vector3f Predicted(const BakedAsset& a, const std::vector<std::pair<uint32_t, float>>& w,
+                          const std::vector<std::pair<uint32_t, float>>& vw, float T, const Eigen::Vector3f& d) {
   Eigen::Vector3f px = T * a.background;
+  Eigen::Vector3f c0;
+  Eigen::Matrix3f H;
   for (const auto& [j, v] : w) {
-    Eigen::Vector3f c0;
-    Eigen::Matrix3f H;
     PointColour(a, j, &c0, &H);
-    px += v * (c0 + H * d);
+    px += v * c0;
+  }
+  for (const auto& [j, v] : vw) {
+    PointColour(a, j, &c0, &H);
+    px += v * (H * d);
   }
   return px;
 }
 
 // The fit's rows are the reference renderer's pixels exactly (the renderer
 // is linear in the lattice colours): the weights applied to the asset's
-// own colours give the rendered pixel, with and without the view term.
+// own colours give the rendered pixel, without the view term and with it
+// applied at the median sample (format 3) or at every sample (format 2),
+// stepping one cell or half a cell.
 TEST(ColourFitTest, RayWeightsReproduceTheReferenceRenderer) {
-  for (bool view : {false, true}) {
-    const BakedAsset a = RandomAsset(8, view, 3);
+  for (int mode = 0; mode < 4; ++mode) {
+    const bool view = mode > 0;
+    BakedAsset a = RandomAsset(8, view, 3);
+    a.view_term = mode == 2 ? BakedViewTerm::kPerSample : BakedViewTerm::kAtMedian;
+    a.step_cells = mode == 3 ? 0.5f : 1.0f;
     std::mt19937 rng(9);
     std::uniform_real_distribution<float> u(-1.0f, 1.0f);
     int rays = 0;
@@ -98,15 +107,17 @@ TEST(ColourFitTest, RayWeightsReproduceTheReferenceRenderer) {
       const Eigen::Vector3f target(0.5f + 0.4f * u(rng), 0.5f + 0.4f * u(rng), 0.5f + 0.4f * u(rng));
       const Eigen::Vector3f o = Eigen::Vector3f(u(rng), u(rng), u(rng)).normalized() * 3.0f;
       const Eigen::Vector3f d = (target - o).normalized();
-      std::vector<std::pair<uint32_t, float>> w;
-      const float T = BakedRayWeights(a, o, d, &w);
+      std::vector<std::pair<uint32_t, float>> w, vw;
+      const float T = BakedRayWeights(a, o, d, &w, &vw);
       const BakedRay r = RenderBakedRay(a, o, d);
       EXPECT_NEAR(T, 1.0f - r.opacity, 1e-5f);
       if (w.empty()) continue;
       ++rays;
       for (size_t k = 1; k < w.size(); ++k) EXPECT_LT(w[k - 1].first, w[k].first);  // Sorted, merged.
-      const Eigen::Vector3f p = Predicted(a, w, T, d);
-      for (int c = 0; c < 3; ++c) EXPECT_NEAR(p[c], r.rgb[c], 2e-3f) << "ray " << i << " view " << view;
+      if (mode == 1) EXPECT_LE(vw.size(), 8u);  // One sample's corners.
+      if (mode == 2) EXPECT_EQ(vw, w);
+      const Eigen::Vector3f p = Predicted(a, w, vw, T, d);
+      for (int c = 0; c < 3; ++c) EXPECT_NEAR(p[c], r.rgb[c], 2e-3f) << "ray " << i << " mode " << mode;
     }
     EXPECT_GT(rays, 60);
   }
@@ -141,6 +152,46 @@ TEST(ColourFitTest, RayWeightsAreThePixelsDerivativesByCentralDifferences) {
     ++checked;
   }
   EXPECT_GE(checked, 3);
+}
+
+// Format 3: the view weights are the pixel's derivatives over the median
+// sample's view-term bytes, by central finite differences of the renderer.
+TEST(ColourFitTest, MedianViewWeightsAreThePixelsDerivativesByCentralDifferences) {
+  BakedAsset a = RandomAsset(8, true, 7);
+  a.view_term = BakedViewTerm::kAtMedian;
+  // The first of some rays through the blocks that reaches a median.
+  std::mt19937 rng(13);
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  Eigen::Vector3f o, d;
+  std::vector<std::pair<uint32_t, float>> w, vw;
+  for (int tries = 0; tries < 200 && vw.size() < 4; ++tries) {
+    o = Eigen::Vector3f(u(rng), u(rng), u(rng)).normalized() * 3.0f;
+    d = (Eigen::Vector3f(0.5f + 0.3f * u(rng), 0.5f + 0.3f * u(rng), 0.5f + 0.3f * u(rng)) - o).normalized();
+    BakedRayWeights(a, o, d, &w, &vw);
+  }
+  ASSERT_GE(vw.size(), 4u);
+  const std::array<int, 3> t = a.atlas_texels();
+  int checked = 0;
+  for (const auto& [j, v] : vw) {
+    const uint32_t brick = j / kLattice, local = j % kLattice;
+    const size_t x = size_t(brick % uint32_t(a.bricks[0])) * kBakeBrick + local % kBakeBrick;
+    const size_t y = (local / kBakeBrick) % kBakeBrick, z = local / (kBakeBrick * kBakeBrick);
+    const size_t texel = 4 * (x + size_t(t[0]) * (y + size_t(t[1]) * z));
+    const int code = a.atlas[texel + 3];
+    uint8_t* hx = a.view.data() + texel;  // H's x column, red: the pixel moves by d_x times it.
+    if (code < 20 || *hx < 20 || *hx > 235) continue;
+    const int step = 8;  // Bytes: h = step / 127 / (code / 255) in H units.
+    const uint8_t saved = *hx;
+    *hx = uint8_t(saved + step);
+    const float plus = RenderBakedRay(a, o, d).rgb[0];
+    *hx = uint8_t(saved - step);
+    const float minus = RenderBakedRay(a, o, d).rgb[0];
+    *hx = saved;
+    const float h = float(step) / 127.0f / (float(code) / 255.0f);
+    EXPECT_NEAR((plus - minus) / (2.0f * h), v * d.x(), 1e-3f + 0.01f * std::abs(v * d.x())) << "point " << j;
+    ++checked;
+  }
+  EXPECT_GE(checked, 2);
 }
 
 }  // namespace

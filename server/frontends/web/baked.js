@@ -1,8 +1,10 @@
 // clnerf baked-asset renderer: draws a BakedAsset (core/bake/baked_asset.h)
 // with WebGL2 on the visitor's own GPU. The fragment shader marches exactly
 // the samples of the C++ reference renderer (core/bake/baked_renderer.h):
-// same interval, same half-cell lattice, same empty-block skips, same
-// trilinear lattice and compositing, so `clnerf render --model DIR` shows
+// same interval, same step lattice, same empty-space skips (the chessboard
+// distance of each empty block to the nearest occupied one, computed here
+// at load as ComputeBlockDistances does), same trilinear lattice,
+// compositing and view-dependent term, so `clnerf render --model DIR` shows
 // what this page shows.
 //
 // Usage: const r = new BakedRenderer(canvas); await r.load(baseUrl);
@@ -14,7 +16,10 @@ const BAKED_VS = `#version 300 es
 in vec2 aPos;
 void main() { gl_Position = vec4(aPos, 0.0, 1.0); }`;
 
+// VIEW_MODE (defined when the program is built for an asset): 0 no view
+// term, 1 at every sample (format 2), 2 once at the median sample (format 3).
 const BAKED_FS = `#version 300 es
+#define VIEW_MODE 0
 precision highp float;
 precision highp int;
 precision highp usampler3D;
@@ -24,7 +29,7 @@ uniform sampler3D uAtlas;
 uniform sampler3D uView0;  // View-dependent term (format 2): H's columns x, y, z.
 uniform sampler3D uView1;
 uniform sampler3D uView2;
-uniform int uViewDep;
+uniform float uStepCells;  // The ray step in cells.
 uniform mat3 uRot;        // Camera to model axes.
 uniform vec3 uOrigin;     // Camera centre, model space.
 uniform vec4 uIntr;       // fx, fy, cx, cy.
@@ -72,15 +77,23 @@ float exitT(vec3 o, vec3 d, vec3 lo, vec3 hi) {
   return t;
 }
 
+vec3 viewTerm(vec3 tc, vec3 d) {  // sum_k d_k (texel_k - 128) / 127, premultiplied like the colour.
+  return d.x * (texture(uView0, tc).rgb * 255.0 - 128.0) / 127.0 +
+         d.y * (texture(uView1, tc).rgb * 255.0 - 128.0) / 127.0 +
+         d.z * (texture(uView2, tc).rgb * 255.0 - 128.0) / 127.0;
+}
+
 void main() {
   vec2 px = vec2(gl_FragCoord.x, uHeight - gl_FragCoord.y);
   vec3 d = normalize(uRot * vec3((px.x - uIntr.z) / uIntr.x, (px.y - uIntr.w) / uIntr.y, 1.0));
   vec3 o = uOrigin;
-  float cell = 2.0 * uHalf / uRes, stp = 0.5 * cell, toCells = uRes / (2.0 * uHalf);
+  float cell = 2.0 * uHalf / uRes, stp = uStepCells * cell, toCells = uRes / (2.0 * uHalf);
   float blockSize = float(kBlock) / toCells;
   int nb = int(uRes + 0.5) / kBlock;
   float T = 1.0;
   vec3 C = vec3(0.0);
+  vec3 tcMedian = vec3(-1.0);  // The median sample (format 3): where T first falls below 1/2.
+  float codeMedian = 0.0;
   float t0, t1;
   float box = uContracted == 1 ? 2.0 / cell : uHalf;
   if (intersectBox(o, d, box, t0, t1)) {
@@ -94,9 +107,11 @@ void main() {
       vec3 u = ((uContracted == 1 ? contractP(x) : x) + uHalf) * toCells;
       ivec3 b = clamp(ivec3(floor(u / float(kBlock))), ivec3(0), ivec3(nb - 1));
       uint e = texelFetch(uIndex, b, 0).r;
-      if (e == 0u) {
-        vec3 lo = vec3(b) * blockSize - uHalf, hi = lo + blockSize;
-        if (uContracted == 0 || (infNorm(lo) <= 1.0 && infNorm(hi) <= 1.0)) {
+      if (e >= 0x80000000u) {  // Empty, and so is every block within distance D - 1.
+        float D = float(e & 0xffu) - 1.0;
+        vec3 lo = (vec3(b) - D) * blockSize - uHalf, hi = (vec3(b) + D + 1.0) * blockSize - uHalf;
+        if (uContracted == 1) { lo = max(lo, vec3(-1.0)); hi = min(hi, vec3(1.0)); }
+        if (uContracted == 0 || r <= 1.0) {
           t += max(1.0, ceil((exitT(o, d, lo, hi) - t) / stp)) * stp;
         } else {
           t += dt;
@@ -108,19 +123,22 @@ void main() {
       vec3 l = clamp(u - vec3(b * kBlock), 0.0, 8.0);
       vec3 tc = (vec3(bo) + l + 0.5) / uAtlasDims;
       vec4 s = texture(uAtlas, tc);
-      if (uViewDep == 1) {  // c(d) = c0 + H d, premultiplied like c0; codes 128 + 127 v.
-        s.rgb += d.x * (texture(uView0, tc).rgb * 255.0 - 128.0) / 127.0 +
-                 d.y * (texture(uView1, tc).rgb * 255.0 - 128.0) / 127.0 +
-                 d.z * (texture(uView2, tc).rgb * 255.0 - 128.0) / 127.0;
-      }
+#if VIEW_MODE == 1
+      s.rgb += viewTerm(tc, d);
+#endif
       float a0 = min(s.a * s.a, kMaxAlpha);
       float alpha = 1.0 - exp(log(1.0 - a0) * (dt / cell));
       C += T * alpha * clamp(s.rgb / max(s.a, 1.0 / 255.0), vec3(0.0), vec3(1.0));  // Premultiplied by the code.
-      T *= 1.0 - alpha;
+      float next = T * (1.0 - alpha);
+      if (T >= 0.5 && next < 0.5) { tcMedian = tc; codeMedian = s.a; }
+      T = next;
       t += dt;
     }
   }
-  outColor = vec4(C + T * uBg, 1.0);
+#if VIEW_MODE == 2
+  if (tcMedian.x >= 0.0) C += (1.0 - T) * viewTerm(tcMedian, d) / max(codeMedian, 1.0 / 255.0);
+#endif
+  outColor = vec4(clamp(C + T * uBg, 0.0, 1.0), 1.0);
 }`;
 
 async function fetchGunzip(url) {
@@ -129,6 +147,43 @@ async function fetchGunzip(url) {
   if (typeof DecompressionStream === "undefined") throw new Error("this browser has no DecompressionStream");
   const stream = res.body.pipeThrough(new DecompressionStream("gzip"));
   return new Uint8Array(await new Response(stream).arrayBuffer());
+}
+
+// The index with each empty block's entry replaced by 0x80000000 | D, D
+// its chessboard distance in blocks to the nearest occupied block (at most
+// 255): ComputeBlockDistances (core/bake/baked_asset.h), two raster passes
+// over the 26-neighbourhood.
+function skipIndex(index, nb) {
+  const n = nb * nb * nb, dist = new Uint8Array(n);
+  for (let i = 0; i < n; ++i) dist[i] = index[i] === 0 ? 255 : 0;
+  for (let pass = 0; pass < 2; ++pass) {
+    for (let s = 0; s < n; ++s) {
+      const i = pass === 0 ? s : n - 1 - s;
+      if (dist[i] === 0) continue;
+      const x = i % nb, y = Math.floor(i / nb) % nb, z = Math.floor(i / (nb * nb));
+      let best = dist[i];
+      for (let dz = Math.max(z - 1, 0); dz <= Math.min(z + 1, nb - 1); ++dz) {
+        for (let dy = Math.max(y - 1, 0); dy <= Math.min(y + 1, nb - 1); ++dy) {
+          for (let dx = Math.max(x - 1, 0); dx <= Math.min(x + 1, nb - 1); ++dx) {
+            best = Math.min(best, dist[dx + nb * (dy + nb * dz)] + 1);
+          }
+        }
+      }
+      dist[i] = Math.min(best, 255);
+    }
+  }
+  const out = new Uint32Array(n);
+  for (let i = 0; i < n; ++i) out[i] = index[i] !== 0 ? index[i] : (0x80000000 | dist[i]) >>> 0;
+  return out;
+}
+
+// The ray step in cells a manifest gives (as LoadBakedAsset reads it).
+function stepCells(m) {
+  if (m.step === undefined) return 0.5;
+  const ratio = m.step * m.resolution / (2 * m.half_size);
+  if (Math.abs(ratio - 0.5) < 1e-3) return 0.5;
+  if (Math.abs(ratio - 1) < 1e-3) return 1;
+  throw new Error(`baked asset step of ${ratio} cells is not supported`);
 }
 
 class BakedRenderer {
@@ -155,6 +210,20 @@ class BakedRenderer {
     return s;
   }
 
+  // The program for a view mode (built once each; the mode is a #define, so
+  // the shader carries no branch for it), with its uniform locations.
+  program(viewMode) {
+    if (this.programs[viewMode]) return this.programs[viewMode];
+    const gl = this.gl, p = gl.createProgram();
+    gl.attachShader(p, this.compile(gl.VERTEX_SHADER, BAKED_VS));
+    gl.attachShader(p, this.compile(gl.FRAGMENT_SHADER,
+                                    BAKED_FS.replace("#define VIEW_MODE 0", `#define VIEW_MODE ${viewMode}`)));
+    gl.bindAttribLocation(p, 0, "aPos");
+    gl.linkProgram(p);
+    if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error("link: " + gl.getProgramInfoLog(p));
+    return (this.programs[viewMode] = {p, uniforms: {}});
+  }
+
   // Loads manifest.json and its arrays from `base` (a URL ending in "/", or
   // a function mapping a file name to its URL).
   async load(base) {
@@ -162,8 +231,11 @@ class BakedRenderer {
     const res = await fetch(url("manifest.json"));
     if (!res.ok) throw new Error(`manifest.json: HTTP ${res.status}`);
     const m = await res.json();
-    if (m.format !== 1 && m.format !== 2) throw new Error(`baked asset format ${m.format} is not supported`);
-    const viewDep = m.format === 2;
+    if (m.format !== 1 && m.format !== 2 && m.format !== 3) {
+      throw new Error(`baked asset format ${m.format} is not supported`);
+    }
+    const viewDep = m.format !== 1;
+    const steps = stepCells(m);
     const [index, atlas, view] = await Promise.all([fetchGunzip(url(m.files.index)), fetchGunzip(url(m.files.atlas)),
                                                     viewDep ? fetchGunzip(url(m.files.view)) : null]);
     const gl = this.gl, nb = m.resolution / m.block;
@@ -174,22 +246,18 @@ class BakedRenderer {
     }
     const max3d = gl.getParameter(gl.MAX_3D_TEXTURE_SIZE);
     if (Math.max(...dims, nb) > max3d) throw new Error(`atlas ${dims} exceeds this GPU's 3-D textures (${max3d})`);
-    if (!this.program) {
-      const p = gl.createProgram();
-      gl.attachShader(p, this.compile(gl.VERTEX_SHADER, BAKED_VS));
-      gl.attachShader(p, this.compile(gl.FRAGMENT_SHADER, BAKED_FS));
-      gl.linkProgram(p);
-      if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error("link: " + gl.getProgramInfoLog(p));
-      this.program = p;
+    if (!this.vao) {
       const buf = gl.createBuffer();
       gl.bindBuffer(gl.ARRAY_BUFFER, buf);
       gl.bufferData(gl.ARRAY_BUFFER, new Float32Array([-1, -1, 3, -1, -1, 3]), gl.STATIC_DRAW);
       this.vao = gl.createVertexArray();
       gl.bindVertexArray(this.vao);
-      const loc = gl.getAttribLocation(p, "aPos");
-      gl.enableVertexAttribArray(loc);
-      gl.vertexAttribPointer(loc, 2, gl.FLOAT, false, 0, 0);
+      gl.enableVertexAttribArray(0);
+      gl.vertexAttribPointer(0, 2, gl.FLOAT, false, 0, 0);
+      this.programs = {};
     }
+    const viewMode = !view ? 0 : m.format === 2 ? 1 : 2;
+    this.program(viewMode);  // Built now, so a shader error fails the load.
     for (const t of [this.indexTex, this.atlasTex, ...(this.viewTex || [])]) if (t) gl.deleteTexture(t);
     this.viewTex = [];
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
@@ -197,7 +265,7 @@ class BakedRenderer {
     gl.activeTexture(gl.TEXTURE0);
     gl.bindTexture(gl.TEXTURE_3D, this.indexTex);
     gl.texImage3D(gl.TEXTURE_3D, 0, gl.R32UI, nb, nb, nb, 0, gl.RED_INTEGER, gl.UNSIGNED_INT,
-                  new Uint32Array(index.buffer, index.byteOffset, index.byteLength / 4));
+                  skipIndex(new Uint32Array(index.buffer, index.byteOffset, index.byteLength / 4), nb));
     for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.NEAREST], [gl.TEXTURE_MAG_FILTER, gl.NEAREST]]) {
       gl.texParameteri(gl.TEXTURE_3D, k, v);
     }
@@ -226,7 +294,8 @@ class BakedRenderer {
       linear();
       this.viewTex.push(t);
     }
-    this.viewDep = !!view;
+    this.viewMode = viewMode;
+    this.stepCells = steps;
     this.manifest = m;
     this.dims = dims;
     this.bytes = index.byteLength + atlas.byteLength + (view ? view.byteLength : 0);
@@ -250,20 +319,20 @@ class BakedRenderer {
   }
 
   draw(cam) {
-    const gl = this.gl, m = this.manifest, p = this.program;
+    const gl = this.gl, m = this.manifest, prog = this.program(this.viewMode), p = prog.p;
     const W = this.canvas.width, H = this.canvas.height;
     const {rot, o} = this.modelCamera(cam.c2w);
     gl.viewport(0, 0, W, H);
     gl.useProgram(p);
     gl.bindVertexArray(this.vao);
-    if (!this.uniforms) this.uniforms = {};  // Looked up once per program, not per frame.
-    const u = (n) => this.uniforms[n] !== undefined ? this.uniforms[n] : (this.uniforms[n] = gl.getUniformLocation(p, n));
+    const cache = prog.uniforms;  // Looked up once per program, not per frame.
+    const u = (n) => cache[n] !== undefined ? cache[n] : (cache[n] = gl.getUniformLocation(p, n));
     gl.uniform1i(u("uIndex"), 0);
     gl.uniform1i(u("uAtlas"), 1);
     gl.uniform1i(u("uView0"), 2);
     gl.uniform1i(u("uView1"), 3);
     gl.uniform1i(u("uView2"), 4);
-    gl.uniform1i(u("uViewDep"), this.viewDep ? 1 : 0);
+    gl.uniform1f(u("uStepCells"), this.stepCells);
     gl.uniformMatrix3fv(u("uRot"), false, rot);
     gl.uniform3fv(u("uOrigin"), o);
     gl.uniform4f(u("uIntr"), cam.fx, cam.fy, cam.cx, cam.cy);
