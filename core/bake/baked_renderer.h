@@ -1,26 +1,31 @@
 // Baked renderer: the C++ reference renderer of a BakedAsset. It marches the
 // same samples, with the same interpolation and compositing, as the viewer's
-// WebGL2 shader (web/baked_viewer.js), so an asset is scored exactly as the
+// WebGL2 shader (server/frontends/web/baked.js), so an asset is scored exactly as the
 // browser shows it (`clnerf eval --model DIR`), and the browser test compares
 // the page's frame against it.
 //
 // The march, for a unit model-space ray o + t d (BakedRayInterval gives
 // [t0, t1]: the grid's box, or for unbounded scenes the distance at which the
 // contracted point reaches the grid's last half cell, clipped to the near
-// plane):
+// plane), step = step_cells * cell:
 //   t = t0 + step / 2; T = 1; C = 0
 //   while t < t1 and T > kBakedMinTransmittance:
 //     x = o + t d; r = |x|_inf
 //     dt = step * r^2 beyond the inner cube of an unbounded scene, else step
 //     u = (contract(x) [or x] + B) * R / (2B)            (cell coordinates)
-//     block empty: t advances past the block (by whole steps, so samples stay
-//       on the lattice t0 + (k + 1/2) step) where the block lies in model
-//       space unchanged, else by dt
+//     block empty, at chessboard distance D from the nearest occupied one:
+//       t advances past the cube of blocks within D - 1 of it (by whole
+//       steps, so samples stay on the lattice t0 + (k + 1/2) step) where
+//       that cube lies in model space unchanged (unbounded: clipped to the
+//       inner cube, and only from inside it), else by dt
 //     else: rgba = trilinear(brick, u - 8 * block)
+//       (format 2: rgba.rgb += the view term, sum_k d_k H_k, premultiplied)
 //       alpha = 1 - exp(-(-log(1 - min(a^2, kBakedMaxAlpha))) * dt / cell)
-//       C += T alpha rgb / a (the atlas's colour is premultiplied by a);
+//       C += T alpha clamp(rgb / a) (the atlas's colour is premultiplied by a);
+//       the median sample is the first after which T * (1 - alpha) < 1/2
 //       T *= 1 - alpha; t += dt
-//   C += T * background
+//   format 3: C += (1 - T) * (view term at the median sample) / its a
+//   C = clamp(C + T * background)
 //
 // Thread-safe: the asset is read only; each call uses its own scratch.
 // RenderBakedView splits rows over OpenMP threads.

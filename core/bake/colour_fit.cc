@@ -47,29 +47,23 @@ void FitRays(const BakedAsset& a, const std::vector<Camera>& cameras, int rays, 
   }
 }
 
-// A's rows (compressed sparse rows over lattice points, brick * 9^3 +
-// local index) and each ray's target: the model's pixel minus what the
-// asset's background contributes.
+// A's rows (compressed sparse rows) and each ray's target: the model's
+// pixel minus what the asset's background contributes. Entries name
+// lattice points (brick * 9^3 + local index) until FitBakedColours numbers
+// the unknowns: the diffuse colours of P points are columns [0, P), the
+// view-dependent terms of V points columns [P, P + V).
 struct Rows {
   std::vector<int64_t> start = {0};
   std::vector<uint32_t> col;
   std::vector<float> val;
-  std::vector<uint8_t> kind;  // Per entry: kDiffuseEntry, kViewEntry or both.
+  std::vector<uint8_t> kind;  // Per entry: kDiffuseEntry or kViewEntry.
   std::vector<float> target;  // 3 per row.
   std::vector<float> dir;     // 3 per row: the ray's direction (model space).
 };
 
-// What an entry of A weighs: the point's diffuse colour c0, its
-// view-dependent term H (times the ray's direction), or both (format 2,
-// where every sample applies H).
+// What an entry of A weighs: a point's diffuse colour c0, or its
+// view-dependent term H (times the ray's direction).
 constexpr uint8_t kDiffuseEntry = 1, kViewEntry = 2;
-
-// The colour basis of a ray direction: 1 (diffuse), then d (view-dependent
-// colour of degree 1, c(d) = c0 + H d).
-inline void Basis(const float* d, int n, float* b) {
-  b[0] = 1.0f;
-  for (int k = 1; k < n; ++k) b[k] = d[k - 1];
-}
 
 // The 8 corners the last sample blended: lattice ids, their trilinear
 // weights times their density codes (in [0, 1]).
@@ -112,13 +106,12 @@ Rows BuildRows(const BakedAsset& a, const std::vector<float>& origins, const std
       const Eigen::Vector3f o(origins.data() + 3 * size_t(r)), d(dirs.data() + 3 * size_t(r));
       const float T = BakedRayWeights(a, o, d, &row, view ? &view_row : nullptr);
       if (row.empty()) continue;  // Nothing to fit: the ray sees only background.
-      const bool shared = view && a.view_term == BakedViewTerm::kPerSample;
       for (const auto& [id, v] : row) {
         mine.col.push_back(id);
         mine.val.push_back(v);
-        mine.kind.push_back(shared ? kDiffuseEntry | kViewEntry : kDiffuseEntry);
+        mine.kind.push_back(kDiffuseEntry);
       }
-      for (size_t k = 0; view && !shared && k < view_row.size(); ++k) {
+      for (size_t k = 0; view && k < view_row.size(); ++k) {
         mine.col.push_back(view_row[k].first);
         mine.val.push_back(view_row[k].second);
         mine.kind.push_back(kViewEntry);
@@ -141,45 +134,72 @@ Rows BuildRows(const BakedAsset& a, const std::vector<float>& origins, const std
   return all;
 }
 
-// y (rows x 3) = A x. x holds `basis` x 3 values per unknown point
-// (basis-major, channel fastest); a ray weighs them by Basis(its direction).
-void MultiplyA(const Rows& A, int basis, const std::vector<float>& x, std::vector<float>* y) {
+// Drops A's view entries (the fit is then diffuse).
+void DropViewEntries(Rows* A) {
+  Rows D;
+  for (int64_t r = 0; r + 1 < int64_t(A->start.size()); ++r) {
+    for (int64_t k = A->start[r]; k < A->start[r + 1]; ++k) {
+      if (A->kind[k] != kDiffuseEntry) continue;
+      D.col.push_back(A->col[k]);
+      D.val.push_back(A->val[k]);
+      D.kind.push_back(kDiffuseEntry);
+    }
+    D.start.push_back(int64_t(D.col.size()));
+  }
+  D.target = std::move(A->target);
+  D.dir = std::move(A->dir);
+  *A = std::move(D);
+}
+
+// The unknowns: P diffuse points (3 values each, channel fastest), then V
+// view points (9 each: k = x, y, z, then channel). Column j's values start
+// at Offset(j).
+struct Unknowns {
+  size_t diffuse = 0, view = 0;
+  size_t Offset(uint32_t j) const { return j < diffuse ? 3 * size_t(j) : 3 * diffuse + 9 * (size_t(j) - diffuse); }
+  size_t Values() const { return 3 * diffuse + 9 * view; }
+  size_t Columns() const { return diffuse + view; }
+};
+
+// y (rows x 3) = A x.
+void MultiplyA(const Rows& A, const Unknowns& u, const std::vector<float>& x, std::vector<float>* y) {
   const int64_t m = int64_t(A.start.size()) - 1;
   y->assign(size_t(3 * m), 0.0f);
 #pragma omp parallel for schedule(static)
   for (int64_t r = 0; r < m; ++r) {
-    float acc[3] = {0, 0, 0}, b[4];
-    Basis(A.dir.data() + 3 * size_t(r), basis, b);
+    float acc[3] = {0, 0, 0};
+    const float* d = A.dir.data() + 3 * size_t(r);
     for (int64_t k = A.start[r]; k < A.start[r + 1]; ++k) {
-      const float* xc = x.data() + size_t(3 * basis) * A.col[k];
-      const int first = (A.kind[k] & kDiffuseEntry) ? 0 : 1, last = (A.kind[k] & kViewEntry) ? basis : 1;
-      for (int e = first; e < last; ++e) {
-        const float v = A.val[k] * b[e];
-        for (int c = 0; c < 3; ++c) acc[c] += v * xc[3 * e + c];
+      const float* xc = x.data() + u.Offset(A.col[k]);
+      const float v = A.val[k];
+      if (A.kind[k] == kDiffuseEntry) {
+        for (int c = 0; c < 3; ++c) acc[c] += v * xc[c];
+      } else {
+        for (int e = 0; e < 3; ++e) {
+          for (int c = 0; c < 3; ++c) acc[c] += v * d[e] * xc[3 * e + c];
+        }
       }
     }
     for (int c = 0; c < 3; ++c) (*y)[3 * size_t(r) + c] = acc[c];
   }
 }
 
-// A's columns (compressed sparse columns): for each unknown point, the rows
-// that blend it and their weights, so that A^T y is a gather per point
+// A's columns (compressed sparse columns): for each unknown, the rows that
+// blend it and their weights, so that A^T y is a gather per unknown
 // (parallel, no per-thread copies of the result to add up).
 struct Columns {
   std::vector<int64_t> start;
   std::vector<uint32_t> row;
   std::vector<float> val;
-  std::vector<uint8_t> kind;
 };
 
-Columns Transpose(const Rows& A, size_t unknowns) {
+Columns Transpose(const Rows& A, size_t columns) {
   Columns C;
-  C.start.assign(unknowns + 1, 0);
+  C.start.assign(columns + 1, 0);
   for (uint32_t c : A.col) ++C.start[c + 1];
-  for (size_t j = 0; j < unknowns; ++j) C.start[j + 1] += C.start[j];
+  for (size_t j = 0; j < columns; ++j) C.start[j + 1] += C.start[j];
   C.row.resize(A.col.size());
   C.val.resize(A.col.size());
-  C.kind.resize(A.col.size());
   std::vector<int64_t> fill(C.start.begin(), C.start.end() - 1);
   const int64_t m = int64_t(A.start.size()) - 1;
   for (int64_t r = 0; r < m; ++r) {
@@ -187,31 +207,33 @@ Columns Transpose(const Rows& A, size_t unknowns) {
       const int64_t at = fill[A.col[k]]++;
       C.row[at] = uint32_t(r);
       C.val[at] = A.val[k];
-      C.kind[at] = A.kind[k];
     }
   }
   return C;
 }
 
 // z = A^T y (the adjoint of MultiplyA).
-void MultiplyAt(const Rows& A, const Columns& C, int basis, const std::vector<float>& y, std::vector<float>* z) {
-  const int64_t unknowns = int64_t(C.start.size()) - 1;
-  z->assign(size_t(3 * basis) * size_t(unknowns), 0.0f);
+void MultiplyAt(const Rows& A, const Columns& C, const Unknowns& u, const std::vector<float>& y,
+                std::vector<float>* z) {
+  z->assign(u.Values(), 0.0f);
+  const int64_t columns = int64_t(u.Columns());
 #pragma omp parallel for schedule(dynamic, 1024)
-  for (int64_t j = 0; j < unknowns; ++j) {
-    float acc[12] = {0};
+  for (int64_t j = 0; j < columns; ++j) {
+    float acc[9] = {0};
+    const bool view = size_t(j) >= u.diffuse;
     for (int64_t k = C.start[j]; k < C.start[j + 1]; ++k) {
       const size_t r = C.row[k];
-      float b[4];
-      Basis(A.dir.data() + 3 * r, basis, b);
       const float* yr = y.data() + 3 * r;
-      const int first = (C.kind[k] & kDiffuseEntry) ? 0 : 1, last = (C.kind[k] & kViewEntry) ? basis : 1;
-      for (int e = first; e < last; ++e) {
-        const float v = C.val[k] * b[e];
-        for (int c = 0; c < 3; ++c) acc[3 * e + c] += v * yr[c];
+      if (!view) {
+        for (int c = 0; c < 3; ++c) acc[c] += C.val[k] * yr[c];
+        continue;
+      }
+      const float* d = A.dir.data() + 3 * r;
+      for (int e = 0; e < 3; ++e) {
+        for (int c = 0; c < 3; ++c) acc[3 * e + c] += C.val[k] * d[e] * yr[c];
       }
     }
-    std::copy(acc, acc + 3 * basis, z->data() + size_t(3 * basis) * size_t(j));
+    std::copy(acc, acc + (view ? 9 : 3), z->data() + u.Offset(uint32_t(j)));
   }
 }
 
@@ -243,21 +265,23 @@ void Axpy3(const Eigen::Array3d& a, const std::vector<float>& x, std::vector<flo
 
 // CGLS for min |A delta - r0|^2 + lambda |delta|^2, each channel its own
 // system over the same A. Returns delta.
-std::vector<float> SolveDamped(const Rows& A, int basis, const std::vector<float>& r0, size_t unknowns,
-                               double lambda, int iterations) {
-  const Columns C = Transpose(A, unknowns);
-  std::vector<float> delta(size_t(3 * basis) * unknowns, 0.0f), r = r0, s, q;
-  MultiplyAt(A, C, basis, r, &s);
+// CGLS for min |A delta - r0|^2 + lambda |delta|^2, each channel its own
+// system over the same A. Returns delta.
+std::vector<float> SolveDamped(const Rows& A, const Unknowns& u, const std::vector<float>& r0, double lambda,
+                               int iterations) {
+  const Columns C = Transpose(A, u.Columns());
+  std::vector<float> delta(u.Values(), 0.0f), r = r0, s, q;
+  MultiplyAt(A, C, u, r, &s);
   std::vector<float> p = s;
   Eigen::Array3d gamma = Dot3(s, s);
   for (int it = 0; it < iterations; ++it) {
-    MultiplyA(A, basis, p, &q);
+    MultiplyA(A, u, p, &q);
     const Eigen::Array3d denom = Dot3(q, q) + lambda * Dot3(p, p);
     Eigen::Array3d alpha;
     for (int c = 0; c < 3; ++c) alpha[c] = denom[c] > 0 ? gamma[c] / denom[c] : 0.0;
     Axpy3(alpha, p, &delta);
     Axpy3(-alpha, q, &r);
-    MultiplyAt(A, C, basis, r, &s);
+    MultiplyAt(A, C, u, r, &s);
     Axpy3(Eigen::Array3d::Constant(-lambda), delta, &s);
     const Eigen::Array3d next = Dot3(s, s);
     Eigen::Array3d beta;
@@ -376,76 +400,67 @@ absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::ve
   t0 = std::chrono::steady_clock::now();
   const bool want_view = view != nullptr;
   Rows A = BuildRows(asset, origins, dirs, model_rgb, want_view);
-  int64_t view_entries = 0;  // Entries that weigh H (format 2: all of them).
-  for (uint8_t k : A.kind) view_entries += (k & kViewEntry) != 0;
-  // Columns renumbered to the lattice points some ray blends.
-  std::vector<int32_t> compact(rgb->size() / 3, -1);
-  std::vector<uint32_t> point;  // Compact -> lattice id.
-  for (uint32_t& c : A.col) {
-    if (compact[c] < 0) {
-      compact[c] = int32_t(point.size());
-      point.push_back(c);
-    }
-    c = uint32_t(compact[c]);
-  }
-  const size_t unknowns = point.size();
+  int64_t view_entries = 0;  // Entries that weigh H (format 2: one per diffuse entry).
+  for (uint8_t k : A.kind) view_entries += k == kViewEntry;
   if (view != nullptr && view_entries > options.max_view_nonzeros) {
     view->clear();
     view = nullptr;
-    // Diffuse only: the view-only entries go (their points stay unknowns
-    // that only the prior holds, at their first guess).
-    Rows D;
-    for (int64_t r = 0; r + 1 < int64_t(A.start.size()); ++r) {
-      for (int64_t k = A.start[r]; k < A.start[r + 1]; ++k) {
-        if (!(A.kind[k] & kDiffuseEntry)) continue;
-        D.col.push_back(A.col[k]);
-        D.val.push_back(A.val[k]);
-        D.kind.push_back(kDiffuseEntry);
-      }
-      D.start.push_back(int64_t(D.col.size()));
-    }
-    D.target = std::move(A.target);
-    D.dir = std::move(A.dir);
-    A = std::move(D);
+    DropViewEntries(&A);
   }
-  const int basis = view != nullptr ? 4 : 1;
   rep.view_dependent = view != nullptr;
-  const size_t stride = size_t(3 * basis);
-  std::vector<float> x0(stride * unknowns, 0.0f);  // The field's colours; no view dependence.
-  for (size_t j = 0; j < unknowns; ++j) {
-    for (int c = 0; c < 3; ++c) x0[stride * j + c] = (*rgb)[3 * size_t(point[j]) + c];
+  // Columns renumbered: the diffuse colours of the points some ray blends,
+  // then the view terms of the points some ray's view entries name.
+  Unknowns u;
+  std::vector<int32_t> compact(rgb->size() / 3, -1), compact_view(rgb->size() / 3, -1);
+  std::vector<uint32_t> point, view_point;  // Compact -> lattice id.
+  for (size_t k = 0; k < A.col.size(); ++k) {
+    std::vector<int32_t>& map = A.kind[k] == kDiffuseEntry ? compact : compact_view;
+    std::vector<uint32_t>& ids = A.kind[k] == kDiffuseEntry ? point : view_point;
+    if (map[A.col[k]] < 0) {
+      map[A.col[k]] = int32_t(ids.size());
+      ids.push_back(A.col[k]);
+    }
+    A.col[k] = uint32_t(map[A.col[k]]);
+  }
+  u.diffuse = point.size();
+  u.view = view_point.size();
+  for (size_t k = 0; k < A.col.size(); ++k) {
+    if (A.kind[k] == kViewEntry) A.col[k] += uint32_t(u.diffuse);
+  }
+  std::vector<float> x0(u.Values(), 0.0f);  // The field's colours; no view dependence.
+  for (size_t j = 0; j < u.diffuse; ++j) {
+    for (int c = 0; c < 3; ++c) x0[3 * j + c] = (*rgb)[3 * size_t(point[j]) + c];
   }
   std::vector<float> r0;
-  MultiplyA(A, basis, x0, &r0);
+  MultiplyA(A, u, x0, &r0);
   for (size_t i = 0; i < r0.size(); ++i) r0[i] = A.target[i] - r0[i];
-  std::vector<double> diag(unknowns, 0.0);
+  std::vector<double> diag(u.diffuse, 0.0);
   for (size_t k = 0; k < A.col.size(); ++k) {
-    if (A.kind[k] & kDiffuseEntry) diag[A.col[k]] += double(A.val[k]) * A.val[k];
+    if (A.kind[k] == kDiffuseEntry) diag[A.col[k]] += double(A.val[k]) * A.val[k];
   }
   double mean_diag = 0;
   for (double v : diag) mean_diag += v;
-  mean_diag = unknowns > 0 ? mean_diag / double(unknowns) : 1.0;
+  mean_diag = u.diffuse > 0 ? mean_diag / double(u.diffuse) : 1.0;
   rep.rows_seconds = Since(t0);
   t0 = std::chrono::steady_clock::now();
-  const std::vector<float> delta =
-      SolveDamped(A, basis, r0, unknowns, options.prior * mean_diag, options.iterations);
+  const std::vector<float> delta = SolveDamped(A, u, r0, options.prior * mean_diag, options.iterations);
   // Clamped to what the atlases store: colour in [0, 1], H in [-1, 1].
-  std::vector<float> fitted(stride * unknowns);
+  std::vector<float> fitted(u.Values());
   for (size_t i = 0; i < fitted.size(); ++i) {
-    const bool diffuse = i % stride < 3;
-    fitted[i] = std::clamp(x0[i] + delta[i], diffuse ? 0.0f : -1.0f, 1.0f);
+    fitted[i] = std::clamp(x0[i] + delta[i], i < 3 * u.diffuse ? 0.0f : -1.0f, 1.0f);
   }
-  for (size_t j = 0; j < unknowns; ++j) {
-    for (int c = 0; c < 3; ++c) (*rgb)[3 * size_t(point[j]) + c] = fitted[stride * j + c];
-    if (view == nullptr) continue;
-    for (int e = 0; e < 9; ++e) (*view)[9 * size_t(point[j]) + e] = fitted[stride * j + 3 + e];
+  for (size_t j = 0; j < u.diffuse; ++j) {
+    for (int c = 0; c < 3; ++c) (*rgb)[3 * size_t(point[j]) + c] = fitted[3 * j + c];
+  }
+  for (size_t j = 0; view != nullptr && j < u.view; ++j) {
+    for (int e = 0; e < 9; ++e) (*view)[9 * size_t(view_point[j]) + e] = fitted[3 * u.diffuse + 9 * j + e];
   }
   std::vector<float> r1;
-  MultiplyA(A, basis, fitted, &r1);
+  MultiplyA(A, u, fitted, &r1);
   for (size_t i = 0; i < r1.size(); ++i) r1[i] = A.target[i] - r1[i];
   rep.solve_seconds = Since(t0);
   rep.rays = int64_t(A.start.size()) - 1;
-  rep.unknowns = int64_t(unknowns);
+  rep.unknowns = int64_t(u.diffuse + u.view);
   rep.nonzeros = int64_t(A.col.size());
   rep.rms_before = Rms(r0);
   rep.rms_after = Rms(r1);

@@ -114,8 +114,12 @@ TEST(ColourFitTest, RayWeightsReproduceTheReferenceRenderer) {
       if (w.empty()) continue;
       ++rays;
       for (size_t k = 1; k < w.size(); ++k) EXPECT_LT(w[k - 1].first, w[k].first);  // Sorted, merged.
-      if (mode == 1) EXPECT_LE(vw.size(), 8u);  // One sample's corners.
-      if (mode == 2) EXPECT_EQ(vw, w);
+      if (mode == 1) {
+        EXPECT_LE(vw.size(), 8u);  // One sample's corners.
+      }
+      if (mode == 2) {
+        EXPECT_EQ(vw, w);
+      }
       const Eigen::Vector3f p = Predicted(a, w, vw, T, d);
       for (int c = 0; c < 3; ++c) EXPECT_NEAR(p[c], r.rgb[c], 2e-3f) << "ray " << i << " mode " << mode;
     }
