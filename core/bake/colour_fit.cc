@@ -161,6 +161,31 @@ struct Unknowns {
   size_t Columns() const { return diffuse + view; }
 };
 
+// Renumbers A's columns from lattice ids (`points` of them) to unknowns:
+// the diffuse colours of the points some ray blends, then the view terms
+// of the points some ray's view entries name; *point and *view_point map
+// them back to lattice ids.
+Unknowns NumberUnknowns(size_t points, Rows* A, std::vector<uint32_t>* point, std::vector<uint32_t>* view_point) {
+  std::vector<int32_t> compact(points, -1), compact_view(points, -1);
+  for (size_t k = 0; k < A->col.size(); ++k) {
+    const bool diffuse = A->kind[k] == kDiffuseEntry;
+    std::vector<int32_t>& map = diffuse ? compact : compact_view;
+    std::vector<uint32_t>& ids = diffuse ? *point : *view_point;
+    if (map[A->col[k]] < 0) {
+      map[A->col[k]] = int32_t(ids.size());
+      ids.push_back(A->col[k]);
+    }
+    A->col[k] = uint32_t(map[A->col[k]]);
+  }
+  Unknowns u;
+  u.diffuse = point->size();
+  u.view = view_point->size();
+  for (size_t k = 0; k < A->col.size(); ++k) {
+    if (A->kind[k] == kViewEntry) A->col[k] += uint32_t(u.diffuse);
+  }
+  return u;
+}
+
 // y (rows x 3) = A x.
 void MultiplyA(const Rows& A, const Unknowns& u, const std::vector<float>& x, std::vector<float>* y) {
   const int64_t m = int64_t(A.start.size()) - 1;
@@ -408,25 +433,8 @@ absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::ve
     DropViewEntries(&A);
   }
   rep.view_dependent = view != nullptr;
-  // Columns renumbered: the diffuse colours of the points some ray blends,
-  // then the view terms of the points some ray's view entries name.
-  Unknowns u;
-  std::vector<int32_t> compact(rgb->size() / 3, -1), compact_view(rgb->size() / 3, -1);
   std::vector<uint32_t> point, view_point;  // Compact -> lattice id.
-  for (size_t k = 0; k < A.col.size(); ++k) {
-    std::vector<int32_t>& map = A.kind[k] == kDiffuseEntry ? compact : compact_view;
-    std::vector<uint32_t>& ids = A.kind[k] == kDiffuseEntry ? point : view_point;
-    if (map[A.col[k]] < 0) {
-      map[A.col[k]] = int32_t(ids.size());
-      ids.push_back(A.col[k]);
-    }
-    A.col[k] = uint32_t(map[A.col[k]]);
-  }
-  u.diffuse = point.size();
-  u.view = view_point.size();
-  for (size_t k = 0; k < A.col.size(); ++k) {
-    if (A.kind[k] == kViewEntry) A.col[k] += uint32_t(u.diffuse);
-  }
+  const Unknowns u = NumberUnknowns(rgb->size() / 3, &A, &point, &view_point);
   std::vector<float> x0(u.Values(), 0.0f);  // The field's colours; no view dependence.
   for (size_t j = 0; j < u.diffuse; ++j) {
     for (int c = 0; c < 3; ++c) x0[3 * j + c] = (*rgb)[3 * size_t(point[j]) + c];
