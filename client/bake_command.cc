@@ -77,6 +77,9 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
   c->add_option("--min-block-weight", a->bake.min_block_weight,
                 "Keep a block when some training ray puts at least this much weight in it")
       ->capture_default_str();
+  c->add_option("--max-asset-bytes", a->bake.max_asset_bytes,
+                "Download budget: drop the least-seen blocks until the asset compresses to about this (0 = none)")
+      ->capture_default_str();
   c->add_option("--fit-rays", a->bake.fit.rays,
                 "Training-camera rays the colour fit matches to the model's renders (0 = no fit)")
       ->capture_default_str();
@@ -131,6 +134,7 @@ int RunBake(const BakeArgs& a) {
   nlohmann::json j = {{"model", a.model},          {"out", a.out},
                       {"time_step", asset->time_step}, {"resolution", rep.resolution},
                       {"candidate_blocks", rep.candidate_blocks}, {"kept_blocks", rep.kept_blocks},
+                      {"visible_blocks", rep.visible_blocks},
                       {"visibility_rays", rep.visibility_rays},   {"raw_bytes", asset->raw_bytes()},
                       {"asset_bytes", bytes},                     {"bake_seconds", rep.total_seconds},
                       {"density_seconds", rep.density_seconds},   {"visibility_seconds", rep.visibility_seconds},

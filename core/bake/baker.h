@@ -58,13 +58,19 @@ struct BakeOptions {
   BakedViewTerm view_term = BakedViewTerm::kAtMedian;
   // The ray step in cells: 1 or 0.5 (every asset before format 3).
   float step_cells = 1.0f;
+  // Download budget in bytes (0 = none): before the colour fit, while the
+  // kept blocks' first-guess colours compress (gzip level 1, ~10 % above
+  // the stored level 6, about what the fit adds) to more than this, the
+  // blocks the training rays weigh least are dropped.
+  int64_t max_asset_bytes = 12'000'000;
   absl::Status Validate() const;
 };
 
 struct BakeReport {
   int resolution = 0;
   int candidate_blocks = 0;  // Blocks overlapping occupied cells.
-  int kept_blocks = 0;       // Blocks the training rays see.
+  int visible_blocks = 0;    // Blocks the training rays see.
+  int kept_blocks = 0;       // Of those, kept within the download budget.
   long long visibility_rays = 0;
   ColourFitReport fit;
   double density_seconds = 0, visibility_seconds = 0, colour_seconds = 0, fit_seconds = 0, total_seconds = 0;
