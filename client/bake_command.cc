@@ -123,11 +123,11 @@ int RunBake(const BakeArgs& a) {
   if (!stored.ok()) return Fail(stored.status());
   const uint64_t bytes = *stored;
   std::printf("baked time step %d at %d^3 (%zu cameras from %s): %d of %d candidate blocks kept, %.1f MB raw, "
-              "%.2f MB on disk, in %.1f s (density %.1f, visibility %.1f, colour %.1f, fit %.1f: %lld rays, rms %.4f -> "
-              "%.4f)\n",
+              "%.2f MB on disk, in %.1f s (candidates %.1f, density and visibility %.1f: %d blocks reached, colour %.1f, "
+              "fit %.1f: %lld rays, rms %.4f -> %.4f)\n",
               asset->time_step, rep.resolution, cams->size(), from.c_str(), rep.kept_blocks, rep.candidate_blocks,
-              double(asset->raw_bytes()) / 1e6, double(bytes) / 1e6, rep.total_seconds, rep.density_seconds,
-              rep.visibility_seconds, rep.colour_seconds, rep.fit_seconds, rep.fit.rays, rep.fit.rms_before,
+              double(asset->raw_bytes()) / 1e6, double(bytes) / 1e6, rep.total_seconds, rep.candidate_seconds,
+              rep.visibility_seconds, rep.evaluated_blocks, rep.colour_seconds, rep.fit_seconds, rep.fit.rays, rep.fit.rms_before,
               rep.fit.rms_after);
   std::printf("view it: python3 -m http.server -d %s 8000, then open http://localhost:8000/baked.html\n",
               a.out.c_str());
@@ -137,7 +137,8 @@ int RunBake(const BakeArgs& a) {
                       {"visible_blocks", rep.visible_blocks},
                       {"visibility_rays", rep.visibility_rays},   {"raw_bytes", asset->raw_bytes()},
                       {"asset_bytes", bytes},                     {"bake_seconds", rep.total_seconds},
-                      {"density_seconds", rep.density_seconds},   {"visibility_seconds", rep.visibility_seconds},
+                      {"candidate_seconds", rep.candidate_seconds}, {"visibility_seconds", rep.visibility_seconds},
+                      {"evaluated_blocks", rep.evaluated_blocks},
                       {"colour_seconds", rep.colour_seconds},     {"fit_seconds", rep.fit_seconds},
                       {"view_dependent", asset->view_dependent()},
                       {"view_term", asset->view_term == BakedViewTerm::kAtMedian ? "median" : "sample"},

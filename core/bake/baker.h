@@ -4,7 +4,8 @@
 //
 //  1. Candidate blocks: the 8^3-cell blocks that overlap occupied cells of
 //     the model's occupancy grid.
-//  2. Density at the 9^3 lattice points of every candidate block.
+//  2. Density at the 9^3 lattice points of every candidate block that a
+//     training ray of stage 3 reaches (computed as the first one does).
 //  3. Visibility: rays from the training cameras (a strided subset of their
 //     pixels) march the baked densities exactly as the renderer will; a
 //     block is kept when some ray deposits at least `min_block_weight` of
@@ -69,11 +70,14 @@ struct BakeOptions {
 struct BakeReport {
   int resolution = 0;
   int candidate_blocks = 0;  // Blocks overlapping occupied cells.
+  int evaluated_blocks = 0;  // Candidates some training ray reached (their densities computed).
   int visible_blocks = 0;    // Blocks the training rays see.
   int kept_blocks = 0;       // Of those, kept within the download budget.
   long long visibility_rays = 0;
   ColourFitReport fit;
-  double density_seconds = 0, visibility_seconds = 0, colour_seconds = 0, fit_seconds = 0, total_seconds = 0;
+  // candidate_seconds: stage 1; visibility_seconds: stages 2 and 3 (densities
+  // are computed as rays reach candidates).
+  double candidate_seconds = 0, visibility_seconds = 0, colour_seconds = 0, fit_seconds = 0, total_seconds = 0;
 };
 
 // Bakes `time_step` (-1 = the latest) of `model`. `cameras` are the training
