@@ -101,13 +101,47 @@ def load(driver, url):
         fail(f"the page could not show the asset: {err}")
 
 
+def time_assets(args):
+    """Frame times of existing baked folders at their first stored view, with
+    the page and renderer from --web (not the copies beside the asset)."""
+    results = {}
+    driver = start_chromium(window="1000,800", software_webgl=True, script_timeout=300)
+    try:
+        for asset in args.time_asset:
+            work = tempfile.mkdtemp(prefix="clnerf_baked_time_")
+            for f in os.listdir(asset):
+                if f.endswith(".gz") or f == "manifest.json":
+                    os.symlink(os.path.abspath(os.path.join(asset, f)), os.path.join(work, f))
+            for f in ("baked.html", "baked.js"):
+                shutil.copy(os.path.join(args.web, f), work)
+            srv = serve(work)
+            base = f"http://127.0.0.1:{srv.server_address[1]}/baked.html"
+            timing = {}
+            for (w, h) in ((400, 300), (800, 600)):
+                load(driver, f"{base}?w={w}&h={h}")
+                timing[f"{w}x{h}"] = driver.execute_script("return window.clnerfBaked.timeFrames(10);")
+            srv.shutdown()
+            shutil.rmtree(work, ignore_errors=True)
+            results[asset] = timing
+            print(f"{asset}: software WebGL2 frame {timing['400x300']:.1f} ms at 400x300, "
+                  f"{timing['800x600']:.1f} ms at 800x600 (its first stored view)")
+    finally:
+        driver.quit()
+    print(json.dumps({"baked_browser_assets": results}))
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--client", required=True)
     ap.add_argument("--web", required=True, help="server/frontends/web (baked.html, baked.js)")
     ap.add_argument("--out", required=True)
     ap.add_argument("--frame-times", action="store_true", help="also time frames at 400x300 and 800x600")
+    ap.add_argument("--time-asset", action="append", default=[],
+                    help="only time frames of this baked folder (at its first stored view); repeatable")
     args = ap.parse_args()
+    if args.time_asset:
+        time_assets(args)
+        return
     os.makedirs(args.out, exist_ok=True)
     work = tempfile.mkdtemp(prefix="clnerf_baked_")
     env = dict(os.environ)

@@ -33,7 +33,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from viewer_driver import (Server, canvas_pixels, fail, frames, full_shown, mean_abs_diff, run_client,  # noqa: E402
-                           set_slider, start_chromium, variance, wait_for)
+                           select_value, set_slider, start_chromium, variance, wait_for)
 from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
 from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.support.ui import Select  # noqa: E402
@@ -176,7 +176,7 @@ def main():
         run_client(args.client, ["places", "create", "lab"], env, "places create")
         run_client(args.client, ["upload", f"{work}/scans/scan_000", "--place", "lab", "--pose-frame", "place", "--watch"], env,
                    "upload to place lab")
-        Select(driver.find_element(By.ID, "place")).select_by_value("lab")
+        select_value(driver, "place", "lab")
         wait_for("the page to reload on place lab",
                  lambda: driver.execute_script("return (window.clnerfViewer.scene || {}).time_steps;") == 1,
                  timeout=60)

@@ -22,7 +22,10 @@ def fail(msg):
 
 try:
     from selenium import webdriver
+    from selenium.common.exceptions import StaleElementReferenceException
     from selenium.webdriver.chrome.service import Service
+    from selenium.webdriver.common.by import By
+    from selenium.webdriver.support.ui import Select
 except ImportError as e:  # Not a skip: CI must run the viewer test.
     fail(f"python3-selenium is missing ({e}); run scripts/install-deps.sh")
 
@@ -35,6 +38,22 @@ def wait_for(what, cond, timeout=20.0, every=0.05):
             return v
         time.sleep(every)
     fail(f"timed out after {timeout:.0f} s waiting for {what}")
+
+
+def select_value(driver, element_id, value, timeout=30.0):
+    """Picks `value` in the <select> `element_id` once it offers it. The page
+    rebuilds some lists as it polls (places, versions), so an option found
+    may be replaced before it is clicked: then it is found again."""
+    def pick():
+        try:
+            sel = Select(driver.find_element(By.ID, element_id))
+            if value not in [o.get_attribute("value") for o in sel.options]:
+                return False
+            sel.select_by_value(value)
+            return True
+        except StaleElementReferenceException:
+            return False
+    wait_for(f"option '{value}' of #{element_id}", pick, timeout=timeout)
 
 
 class Server:
