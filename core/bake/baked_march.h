@@ -106,6 +106,33 @@ inline Eigen::Vector3f BakedColour(const Eigen::Vector4f& rgba) {
   return (rgba.head<3>() / std::max(rgba[3], 1.0f / 255.0f)).cwiseMax(0.0f).cwiseMin(1.0f);
 }
 
+// Local coordinates l (lattice units, [0, 8] inside the block) of cell
+// coordinates u in block b.
+inline void LocalInBlock(const Eigen::Vector3f& u, const int b[3], float l[3]) {
+  for (int k = 0; k < 3; ++k) l[k] = u[k] - float(kBakeBlock * b[k]);
+}
+
+// Finds a ray's median sample (format 3's view term is read there): fed
+// each sample's compositing weight in order, Step returns true exactly
+// once, at the first sample after which the transmittance is below 1/2.
+// The reference renderer and the colour fit share it, so the fit's rows
+// are the renderer's pixels.
+class BakedMedian {
+ public:
+  bool Step(float weight) {
+    const float next = T_ - weight;
+    const bool median = !found_ && T_ >= 0.5f && next < 0.5f;
+    found_ = found_ || median;
+    T_ = next;
+    return median;
+  }
+  bool found() const { return found_; }
+
+ private:
+  float T_ = 1.0f;
+  bool found_ = false;
+};
+
 // The brick block b names (its index entry - 1), or -1 for an empty block.
 inline int64_t BlockBrick(const BakedAsset& a, const int b[3]) {
   const int nb = a.blocks_per_axis();

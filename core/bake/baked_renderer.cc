@@ -8,11 +8,6 @@
 namespace clnerf {
 namespace {
 
-// Local coordinates l of cell coordinates u in block b.
-inline void LocalInBlock(const Eigen::Vector3f& u, const int b[3], float l[3]) {
-  for (int k = 0; k < 3; ++k) l[k] = u[k] - float(kBakeBlock * b[k]);
-}
-
 // The view-dependent term at local coordinates l of `brick`, premultiplied
 // by the density code like the colour (H d in [0, 1] colour units times
 // the blended code): sum_k d_k (texel_k - 128) / 127.
@@ -49,7 +44,8 @@ bool SampleBlock(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], 
 BakedRay RenderBakedRay(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d) {
   BakedRay out;
   int64_t brick = -1, median_brick = -1;
-  float l[3] = {0, 0, 0}, median_l[3] = {0, 0, 0}, median_code = 0.0f, T_run = 1.0f;
+  float l[3] = {0, 0, 0}, median_l[3] = {0, 0, 0}, median_code = 0.0f;
+  BakedMedian median;
   const float T = MarchBaked(
       a, o, d,
       [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
@@ -59,13 +55,11 @@ BakedRay RenderBakedRay(const BakedAsset& a, const Eigen::Vector3f& o, const Eig
         ++out.samples;
         out.rgb += w * BakedColour(rgba);
         out.depth += w * t;
-        const float next = T_run - w;
-        if (median_brick < 0 && T_run >= 0.5f && next < 0.5f) {  // The median sample (format 3).
+        if (median.Step(w)) {  // The median sample (format 3).
           median_brick = brick;
           std::copy(l, l + 3, median_l);
           median_code = rgba[3];
         }
-        T_run = next;
       });
   if (a.view_dependent() && a.view_term == BakedViewTerm::kAtMedian && median_brick >= 0) {
     out.rgb += (1.0f - T) * ViewTerm(a, median_brick, median_l, d) / std::max(median_code, 1.0f / 255.0f);

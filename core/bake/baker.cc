@@ -2,12 +2,11 @@
 
 #include <omp.h>
 
-#include <atomic>
-#include <thread>
-
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
+#include <thread>
 
 #include "absl/strings/str_format.h"
 #include "core/bake/baked_march.h"
@@ -179,8 +178,8 @@ void Visibility(const std::vector<Camera>& cameras, const BakeOptions& o, LazyDe
                 const int32_t s = w->slot[block];
                 if (s < 0) return false;
                 const uint8_t* c = density->Codes(s);
-                const float l[3] = {u[0] - float(kBakeBlock * b[0]), u[1] - float(kBakeBlock * b[1]),
-                                    u[2] - float(kBakeBlock * b[2])};
+                float l[3];
+                LocalInBlock(u, b, l);
                 const float v = TrilinearBrick(l, [&](int xx, int yy, int zz, int ch) {
                                   return ch == 3 ? float(c[xx + kBakeBrick * (yy + kBakeBrick * zz)]) : 0.0f;
                                 })[3];

@@ -76,7 +76,8 @@ struct Corners {
 bool SampleCodes(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], Corners* c, Eigen::Vector4f* rgba) {
   const int64_t brick = BlockBrick(a, b);
   if (brick < 0) return false;
-  const float l[3] = {u[0] - float(kBakeBlock * b[0]), u[1] - float(kBakeBlock * b[1]), u[2] - float(kBakeBlock * b[2])};
+  float l[3];
+  LocalInBlock(u, b, l);
   const BrickCell cell = LocateInBrick(l);
   float A = 0.0f;
   for (int corner = 0; corner < 8; ++corner) {
@@ -357,8 +358,7 @@ float BakedRayWeights(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen
                       std::vector<std::pair<uint32_t, float>>* view_row) {
   row->clear();
   Corners c, median;
-  bool has_median = false;
-  float T_run = 1.0f;
+  BakedMedian median_sample;
   const float T = MarchBaked(
       a, o, d, [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
         return SampleCodes(a, u, b, &c, rgba);
@@ -368,13 +368,10 @@ float BakedRayWeights(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen
         for (int k = 0; k < 8; ++k) {
           if (c.wa[k] > 0.0f) row->emplace_back(c.id[k], s * c.wa[k]);
         }
-        const float next = T_run - weight;
-        if (!has_median && T_run >= 0.5f && next < 0.5f) {
-          has_median = true;
+        if (median_sample.Step(weight)) {
           median = c;
           for (float& v : median.wa) v /= std::max(rgba[3], 1.0f / 255.0f);
         }
-        T_run = next;
       });
   MergeRepeats(row);
   if (view_row != nullptr) {
@@ -382,7 +379,7 @@ float BakedRayWeights(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen
       *view_row = *row;
     } else {
       view_row->clear();
-      for (int k = 0; has_median && k < 8; ++k) {
+      for (int k = 0; median_sample.found() && k < 8; ++k) {
         if (median.wa[k] > 0.0f) view_row->emplace_back(median.id[k], (1.0f - T) * median.wa[k]);
       }
       MergeRepeats(view_row);
