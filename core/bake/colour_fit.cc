@@ -415,7 +415,7 @@ absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::ve
   const int n = int(origins.size() / 3);
   RenderOptions ro;
   ro.time_step = time_step;
-  ro.min_weight = 0.0f;  // Every sample coloured: the targets are the model's exact pixels.
+  // The targets are the pixels the model itself serves (RenderView's defaults).
   std::vector<float> model_rgb(3 * size_t(n));
   RenderRays(model, origins.data(), dirs.data(), n, time_step, ro, model_rgb.data(), nullptr, nullptr);
   rep.target_seconds = Since(t0);

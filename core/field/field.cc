@@ -145,9 +145,10 @@ void FieldEvaluator::DensityAt(const float* points, int n, int time_step, float*
   const int nchunks = (n + kChunk - 1) / kChunk;
 #pragma omp parallel
   {
+    const int cap = std::min(kChunk, n);  // Sized to the call: the baker asks for 729 points at a time.
     NetworkWorkspace ws;
-    ws.Reserve(kChunk, net.options(), grid.output_dim());
-    std::vector<float> pos(3 * kChunk), feat(size_t(kChunk) * grid.output_dim()), h0(kChunk);
+    ws.Reserve(cap, net.options(), grid.output_dim());
+    std::vector<float> pos(3 * size_t(cap)), feat(size_t(cap) * grid.output_dim()), h0(cap);
 #pragma omp for schedule(dynamic)
     for (int ci = 0; ci < nchunks; ++ci) {
       const int begin = ci * kChunk, m = std::min(kChunk, n - begin);
