@@ -81,7 +81,10 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
                 "Download budget: drop the least-seen blocks until the asset compresses to about this (0 = none)")
       ->capture_default_str();
   c->add_option("--fit-rays", a->bake.fit.rays,
-                "Training-camera rays the colour fit matches to the model's renders (0 = no fit)")
+                "Training-camera rays the colour fit matches to the model's renders, at most (0 = no fit)")
+      ->capture_default_str();
+  c->add_option("--fit-max-entries", a->bake.fit.max_nonzeros,
+                "Fewer fit rays where their weights would exceed this many entries (sets the fit's time; 0 = no limit)")
       ->capture_default_str();
   c->add_flag("--view-dependent,!--diffuse", a->bake.view_dependent,
               "Fit a view-dependent colour term too (c0 + H d per lattice point), or only diffuse colours")
@@ -143,7 +146,9 @@ int RunBake(const BakeArgs& a) {
                       {"view_dependent", asset->view_dependent()},
                       {"view_term", asset->view_term == BakedViewTerm::kAtMedian ? "median" : "sample"},
                       {"step_cells", asset->step_cells},
-                      {"fit", {{"rays", rep.fit.rays}, {"unknowns", rep.fit.unknowns}, {"nonzeros", rep.fit.nonzeros},
+                      {"fit", {{"rays", rep.fit.rays}, {"candidate_rays", rep.fit.candidate_rays},
+                               {"estimated_nonzeros", rep.fit.estimated_nonzeros},
+                               {"unknowns", rep.fit.unknowns}, {"nonzeros", rep.fit.nonzeros},
                                {"rms_before", rep.fit.rms_before}, {"rms_after", rep.fit.rms_after},
                                {"target_seconds", rep.fit.target_seconds}, {"rows_seconds", rep.fit.rows_seconds},
                                {"solve_seconds", rep.fit.solve_seconds}}}};

@@ -33,9 +33,16 @@
 namespace clnerf {
 
 struct ColourFitOptions {
-  // Training-camera rays the fit uses (one per pixel cell of a stride that
-  // gives about this many, jittered within the cell). 0 = no fit.
-  int rays = 1 << 18;
+  // Training-camera rays the fit may use (one per pixel cell of a stride that
+  // gives about this many, jittered within the cell; all pixels when the
+  // cameras have fewer). 0 = no fit.
+  int rays = 1 << 20;
+  // ... thinned so that A has at most about this many entries (0 = no
+  // limit): A's size sets the fit's time (~0.2 s per million entries on 2
+  // cores) and memory (~20 bytes per entry). More rays fit better: fox_8's
+  // test views 27.70 dB from 209 K rays (19 M entries) and 28.04 from 473 K
+  // (43 M); flower_4 25.63 -> 25.85 (docs/baking.md).
+  int64_t max_nonzeros = 40'000'000;
   // CGLS iterations.
   int iterations = 16;
   // Damping towards the field's own colours, relative to the mean squared
@@ -56,7 +63,9 @@ struct ColourFitOptions {
 };
 
 struct ColourFitReport {
-  long long rays = 0;           // Rays in the fit.
+  long long candidate_rays = 0;       // Rays sampled from the cameras (options.rays or the pixels).
+  long long estimated_nonzeros = 0;   // Their entries of A, estimated from a pilot of 4096.
+  long long rays = 0;           // Rays in the fit (within the entry budget, not background only).
   long long unknowns = 0;       // Lattice points some ray blends.
   long long nonzeros = 0;       // Entries of A.
   bool view_dependent = false;  // The view-dependent term was fitted.

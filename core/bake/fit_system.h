@@ -1,0 +1,92 @@
+// FitSystem: the colour fit's sparse linear system (colour_fit.h). Each row
+// is one ray: its pixel, per colour channel, is a weighted sum of the
+// diffuse colours c0 of the lattice points it blends plus, for its "view"
+// entries, the points' view-dependent terms H times the ray's direction d
+// (c = c0 + H d, H a 3x3 per point). Rows are appended per thread, then
+// joined; the columns name lattice points until NumberUnknowns numbers the
+// unknowns (the points some entry names, in lattice order); then
+// Transpose builds the columns, and SolveDamped runs CGLS on
+//
+//   min_delta |A delta - r0|^2 + lambda |delta|^2   (each channel its own system).
+//
+// Unknown vectors hold 3 values per diffuse point, then 9 per view point
+// (H column-major: k = x, y, z, then channel).
+//
+// A FitSystem is a plain value: build it on one thread (its functions use
+// the calling context's OpenMP threads), then the const functions may run
+// concurrently.
+#ifndef CLNERF_CORE_BAKE_FIT_SYSTEM_H_
+#define CLNERF_CORE_BAKE_FIT_SYSTEM_H_
+
+#include <cstdint>
+#include <utility>
+#include <vector>
+
+#include "Eigen/Core"
+#include "core/bake/huge_pages.h"
+
+namespace clnerf {
+
+// One half of A in compressed sparse rows: row r's entries are
+// [start[r], start[r + 1]).
+struct SparseRows {
+  HugeVector<int64_t> start = {0};
+  HugeVector<uint32_t> col;
+  HugeVector<float> val;
+  // Appends a row of (column, weight) pairs.
+  void Append(const std::vector<std::pair<uint32_t, float>>& row);
+};
+
+// The same entries by column: column j's rows are [start[j], start[j + 1]),
+// in row order.
+struct SparseColumns {
+  HugeVector<int64_t> start;
+  HugeVector<uint32_t> row;
+  HugeVector<float> val;
+};
+
+struct FitSystem {
+  SparseRows diffuse, view;   // Entries on c0, on H.
+  std::vector<float> target;  // 3 per row: what the row should sum to.
+  std::vector<float> dir;     // 3 per row: the ray's direction.
+  // After NumberUnknowns: the points behind the unknowns (lattice ids).
+  std::vector<uint32_t> diffuse_point, view_point;
+  // After Transpose.
+  SparseColumns diffuse_cols, view_cols;
+
+  int64_t rows() const { return int64_t(diffuse.start.size()) - 1; }
+  int64_t entries() const { return int64_t(diffuse.col.size() + view.col.size()); }
+  size_t num_diffuse() const { return diffuse_point.size(); }
+  size_t num_view() const { return view_point.size(); }
+  size_t num_values() const { return 3 * num_diffuse() + 9 * num_view(); }
+
+  // Adds one row (the two halves given, either may be empty).
+  void AppendRow(const std::vector<std::pair<uint32_t, float>>& diffuse_row,
+                 const std::vector<std::pair<uint32_t, float>>& view_row, const float target_rgb[3],
+                 const Eigen::Vector3f& direction);
+  // Empties every row's view entries (the fit is then diffuse).
+  void DropViewEntries();
+  // Renumbers the columns from lattice ids in [0, points) to unknowns.
+  void NumberUnknowns(size_t points);
+  // Builds diffuse_cols and view_cols (after NumberUnknowns).
+  void Transpose();
+
+  // y (rows x 3) = A x.
+  void Multiply(const std::vector<float>& x, std::vector<float>* y) const;
+  // z = A^T y (after Transpose).
+  void MultiplyTransposed(const std::vector<float>& y, std::vector<float>* z) const;
+  // Sum over each diffuse unknown's entries of the squared weights, averaged
+  // over the diffuse unknowns (after Transpose; 1 when there are none).
+  double MeanDiffuseDiagonal() const;
+  // CGLS from zero for min |A delta - r0|^2 + lambda |delta|^2 (after
+  // Transpose); returns delta.
+  std::vector<float> SolveDamped(const std::vector<float>& r0, double lambda, int iterations) const;
+};
+
+// Joins per-thread systems (before numbering), rows in the order given.
+// The parts are emptied.
+FitSystem JoinFitSystems(std::vector<FitSystem>* parts);
+
+}  // namespace clnerf
+
+#endif  // CLNERF_CORE_BAKE_FIT_SYSTEM_H_
