@@ -70,7 +70,7 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
   c->add_option("--data", a->data, "The capture the model was trained on (its training cameras decide what is kept)");
   c->add_option("--time-step", a->time_step, "Time step to bake (-1 = latest)")->capture_default_str();
   c->add_option("--resolution", a->bake.resolution,
-                "Cells per axis over the field space, a multiple of 32 (0 = derived: 256 objects, 512 unbounded)")
+                "Cells per axis over the field space, a multiple of 32 (0 = derived: 256 objects; 512 unbounded, finer up to 1024 where the download budget allows)")
       ->capture_default_str();
   c->add_option("--visibility-rays", a->bake.visibility_rays, "Training-camera rays that decide which blocks are kept")
       ->capture_default_str();
@@ -85,6 +85,10 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
       ->capture_default_str();
   c->add_option("--fit-max-entries", a->bake.fit.max_nonzeros,
                 "Fewer fit rays where their weights would exceed this many entries (sets the fit's time; 0 = no limit)")
+      ->capture_default_str();
+  c->add_option("--fit-max-model-samples", a->bake.fit.max_model_samples,
+                "Fewer fit rays where the model's renders of their targets would take more samples than this "
+                "(0 = no limit)")
       ->capture_default_str();
   c->add_flag("--view-dependent,!--diffuse", a->bake.view_dependent,
               "Fit a view-dependent colour term too (c0 + H d per lattice point), or only diffuse colours")
@@ -138,7 +142,7 @@ int RunBake(const BakeArgs& a) {
                       {"time_step", asset->time_step}, {"resolution", rep.resolution},
                       {"candidate_blocks", rep.candidate_blocks}, {"kept_blocks", rep.kept_blocks},
                       {"visible_blocks", rep.visible_blocks},
-                      {"visibility_rays", rep.visibility_rays},   {"raw_bytes", asset->raw_bytes()},
+                      {"visibility_rays", rep.visibility_rays},   {"base_resolution_bytes", rep.base_resolution_bytes},   {"raw_bytes", asset->raw_bytes()},
                       {"asset_bytes", bytes},                     {"bake_seconds", rep.total_seconds},
                       {"candidate_seconds", rep.candidate_seconds}, {"visibility_seconds", rep.visibility_seconds},
                       {"evaluated_blocks", rep.evaluated_blocks},
@@ -148,6 +152,7 @@ int RunBake(const BakeArgs& a) {
                       {"step_cells", asset->step_cells},
                       {"fit", {{"rays", rep.fit.rays}, {"candidate_rays", rep.fit.candidate_rays},
                                {"estimated_nonzeros", rep.fit.estimated_nonzeros},
+                               {"estimated_model_samples", rep.fit.estimated_model_samples},
                                {"unknowns", rep.fit.unknowns}, {"nonzeros", rep.fit.nonzeros},
                                {"rms_before", rep.fit.rms_before}, {"rms_after", rep.fit.rms_after},
                                {"target_seconds", rep.fit.target_seconds}, {"rows_seconds", rep.fit.rows_seconds},

@@ -28,6 +28,9 @@ double Since(std::chrono::steady_clock::time_point t0) {
 
 // What the stages share: the grid (an asset's geometry fields), the
 // candidate blocks and their lattice values.
+// The finest grid a derived resolution goes to (BakeOptions::resolution).
+constexpr int kMaxDerivedResolution = 1024;
+
 struct BakeWork {
   BakedAsset asset;             // Geometry so far; arrays filled at the end.
   std::vector<int32_t> slot;    // Per block: candidate slot, or -1.
@@ -344,13 +347,15 @@ uint64_t EstimatedAssetBytes(const BakedAsset& a, const std::vector<float>& rgb)
 // atlas compresses to more than `budget` bytes, the blocks the training
 // rays weigh least are dropped (at most three times; their colours are
 // kept, not recomputed).
-void ColourWithinBudget(const NgpModel& model, int t, uint64_t budget, const std::vector<float>& max_w,
-                        const std::vector<Eigen::Vector3f>& dir, std::vector<int>* kept, BakeWork* w,
-                        std::vector<float>* rgb) {
+uint64_t ColourWithinBudget(const NgpModel& model, int t, uint64_t budget, const std::vector<float>& max_w,
+                            const std::vector<Eigen::Vector3f>& dir, std::vector<int>* kept, BakeWork* w,
+                            std::vector<float>* rgb) {
   BakeColour(model, t, *kept, dir, w, rgb);
+  uint64_t first = 0;
   for (int round = 0; round < 3 && budget > 0 && kept->size() > 1; ++round) {
     const uint64_t bytes = EstimatedAssetBytes(w->asset, *rgb);
-    if (bytes <= budget) return;
+    if (round == 0) first = bytes;
+    if (bytes <= budget) return first;
     // The blocks dropped first are the faintest, which compress best:
     // beer_2 lost 9.7 % of its bytes with 15.5 % of its blocks, hence the
     // power.
@@ -372,6 +377,52 @@ void ColourWithinBudget(const NgpModel& model, int t, uint64_t budget, const std
     *rgb = std::move(next_rgb);
     PackCodes(*kept, w);
   }
+  return first;
+}
+
+// Stages 1-4 at `resolution` on a fresh grid: returns the first guess's
+// estimated download before the budget dropped blocks (0 = not estimated).
+uint64_t BakeGrid(const NgpModel& model, int t, const std::vector<Camera>& cameras, const BakeOptions& options,
+                  int resolution, BakeWork* w, std::vector<int>* kept, std::vector<float>* rgb, BakeReport* rep) {
+  BakedAsset& a = w->asset;
+  a.resolution = resolution;
+  a.index.clear();  // Nothing of an earlier grid: the visibility pass marches this one.
+  a.atlas.clear();
+  a.block_distance.clear();
+  w->slot.clear();
+  w->blocks.clear();
+  w->code.clear();
+  const auto t0 = std::chrono::steady_clock::now();
+  FindCandidates(model, w);
+  rep->candidate_seconds += Since(t0);
+  const auto t1 = std::chrono::steady_clock::now();
+  std::vector<float> max_w;
+  std::vector<Eigen::Vector3f> dir;
+  LazyDensity density(model, t, w);
+  Visibility(cameras, options, &density, w, &max_w, &dir, &rep->visibility_rays);
+  rep->evaluated_blocks = density.evaluated();
+  rep->visibility_seconds += Since(t1);
+  kept->clear();
+  for (size_t s = 0; s < w->blocks.size(); ++s) {
+    if (max_w[s] >= options.min_block_weight && max_w[s] > 0.0f) kept->push_back(int(s));
+  }
+  rep->visible_blocks = int(kept->size());
+  const auto t2 = std::chrono::steady_clock::now();
+  const uint64_t bytes = ColourWithinBudget(model, t, uint64_t(options.max_asset_bytes), max_w, dir, kept, w, rgb);
+  ComputeBlockDistances(&a);
+  rep->colour_seconds += Since(t2);
+  return bytes;
+}
+
+// The grid for an unbounded scene at the default resolution: the finest
+// (a multiple of 32, up to kMaxDerivedResolution) whose download, scaled
+// from `bytes` at `resolution` by the surface area (R^2), stays within 70 %
+// of the budget.
+int DerivedResolution(int resolution, uint64_t bytes, int64_t budget) {
+  if (bytes == 0 || budget <= 0) return resolution;
+  const double scale = std::sqrt(0.7 * double(budget) / double(bytes));
+  const int r = int(double(resolution) * scale) / 32 * 32;
+  return std::clamp(r, resolution, kMaxDerivedResolution);
 }
 
 }  // namespace
@@ -415,7 +466,6 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
   BakedAsset& a = w.asset;
   a.contracted = model.contracted();
   a.half_size = model.contracted() ? kContractedBound : model.bound();
-  a.resolution = options.resolution > 0 ? options.resolution : (model.contracted() ? 512 : 256);
   a.near = model.options().march.near;
   a.normalization = model.normalization();
   a.background = model.background();
@@ -423,25 +473,15 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
   a.step_cells = options.step_cells;
   a.view_term = options.view_term;
   for (int k = 0; k < 4 && k < int(cameras.size()); ++k) a.views.push_back(cameras[k * cameras.size() / 4]);
-  FindCandidates(model, &w);
-  rep.candidate_seconds = Since(t0);
-  const auto t1 = std::chrono::steady_clock::now();
-  std::vector<float> max_w;
-  std::vector<Eigen::Vector3f> dir;
-  LazyDensity density(model, t, &w);
-  Visibility(cameras, options, &density, &w, &max_w, &dir, &rep.visibility_rays);
-  rep.evaluated_blocks = density.evaluated();
-  rep.visibility_seconds = Since(t1);
   std::vector<int> kept;
-  for (size_t s = 0; s < w.blocks.size(); ++s) {
-    if (max_w[s] >= options.min_block_weight && max_w[s] > 0.0f) kept.push_back(int(s));
-  }
-  rep.visible_blocks = int(kept.size());
-  const auto t2 = std::chrono::steady_clock::now();
   std::vector<float> rgb;
-  ColourWithinBudget(model, t, uint64_t(options.max_asset_bytes), max_w, dir, &kept, &w, &rgb);
-  ComputeBlockDistances(&a);
-  rep.colour_seconds = Since(t2);
+  const int base = options.resolution > 0 ? options.resolution : (model.contracted() ? 512 : 256);
+  const uint64_t bytes = BakeGrid(model, t, cameras, options, base, &w, &kept, &rgb, &rep);
+  rep.base_resolution_bytes = int64_t(bytes);
+  if (options.resolution == 0 && model.contracted()) {
+    const int finer = DerivedResolution(base, bytes, options.max_asset_bytes);
+    if (finer > base) BakeGrid(model, t, cameras, options, finer, &w, &kept, &rgb, &rep);
+  }
   const auto t3 = std::chrono::steady_clock::now();
   std::vector<float> view;  // The view-dependent term (stage 5 fits it).
   if (options.view_dependent && options.fit.rays > 0) view.assign(3 * rgb.size(), 0.0f);

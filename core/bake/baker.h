@@ -36,8 +36,12 @@ namespace clnerf {
 
 struct BakeOptions {
   // Cells per axis of the grid over the field space (a multiple of 32);
-  // 0 = derived: 256 for objects, 512 for unbounded scenes (whose inner
-  // cube, where the cameras are, gets half of them).
+  // 0 = derived: 256 for objects; for unbounded scenes (whose inner cube,
+  // where the cameras are, gets half of them) 512, or finer where the
+  // download budget leaves room: baked at 512 first, the finest grid (up to
+  // 1024) whose download, scaled by the surface area (R^2), stays within
+  // 90 % of max_asset_bytes is baked instead (fox_8 5.98 MB at 512 ->
+  // 672; flower_4 2.3 MB -> 1024; beer_2, over the budget at 512, stays).
   int resolution = 0;
   // Training-camera rays marched for visibility (pixels on a stride that
   // gives about this many over all cameras).
@@ -74,6 +78,9 @@ struct BakeReport {
   int visible_blocks = 0;    // Blocks the training rays see.
   int kept_blocks = 0;       // Of those, kept within the download budget.
   long long visibility_rays = 0;
+  // The first guess's estimated download at the base resolution (512 for
+  // unbounded scenes), which a derived resolution is chosen from.
+  long long base_resolution_bytes = 0;
   ColourFitReport fit;
   // candidate_seconds: stage 1; visibility_seconds: stages 2 and 3 (densities
   // are computed as rays reach candidates).

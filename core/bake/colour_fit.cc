@@ -139,31 +139,53 @@ FitSystem BuildRows(const BakedAsset& a, const std::vector<float>& origins, cons
   return JoinFitSystems(&part);  // Static schedule: thread order is ray order.
 }
 
-// Keeps A within `max_nonzeros` entries (its size sets the fit's time and
-// memory): the mean entries of a pilot of 4096 rays spread over the list
-// say how many rays fit, and a hashed share of the rays is kept. Returns
-// the rays' estimated entries before thinning.
-double ThinToEntryBudget(const BakedAsset& a, int64_t max_nonzeros, bool view, std::vector<float>* origins,
-                         std::vector<float>* dirs) {
-  const int64_t n = int64_t(origins->size() / 3);
-  if (n == 0) return 0.0;
+// What the fit's rays will cost, estimated from a pilot of 4096 rays spread
+// over the list: A's entries, and the model's samples for the targets.
+struct FitWork {
+  double entries = 0, model_samples = 0;
+};
+
+FitWork EstimateWork(const NgpModel& model, int time_step, const BakedAsset& a, bool view,
+                     const std::vector<float>& origins, const std::vector<float>& dirs) {
+  const int64_t n = int64_t(origins.size() / 3);
+  if (n == 0) return {};
   const int64_t pilot = std::min<int64_t>(n, 4096), every = n / pilot;
+  std::vector<float> po(3 * size_t(pilot)), pd(3 * size_t(pilot)), rgb(3 * size_t(pilot));
+  for (int64_t k = 0; k < pilot; ++k) {
+    std::copy_n(origins.data() + 3 * size_t(k * every), 3, po.data() + 3 * k);
+    std::copy_n(dirs.data() + 3 * size_t(k * every), 3, pd.data() + 3 * k);
+  }
   int64_t entries = 0;
 #pragma omp parallel reduction(+ : entries)
   {
     std::vector<std::pair<uint32_t, float>> row, view_row;
 #pragma omp for schedule(static)
     for (int64_t k = 0; k < pilot; ++k) {
-      const size_t r = size_t(k * every);
-      const Eigen::Vector3f o(origins->data() + 3 * r), d(dirs->data() + 3 * r);
-      BakedRayWeights(a, o, d, &row, view ? &view_row : nullptr);
+      BakedRayWeights(a, Eigen::Vector3f(po.data() + 3 * k), Eigen::Vector3f(pd.data() + 3 * k), &row,
+                      view ? &view_row : nullptr);
       DropFaintEntries(nullptr, &row);
       entries += int64_t(row.size() + (view ? view_row.size() : 0));
     }
   }
-  const double estimate = double(entries) / double(pilot) * double(n);
-  if (max_nonzeros <= 0 || estimate <= double(max_nonzeros)) return estimate;
-  const uint32_t keep_below = uint32_t(double(max_nonzeros) / estimate * 4294967296.0);
+  RenderOptions ro;
+  ro.time_step = time_step;
+  const long long samples = RenderRays(model, po.data(), pd.data(), int(pilot), time_step, ro, rgb.data(), nullptr, nullptr);
+  const double scale = double(n) / double(pilot);
+  return {double(entries) * scale, double(std::max(samples, 0LL)) * scale};
+}
+
+// Keeps the fit within its work budget (options.max_nonzeros,
+// max_model_samples): a hashed share of the rays is kept.
+void ThinToBudget(const FitWork& work, const ColourFitOptions& o, std::vector<float>* origins,
+                  std::vector<float>* dirs) {
+  double share = 1.0;
+  if (o.max_nonzeros > 0 && work.entries > 0) share = std::min(share, double(o.max_nonzeros) / work.entries);
+  if (o.max_model_samples > 0 && work.model_samples > 0) {
+    share = std::min(share, double(o.max_model_samples) / work.model_samples);
+  }
+  if (share >= 1.0) return;
+  const uint32_t keep_below = uint32_t(share * 4294967296.0);
+  const int64_t n = int64_t(origins->size() / 3);
   size_t out = 0;
   for (int64_t r = 0; r < n; ++r) {
     if (HashCell(uint32_t(r), 0x165667B1u, 7u) >= keep_below) continue;
@@ -175,7 +197,6 @@ double ThinToEntryBudget(const BakedAsset& a, int64_t max_nonzeros, bool view, s
   }
   origins->resize(3 * out);
   dirs->resize(3 * out);
-  return estimate;
 }
 
 // target - A x.
@@ -255,7 +276,9 @@ absl::Status ColourFitOptions::Validate() const {
   if (rays < 0) return absl::InvalidArgumentError("bake: the colour fit's rays must be >= 0");
   if (iterations < 0 || iterations > 1000) return absl::InvalidArgumentError("bake: fit iterations must be in [0, 1000]");
   if (max_view_nonzeros < 0) return absl::InvalidArgumentError("bake: max_view_nonzeros must be >= 0");
-  if (max_nonzeros < 0) return absl::InvalidArgumentError("bake: the fit's max_nonzeros must be >= 0");
+  if (max_nonzeros < 0 || max_model_samples < 0) {
+    return absl::InvalidArgumentError("bake: the fit's max_nonzeros and max_model_samples must be >= 0");
+  }
   if (!(prior > 0.0f && std::isfinite(prior))) return absl::InvalidArgumentError("bake: fit prior must be positive");
   return absl::OkStatus();
 }
@@ -277,8 +300,10 @@ absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::ve
   std::vector<float> origins, dirs;
   FitRays(asset, cameras, options.rays, &origins, &dirs);
   rep.candidate_rays = int64_t(origins.size() / 3);
-  rep.estimated_nonzeros =
-      int64_t(ThinToEntryBudget(asset, options.max_nonzeros, view != nullptr, &origins, &dirs));
+  const FitWork work = EstimateWork(model, time_step, asset, view != nullptr, origins, dirs);
+  rep.estimated_nonzeros = int64_t(work.entries);
+  rep.estimated_model_samples = int64_t(work.model_samples);
+  ThinToBudget(work, options, &origins, &dirs);
   const int n = int(origins.size() / 3);
   RenderOptions ro;
   ro.time_step = time_step;

@@ -43,6 +43,10 @@ struct ColourFitOptions {
   // test views 27.70 dB from 209 K rays (19 M entries) and 28.04 from 473 K
   // (43 M); flower_4 25.63 -> 25.85 (docs/baking.md).
   int64_t max_nonzeros = 40'000'000;
+  // ... and so that the model's renders of their targets take at most about
+  // this many field samples (0 = no limit): a hazy capture marches ~500 per
+  // ray (beer_2: 360 K rays took 12.8 s to render, for no gain over 245 K).
+  int64_t max_model_samples = 50'000'000;
   // CGLS iterations.
   int iterations = 16;
   // Damping towards the field's own colours, relative to the mean squared
@@ -65,6 +69,7 @@ struct ColourFitOptions {
 struct ColourFitReport {
   long long candidate_rays = 0;       // Rays sampled from the cameras (options.rays or the pixels).
   long long estimated_nonzeros = 0;   // Their entries of A, estimated from a pilot of 4096.
+  long long estimated_model_samples = 0;  // The model's samples to render their targets, likewise.
   long long rays = 0;           // Rays in the fit (within the entry budget, not background only).
   long long unknowns = 0;       // Lattice points some ray blends.
   long long nonzeros = 0;       // Entries of A.
