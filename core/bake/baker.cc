@@ -29,7 +29,7 @@ double Since(std::chrono::steady_clock::time_point t0) {
 // What the stages share: the grid (an asset's geometry fields), the
 // candidate blocks and their lattice values.
 // The finest grid a derived resolution goes to (BakeOptions::resolution).
-constexpr int kMaxDerivedResolution = 1024;
+constexpr int kMaxDerivedResolution = 768;
 
 struct BakeWork {
   BakedAsset asset;             // Geometry so far; arrays filled at the end.

@@ -39,9 +39,11 @@ struct BakeOptions {
   // 0 = derived: 256 for objects; for unbounded scenes (whose inner cube,
   // where the cameras are, gets half of them) 512, or finer where the
   // download budget leaves room: baked at 512 first, the finest grid (up to
-  // 1024) whose download, scaled by the surface area (R^2), stays within
-  // 90 % of max_asset_bytes is baked instead (fox_8 5.98 MB at 512 ->
-  // 672; flower_4 2.3 MB -> 1024; beer_2, over the budget at 512, stays).
+  // 768) whose download, scaled by the surface area (R^2), stays within
+  // 70 % of max_asset_bytes is baked instead (fox_8, 5.1 MB estimated at
+  // 512, -> 640: +0.25 dB; flower_4 -> 768: +0.7 dB; beer_2, over the
+  // budget at 512, stays). Finer grids march more cells per ray (flower_4
+  // at 960: 1.85x the software frame time of 512, and a worse fit).
   int resolution = 0;
   // Training-camera rays marched for visibility (pixels on a stride that
   // gives about this many over all cameras).
