@@ -100,8 +100,10 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
           std::map<std::string, BakedViewTerm>{{"median", BakedViewTerm::kAtMedian},
                                                {"sample", BakedViewTerm::kPerSample}}))
       ->capture_default_str();
-  c->add_option("--step-cells", a->bake.step_cells, "Ray step in cells (1 or 0.5)")
-      ->check(CLI::IsMember({0.5f, 1.0f}))
+  c->add_option("--step-cells", a->bake.step_cells,
+                "Ray step in cells at the base resolution, a multiple of 1/32 in [0.5, 2] (finer derived grids keep its "
+                "length)")
+      ->check(CLI::Range(0.5f, 2.0f))
       ->capture_default_str();
   c->add_option("--fit-iters", a->bake.fit.iterations, "Colour-fit solver iterations")->capture_default_str();
   c->add_option("--fit-prior", a->bake.fit.prior, "Colour-fit damping towards the field's own colours")

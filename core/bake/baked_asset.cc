@@ -101,7 +101,8 @@ absl::Status ParseManifest(const std::string& text, BakedAsset* a, bool* view_de
     a->step_cells = 0.5f;
     if (j.contains("step") && a->resolution > 0 && a->half_size > 0.0f) {
       const float ratio = j.at("step").get<float>() * float(a->resolution) / (2.0f * a->half_size);
-      a->step_cells = std::abs(ratio - 0.5f) < 1e-3f ? 0.5f : std::abs(ratio - 1.0f) < 1e-3f ? 1.0f : ratio;
+      const float snapped = std::round(32.0f * ratio) / 32.0f;  // Exact in binary.
+      a->step_cells = std::abs(ratio - snapped) < 1e-3f ? snapped : ratio;
     }
     const auto& rot = j.at("rotation");
     if (!rot.is_array() || rot.size() != 9) return absl::InvalidArgumentError("baked asset manifest: bad rotation");
@@ -149,10 +150,11 @@ absl::Status ValidateShape(const BakedAsset& a) {
       return absl::InvalidArgumentError(absl::StrFormat("baked asset: %d bricks on atlas axis %d", a.bricks[k], k));
     }
   }
-  if (a.step_cells != 0.5f && a.step_cells != 1.0f) {
-    // Also what a manifest's "step" must give: 0.5 or 1 cell (exact in
-    // binary, so both renderers march the same samples).
-    return absl::InvalidArgumentError(absl::StrFormat("baked asset: step of %g cells (must be 0.5 or 1)", a.step_cells));
+  if (!(a.step_cells >= 0.5f && a.step_cells <= 2.0f) || 32.0f * a.step_cells != std::round(32.0f * a.step_cells)) {
+    // Also what a manifest's "step" must give: 32nds of a cell in [0.5, 2]
+    // (exact in binary, so both renderers march the same samples).
+    return absl::InvalidArgumentError(
+        absl::StrFormat("baked asset: step of %g cells (must be a multiple of 1/32 in [0.5, 2])", a.step_cells));
   }
   if (!(a.normalization.scale > 0.0f) || !a.normalization.center.allFinite() ||
       !a.normalization.rotation.allFinite() || !a.background.allFinite() || a.time_step < 0) {

@@ -31,8 +31,10 @@
 //     127 / (blended code there), T the ray's final transmittance. Three
 //     texture reads per pixel instead of three per sample.
 //
-// Rays step `step_cells` cells (1 for assets baked now; 0.5 for older
-// ones, whose manifests say so in "step").
+// Rays step `step_cells` cells, a multiple of 1/32 in [0.5, 2] (1 for
+// assets baked now at their base resolution, R/512 on the finer grids of
+// a derived resolution, so that a step stays one base cell long; 0.5 for
+// assets before format 3), as the manifest's "step" says.
 //
 // Files (a folder; SaveBakedAsset / LoadBakedAsset): manifest.json (the
 // fields below; format 1 diffuse, 2 or 3 with the view term), index.bin.gz
@@ -87,7 +89,7 @@ struct BakedAsset {
   std::vector<uint8_t> atlas;   // RGBA8 texels, 9 bricks x (x fastest) ...
   std::vector<uint8_t> view;    // Empty, or 3 atlases: the view-dependent term.
   BakedViewTerm view_term = BakedViewTerm::kAtMedian;
-  float step_cells = 1.0f;      // The ray step in cells: 1, or 0.5 (assets before format 3).
+  float step_cells = 1.0f;      // The ray step in cells (above).
   // Derived from `index` by ComputeBlockDistances (LoadBakedAsset and
   // BakeModel call it): (R/8)^3 chessboard distances in blocks to the
   // nearest occupied block (0 = occupied, capped at 255). Empty = not

@@ -105,6 +105,12 @@ TEST(BakedAssetTest, AViewDependentAssetRoundTripsAsFormat2And3) {
   ASSERT_TRUE(c.ok()) << c.status();
   EXPECT_EQ(c->view_term, BakedViewTerm::kAtMedian);
   EXPECT_EQ(c->step_cells, 1.0f);
+  a.step_cells = 1.5f;  // A derived 768^3 grid: steps of one 512th, read back exactly.
+  const std::string dir15 = TempDir("view15");
+  ASSERT_TRUE(SaveBakedAsset(a, dir15).ok());
+  absl::StatusOr<BakedAsset> d = LoadBakedAsset(dir15);
+  ASSERT_TRUE(d.ok()) << d.status();
+  EXPECT_EQ(d->step_cells, 1.5f);
   manifest = ReadFileToString(dir3 + "/manifest.json", "m");
   ASSERT_TRUE(manifest.ok());
   EXPECT_NE(manifest->find("\"format\": 3"), std::string::npos) << *manifest;
@@ -128,8 +134,12 @@ TEST(BakedAssetTest, InconsistentAssetsAreRefused) {
   a.resolution = 36;
   EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);
   a = SmallAsset();
-  a.step_cells = 0.75f;  // Only 1 or 0.5.
+  a.step_cells = 0.7f;  // Only 32nds of a cell (exact in binary) ...
   EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);
+  a.step_cells = 2.5f;  // ... in [0.5, 2].
+  EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);
+  a.step_cells = 1.25f;  // A derived grid's step (640 cells, one 512th of the field).
+  EXPECT_TRUE(a.Validate().ok());
   a = SmallAsset();
   a.block_distance.assign(3, 0);
   EXPECT_EQ(a.Validate().code(), absl::StatusCode::kInvalidArgument);

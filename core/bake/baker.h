@@ -63,7 +63,9 @@ struct BakeOptions {
   // Where rays apply that term: once, at the median sample (format 3), or
   // at every sample (format 2). See docs/baking.md for what each costs.
   BakedViewTerm view_term = BakedViewTerm::kAtMedian;
-  // The ray step in cells: 1 or 0.5 (every asset before format 3).
+  // The ray step in cells at the base resolution: a multiple of 1/32 in
+  // [0.5, 2] (0.5: every asset before format 3). A derived finer grid keeps
+  // the step's length: R/512 of its cells (at most 2).
   float step_cells = 1.0f;
   // Download budget in bytes (0 = none): before the colour fit, while the
   // kept blocks' first-guess colours compress (gzip level 1, ~10 % above

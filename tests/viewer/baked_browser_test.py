@@ -130,6 +130,29 @@ def time_assets(args):
     print(json.dumps({"baked_browser_assets": results}))
 
 
+def check_fractional_step(args, driver, work, env, view, cam):
+    """A derived finer grid steps R/512 of its cells (1.25 at 640^3): the
+    page must march the same samples as the reference renderer there too."""
+    W, H, pose, focal = cam
+    asset = f"{work}/asset_step"
+    run_client(args.client, ["bake", "--model", f"{work}/demo/model.clnerf", "--data", f"{work}/demo/scene",
+                             "--out", asset, "--resolution", "128", "--fit-rays", "16384", "--step-cells", "1.25"],
+               env, "bake with 1.25-cell steps")
+    ref_png = f"{args.out}/reference_step.png"
+    run_client(args.client, ["render", "--model", asset, "--pose", pose, "--width", str(W), "--height", str(H),
+                             "--focal", f"{focal:.5f}", "--out", ref_png], env, "reference render (1.25-cell steps)")
+    _, _, ref = read_png_rgba(ref_png)
+    srv = serve(asset)
+    try:
+        load(driver, f"http://127.0.0.1:{srv.server_address[1]}/baked.html?{view}")
+        diff = mean_abs_diff(page_pixels(driver), ref)
+    finally:
+        srv.shutdown()
+    print(f"WebGL2 frame with 1.25-cell steps against its reference render: mean |diff| {diff:.3f} / 255")
+    if diff > MAX_MEAN_DIFF:
+        fail(f"with 1.25-cell steps the WebGL2 frame differs from the reference render by {diff:.2f}")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--client", required=True)
@@ -191,6 +214,7 @@ def main():
         if mean_abs_diff(moved, got) < 1.0:
             fail("dragging did not change the frame")
         driver.save_screenshot(f"{args.out}/baked.png")
+        check_fractional_step(args, driver, work, env, view, (W, H, pose, focal))
         errors = [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
         if errors:
             fail(f"page errors: {errors[:3]}")

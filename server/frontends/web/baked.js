@@ -181,8 +181,8 @@ function skipIndex(index, nb) {
 function stepCells(m) {
   if (m.step === undefined) return 0.5;
   const ratio = m.step * m.resolution / (2 * m.half_size);
-  if (Math.abs(ratio - 0.5) < 1e-3) return 0.5;
-  if (Math.abs(ratio - 1) < 1e-3) return 1;
+  const snapped = Math.round(32 * ratio) / 32;  // Exact in binary, as LoadBakedAsset snaps it.
+  if (Math.abs(ratio - snapped) < 1e-3 && snapped >= 0.5 && snapped <= 2) return snapped;
   throw new Error(`baked asset step of ${ratio} cells is not supported`);
 }
 
