@@ -40,10 +40,10 @@ struct BakeOptions {
   // where the cameras are, gets half of them) 512, or finer where the
   // download budget leaves room: baked at 512 first, the finest grid (up to
   // 768) whose download, scaled by the surface area (R^2), stays within
-  // 70 % of max_asset_bytes is baked instead (fox_8, 5.1 MB estimated at
-  // 512, -> 640: +0.25 dB; flower_4 -> 768: +0.7 dB; beer_2, over the
-  // budget at 512, stays). Finer grids march more cells per ray (flower_4
-  // at 960: 1.85x the software frame time of 512, and a worse fit).
+  // 70 % of max_asset_bytes is baked instead, stepping one base cell
+  // (fox_8, 5.1 MB estimated at 512, -> 640: +0.18 dB; flower_4 -> 768:
+  // +0.48 dB; beer_2, over the budget at 512, stays). Past 768 the fit has
+  // too few rays per unknown (flower_4 at 960 and 1024: below 768).
   int resolution = 0;
   // Training-camera rays marched for visibility (pixels on a stride that
   // gives about this many over all cameras).
