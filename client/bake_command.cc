@@ -70,7 +70,8 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
   c->add_option("--data", a->data, "The capture the model was trained on (its training cameras decide what is kept)");
   c->add_option("--time-step", a->time_step, "Time step to bake (-1 = latest)")->capture_default_str();
   c->add_option("--resolution", a->bake.resolution,
-                "Cells per axis over the field space, a multiple of 32 (0 = derived: 256 objects; 512 unbounded, finer up to 768 where the download budget allows)")
+                "Cells per axis over the field space, a multiple of 32 (0 = derived: 256 objects; 512 unbounded, "
+                "finer up to 768 where the download budget allows)")
       ->capture_default_str();
   c->add_option("--visibility-rays", a->bake.visibility_rays, "Training-camera rays that decide which blocks are kept")
       ->capture_default_str();
@@ -144,7 +145,9 @@ int RunBake(const BakeArgs& a) {
                       {"time_step", asset->time_step}, {"resolution", rep.resolution},
                       {"candidate_blocks", rep.candidate_blocks}, {"kept_blocks", rep.kept_blocks},
                       {"visible_blocks", rep.visible_blocks},
-                      {"visibility_rays", rep.visibility_rays},   {"base_resolution_bytes", rep.base_resolution_bytes},   {"raw_bytes", asset->raw_bytes()},
+                      {"visibility_rays", rep.visibility_rays},
+                      {"base_resolution_bytes", rep.base_resolution_bytes},
+                      {"raw_bytes", asset->raw_bytes()},
                       {"asset_bytes", bytes},                     {"bake_seconds", rep.total_seconds},
                       {"candidate_seconds", rep.candidate_seconds}, {"visibility_seconds", rep.visibility_seconds},
                       {"evaluated_blocks", rep.evaluated_blocks},

@@ -26,11 +26,11 @@ double Since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
 }
 
-// What the stages share: the grid (an asset's geometry fields), the
-// candidate blocks and their lattice values.
 // The finest grid a derived resolution goes to (BakeOptions::resolution).
 constexpr int kMaxDerivedResolution = 768;
 
+// What the stages share: the grid (an asset's geometry fields), the
+// candidate blocks and their lattice values.
 struct BakeWork {
   BakedAsset asset;             // Geometry so far; arrays filled at the end.
   std::vector<int32_t> slot;    // Per block: candidate slot, or -1.
@@ -421,8 +421,8 @@ uint64_t BakeGrid(const NgpModel& model, int t, const std::vector<Camera>& camer
 int DerivedResolution(int resolution, uint64_t bytes, int64_t budget) {
   if (bytes == 0 || budget <= 0) return resolution;
   const double scale = std::sqrt(0.7 * double(budget) / double(bytes));
-  const int r = int(double(resolution) * scale) / 32 * 32;
-  return std::clamp(r, resolution, kMaxDerivedResolution);
+  const double r = std::clamp(double(resolution) * scale, double(resolution), double(kMaxDerivedResolution));
+  return std::max(resolution, int(r) / 32 * 32);
 }
 
 }  // namespace

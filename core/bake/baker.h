@@ -87,7 +87,8 @@ struct BakeReport {
   long long base_resolution_bytes = 0;
   ColourFitReport fit;
   // candidate_seconds: stage 1; visibility_seconds: stages 2 and 3 (densities
-  // are computed as rays reach candidates).
+  // are computed as rays reach candidates). With a derived finer grid the
+  // seconds add up both grids' passes; the counts describe the final grid.
   double candidate_seconds = 0, visibility_seconds = 0, colour_seconds = 0, fit_seconds = 0, total_seconds = 0;
 };
 

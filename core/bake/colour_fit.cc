@@ -129,6 +129,9 @@ FitSystem BuildRows(const BakedAsset& a, const std::vector<float>& origins, cons
       const Eigen::Vector3f o(origins.data() + 3 * size_t(r)), d(dirs.data() + 3 * size_t(r));
       const float T = BakedRayWeights(a, o, d, &row, view ? &view_row : nullptr);
       const Eigen::Vector3f faint = DropFaintEntries(&rgb, &row);
+      // Format 2's view row is the diffuse row's copy: its faint entries go too
+      // (H's first guess is 0, so nothing is folded into the target).
+      if (view && a.view_term == BakedViewTerm::kPerSample) DropFaintEntries(nullptr, &view_row);
       if (row.empty()) continue;  // Nothing to fit: the ray sees only background.
       float target[3];
       for (int c = 0; c < 3; ++c) target[c] = model_rgb[3 * size_t(r) + c] - T * a.background[c] - faint[c];
@@ -164,6 +167,7 @@ FitWork EstimateWork(const NgpModel& model, int time_step, const BakedAsset& a, 
       BakedRayWeights(a, Eigen::Vector3f(po.data() + 3 * k), Eigen::Vector3f(pd.data() + 3 * k), &row,
                       view ? &view_row : nullptr);
       DropFaintEntries(nullptr, &row);
+      if (view && a.view_term == BakedViewTerm::kPerSample) DropFaintEntries(nullptr, &view_row);
       entries += int64_t(row.size() + (view ? view_row.size() : 0));
     }
   }

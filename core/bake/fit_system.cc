@@ -127,6 +127,9 @@ void FitSystem::DropViewEntries() {
   view.col.clear();
   view.val.clear();
   view.start.assign(diffuse.start.size(), 0);
+  view_point.clear();
+  view_cols = SparseColumns();
+  if (!diffuse_cols.start.empty()) view_cols.start.assign(1, 0);  // Transposed already: no view columns.
 }
 
 void FitSystem::NumberUnknowns(size_t points) {

@@ -64,7 +64,7 @@ struct FitSystem {
   void AppendRow(const std::vector<std::pair<uint32_t, float>>& diffuse_row,
                  const std::vector<std::pair<uint32_t, float>>& view_row, const float target_rgb[3],
                  const Eigen::Vector3f& direction);
-  // Empties every row's view entries (the fit is then diffuse).
+  // Empties every row's view entries and unknowns (the fit is then diffuse).
   void DropViewEntries();
   // Renumbers the columns from lattice ids in [0, points) to unknowns.
   void NumberUnknowns(size_t points);

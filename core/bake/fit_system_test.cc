@@ -78,11 +78,31 @@ TEST(FitSystemTest, JoinedPiecesNumberEveryUsedPointOnceInLatticeOrder) {
   // The columns hold every entry once, each column's rows ascending.
   ASSERT_EQ(A.diffuse_cols.row.size(), A.diffuse.col.size());
   ASSERT_EQ(A.view_cols.row.size(), A.view.col.size());
-  for (size_t j = 0; j < A.num_diffuse(); ++j) {
-    for (int64_t k = A.diffuse_cols.start[j] + 1; k < A.diffuse_cols.start[j + 1]; ++k) {
-      EXPECT_LE(A.diffuse_cols.row[size_t(k) - 1], A.diffuse_cols.row[size_t(k)]);
+  for (const SparseColumns* C : {&A.diffuse_cols, &A.view_cols}) {
+    for (size_t j = 0; j + 1 < C->start.size(); ++j) {
+      for (int64_t k = C->start[j] + 1; k < C->start[j + 1]; ++k) EXPECT_LT(C->row[size_t(k) - 1], C->row[size_t(k)]);
     }
   }
+}
+
+// The same rows joined and transposed at 1 and at 2 threads give the same
+// arrays: the parallel steps place every entry where the serial ones do.
+TEST(FitSystemTest, TheSystemDoesNotDependOnTheThreadCount) {
+  const int saved = omp_get_max_threads();
+  omp_set_num_threads(1);
+  const FitSystem one = RandomSystem(300, 400, 3, 6);
+  omp_set_num_threads(2);
+  const FitSystem two = RandomSystem(300, 400, 3, 6);
+  omp_set_num_threads(saved);
+  EXPECT_EQ(one.diffuse.start, two.diffuse.start);
+  EXPECT_EQ(one.diffuse.col, two.diffuse.col);
+  EXPECT_EQ(one.view.col, two.view.col);
+  EXPECT_EQ(one.diffuse_point, two.diffuse_point);
+  EXPECT_EQ(one.diffuse_cols.start, two.diffuse_cols.start);
+  EXPECT_EQ(one.diffuse_cols.row, two.diffuse_cols.row);
+  EXPECT_EQ(one.diffuse_cols.val, two.diffuse_cols.val);
+  EXPECT_EQ(one.view_cols.row, two.view_cols.row);
+  EXPECT_EQ(one.target, two.target);
 }
 
 TEST(FitSystemTest, ProductsMatchTheDenseMatrixAndEachOther) {
@@ -105,7 +125,7 @@ TEST(FitSystemTest, ProductsMatchTheDenseMatrixAndEachOther) {
     // The mean diagonal is the diffuse columns' squared weights per unknown.
     double diag = 0;
     for (Eigen::Index j = 0; j < Eigen::Index(3 * A.num_diffuse()); j += 3) diag += M.col(j).squaredNorm();
-    EXPECT_NEAR(A.MeanDiffuseDiagonal(), diag / double(A.num_diffuse()), 1e-4 * diag);
+    EXPECT_NEAR(A.MeanDiffuseDiagonal(), diag / double(A.num_diffuse()), 1e-4 * diag / double(A.num_diffuse()));
   }
   omp_set_num_threads(saved);
 }
@@ -132,10 +152,17 @@ TEST(FitSystemTest, DampedSolveApproachesTheNormalEquationsSolution) {
 TEST(FitSystemTest, DroppingViewEntriesKeepsTheDiffuseRows) {
   FitSystem A = RandomSystem(100, 200, 1, 5);
   const auto diffuse = A.diffuse.col;
+  ASSERT_GT(A.num_view(), 0u);
   A.DropViewEntries();
   EXPECT_TRUE(A.view.col.empty());
   EXPECT_EQ(A.view.start.size(), A.diffuse.start.size());
   EXPECT_EQ(A.diffuse.col, diffuse);
+  EXPECT_EQ(A.num_view(), 0u);  // No view unknowns left: the products still agree.
+  std::vector<float> x(A.num_values(), 0.5f), y(3 * size_t(A.rows()), 0.25f), Ax, Aty;
+  A.Multiply(x, &Ax);
+  A.MultiplyTransposed(y, &Aty);
+  EXPECT_EQ(Aty.size(), A.num_values());
+  EXPECT_NEAR(ToEigen(Ax).dot(ToEigen(y)), ToEigen(x).dot(ToEigen(Aty)), 1e-3);
 }
 
 }  // namespace
