@@ -101,7 +101,7 @@ absl::Status ParseManifest(const std::string& text, BakedAsset* a, bool* view_de
     a->step_cells = 0.5f;
     if (j.contains("step") && a->resolution > 0 && a->half_size > 0.0f) {
       const float ratio = j.at("step").get<float>() * float(a->resolution) / (2.0f * a->half_size);
-      const float snapped = std::round(32.0f * ratio) / 32.0f;  // Exact in binary.
+      const float snapped = RoundBakedStep(ratio);
       a->step_cells = std::abs(ratio - snapped) < 1e-3f ? snapped : ratio;
     }
     const auto& rot = j.at("rotation");
@@ -150,9 +150,7 @@ absl::Status ValidateShape(const BakedAsset& a) {
       return absl::InvalidArgumentError(absl::StrFormat("baked asset: %d bricks on atlas axis %d", a.bricks[k], k));
     }
   }
-  if (!(a.step_cells >= 0.5f && a.step_cells <= 2.0f) || 32.0f * a.step_cells != std::round(32.0f * a.step_cells)) {
-    // Also what a manifest's "step" must give: 32nds of a cell in [0.5, 2]
-    // (exact in binary, so both renderers march the same samples).
+  if (!IsBakedStep(a.step_cells)) {  // Also what a manifest's "step" must give.
     return absl::InvalidArgumentError(
         absl::StrFormat("baked asset: step of %g cells (must be a multiple of 1/32 in [0.5, 2])", a.step_cells));
   }

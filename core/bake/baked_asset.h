@@ -52,6 +52,7 @@
 #define CLNERF_CORE_BAKE_BAKED_ASSET_H_
 
 #include <array>
+#include <cmath>
 #include <cstdint>
 #include <string>
 #include <utility>
@@ -68,6 +69,12 @@ namespace clnerf {
 inline constexpr int kBakeFormat = 1;                 // Diffuse colour.
 inline constexpr int kBakeFormatViewDependent = 2;    // Plus the view-dependent term, per sample.
 inline constexpr int kBakeFormatViewAtMedian = 3;     // Plus the view-dependent term, once per ray.
+// A ray step in cells rounded to the nearest 1/32 (exact in binary, so the
+// C++ and WebGL renderers march the same samples), and whether a step is
+// one: a multiple of 1/32 in [0.5, 2].
+inline float RoundBakedStep(float cells) { return std::round(32.0f * cells) / 32.0f; }
+inline bool IsBakedStep(float cells) { return cells >= 0.5f && cells <= 2.0f && RoundBakedStep(cells) == cells; }
+
 inline constexpr int kBakeBlock = 8;   // Cells per block side.
 inline constexpr int kBakeBrick = 9;   // Lattice points per brick side.
 

@@ -438,7 +438,7 @@ absl::Status BakeOptions::Validate() const {
   }
   if (threads < 0) return absl::InvalidArgumentError("bake: threads must be >= 0");
   if (max_asset_bytes < 0) return absl::InvalidArgumentError("bake: max_asset_bytes must be >= 0");
-  if (!(step_cells >= 0.5f && step_cells <= 2.0f) || 32.0f * step_cells != std::round(32.0f * step_cells)) {
+  if (!IsBakedStep(step_cells)) {
     return absl::InvalidArgumentError("bake: step_cells must be a multiple of 1/32 in [0.5, 2]");
   }
   return fit.Validate();
@@ -485,7 +485,7 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
     if (finer > base) {
       // Steps stay as long as the base grid's: the finer lattice sharpens
       // what a sample reads, at the same samples per ray.
-      a.step_cells = std::min(2.0f, std::round(32.0f * options.step_cells * float(finer) / float(base)) / 32.0f);
+      a.step_cells = std::min(2.0f, RoundBakedStep(options.step_cells * float(finer) / float(base)));
       BakeGrid(model, t, cameras, options, finer, &w, &kept, &rgb, &rep);
     }
   }

@@ -108,6 +108,23 @@ Eigen::Vector3f DropFaintEntries(const std::vector<float>* rgb, std::vector<std:
   return faint;
 }
 
+// A ray's rows of A (BakedRayWeights) without their faint entries; *faint
+// gets what those add to the pixel at the colours `rgb` (null: not summed).
+// Format 2's view row is the diffuse row's copy: its faint entries go too
+// (H's first guess is 0, so nothing is folded). Returns T.
+float FitRayRows(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d, bool view,
+                 const std::vector<float>* rgb, std::vector<std::pair<uint32_t, float>>* row,
+                 std::vector<std::pair<uint32_t, float>>* view_row, Eigen::Vector3f* faint) {
+  const float T = BakedRayWeights(a, o, d, row, view ? view_row : nullptr);
+  *faint = DropFaintEntries(rgb, row);
+  if (!view) {
+    view_row->clear();
+  } else if (a.view_term == BakedViewTerm::kPerSample) {
+    DropFaintEntries(nullptr, view_row);
+  }
+  return T;
+}
+
 // A's rows, one per ray that meets the grid, with each ray's target: the
 // model's pixel minus what the asset's background contributes. `view`:
 // also the entries of the view-dependent term. Each thread appends its own
@@ -127,15 +144,11 @@ FitSystem BuildRows(const BakedAsset& a, const std::vector<float>& origins, cons
 #pragma omp for schedule(static)
     for (int r = 0; r < n; ++r) {
       const Eigen::Vector3f o(origins.data() + 3 * size_t(r)), d(dirs.data() + 3 * size_t(r));
-      const float T = BakedRayWeights(a, o, d, &row, view ? &view_row : nullptr);
-      const Eigen::Vector3f faint = DropFaintEntries(&rgb, &row);
-      // Format 2's view row is the diffuse row's copy: its faint entries go too
-      // (H's first guess is 0, so nothing is folded into the target).
-      if (view && a.view_term == BakedViewTerm::kPerSample) DropFaintEntries(nullptr, &view_row);
+      Eigen::Vector3f faint;
+      const float T = FitRayRows(a, o, d, view, &rgb, &row, &view_row, &faint);
       if (row.empty()) continue;  // Nothing to fit: the ray sees only background.
       float target[3];
       for (int c = 0; c < 3; ++c) target[c] = model_rgb[3 * size_t(r) + c] - T * a.background[c] - faint[c];
-      if (!view) view_row.clear();
       mine.AppendRow(row, view_row, target, d);
     }
   }
@@ -164,11 +177,10 @@ FitWork EstimateWork(const NgpModel& model, int time_step, const BakedAsset& a, 
     std::vector<std::pair<uint32_t, float>> row, view_row;
 #pragma omp for schedule(static)
     for (int64_t k = 0; k < pilot; ++k) {
-      BakedRayWeights(a, Eigen::Vector3f(po.data() + 3 * k), Eigen::Vector3f(pd.data() + 3 * k), &row,
-                      view ? &view_row : nullptr);
-      DropFaintEntries(nullptr, &row);
-      if (view && a.view_term == BakedViewTerm::kPerSample) DropFaintEntries(nullptr, &view_row);
-      entries += int64_t(row.size() + (view ? view_row.size() : 0));
+      Eigen::Vector3f faint;
+      FitRayRows(a, Eigen::Vector3f(po.data() + 3 * k), Eigen::Vector3f(pd.data() + 3 * k), view, nullptr, &row,
+                 &view_row, &faint);
+      entries += int64_t(row.size() + view_row.size());
     }
   }
   RenderOptions ro;
