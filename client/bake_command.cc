@@ -79,7 +79,11 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
                 "Keep a block when some training ray puts at least this much weight in it")
       ->capture_default_str();
   c->add_option("--max-asset-bytes", a->bake.max_asset_bytes,
-                "Download budget: drop the least-seen blocks until the asset compresses to about this (0 = none)")
+                "Download budget of an unbounded scene: drop the least-seen blocks until the asset compresses to "
+                "about this (0 = none)")
+      ->capture_default_str();
+  c->add_option("--max-object-asset-bytes", a->bake.max_object_asset_bytes,
+                "The same for a bounded (object) scene (0 = none)")
       ->capture_default_str();
   c->add_option("--fit-rays", a->bake.fit.rays,
                 "Training-camera rays the colour fit matches to the model's renders, at most (0 = no fit)")
@@ -147,6 +151,8 @@ int RunBake(const BakeArgs& a) {
                       {"visible_blocks", rep.visible_blocks},
                       {"visibility_rays", rep.visibility_rays},
                       {"base_resolution_bytes", rep.base_resolution_bytes},
+                      {"estimated_bytes", rep.estimated_bytes},
+                      {"view_dead_zone", rep.view_dead_zone},
                       {"raw_bytes", asset->raw_bytes()},
                       {"asset_bytes", bytes},                     {"bake_seconds", rep.total_seconds},
                       {"candidate_seconds", rep.candidate_seconds}, {"visibility_seconds", rep.visibility_seconds},

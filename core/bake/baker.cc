@@ -294,8 +294,9 @@ void BakeColour(const NgpModel& model, int t, const std::vector<int>& kept, cons
 // Stage 6: the colours into the atlas, premultiplied by the density code
 // (so that interpolation weighs each corner's colour by its density; the
 // renderer divides by the interpolated code), 0 where they cannot show;
-// the view-dependent term (if any) likewise into its three atlases.
-void WriteColours(const std::vector<float>& rgb, const std::vector<float>& view, BakedAsset* a) {
+// the view-dependent term (if any) likewise into its three atlases, with
+// codes within kViewDeadZone of none written as none when `dead_zone`.
+void WriteColours(const std::vector<float>& rgb, const std::vector<float>& view, bool dead_zone, BakedAsset* a) {
   const int n = a->num_bricks();
   const size_t plane = a->atlas.size();
   if (!view.empty()) a->view.assign(3 * plane, 0);
@@ -317,7 +318,7 @@ void WriteColours(const std::vector<float>& rgb, const std::vector<float>& view,
         for (int c = 0; c < 3; ++c) {
           const float h = used[i] ? s * std::clamp(view[9 * (size_t(k) * kLattice + size_t(i)) + 3 * kk + c], -1.0f, 1.0f) : 0;
           long q = std::lround(127.0f * h);
-          if (std::abs(q) <= kViewDeadZone) q = 0;
+          if (dead_zone && std::abs(q) <= kViewDeadZone) q = 0;
           a->view[size_t(kk) * plane + at + size_t(c)] = uint8_t(128 + q);
         }
       }
@@ -331,7 +332,7 @@ void WriteColours(const std::vector<float>& rgb, const std::vector<float>& view,
 // estimated from every fourth z-slab of bricks (each slab is contiguous).
 uint64_t EstimatedAssetBytes(const BakedAsset& a, const std::vector<float>& rgb) {
   BakedAsset packed = a;
-  WriteColours(rgb, {}, &packed);
+  WriteColours(rgb, {}, /*dead_zone=*/false, &packed);
   const size_t slab = packed.atlas.size() / size_t(packed.bricks[2]);
   std::string sample;
   for (int z = 0; z < packed.bricks[2]; z += 4) {
@@ -341,6 +342,39 @@ uint64_t EstimatedAssetBytes(const BakedAsset& a, const std::vector<float>& rgb)
   const double ratio = zipped.ok() && !sample.empty() ? double(zipped->size()) / double(sample.size()) : 1.0;
   // The index is mostly zeros: ~1/64 of its bytes (measured 1/70-1/130).
   return uint64_t(double(packed.atlas.size()) * ratio) + a.index.size() / 64;
+}
+
+// The asset's stored bytes (gzip level 6, as SerializeBakedAsset writes
+// them), estimated from every fourth z-slab of bricks of each atlas.
+uint64_t EstimatedStoredBytes(const BakedAsset& a) {
+  const size_t plane = a.atlas.size(), slab = plane / size_t(std::max(1, a.bricks[2]));
+  double bytes = double(a.index.size()) / 64.0;
+  for (size_t at = 0; at < 1 + a.view.size() / std::max<size_t>(plane, 1); ++at) {
+    const uint8_t* data = at == 0 ? a.atlas.data() : a.view.data() + (at - 1) * plane;
+    std::string sample;
+    for (int z = 0; z < a.bricks[2]; z += 4) sample.append(reinterpret_cast<const char*>(data) + size_t(z) * slab, slab);
+    absl::StatusOr<std::string> zipped = GzipCompress(sample);
+    bytes += zipped.ok() && !sample.empty() ? double(plane) * double(zipped->size()) / double(sample.size()) : double(plane);
+  }
+  return uint64_t(bytes);
+}
+
+// The download budget for the model's kind of scene (0 = none).
+int64_t AssetBudget(const BakeOptions& o, bool contracted) {
+  return contracted ? o.max_asset_bytes : o.max_object_asset_bytes;
+}
+
+// Stage 6 within the download budget: the view-dependent codes within
+// kViewDeadZone of none are written as none only when the asset would
+// otherwise store more than the budget.
+void WriteWithinBudget(const std::vector<float>& rgb, const std::vector<float>& view, int64_t budget, BakedAsset* a,
+                       BakeReport* rep) {
+  WriteColours(rgb, view, /*dead_zone=*/false, a);
+  if (view.empty() || budget <= 0) return;
+  rep->estimated_bytes = int64_t(EstimatedStoredBytes(*a));
+  if (rep->estimated_bytes <= budget) return;
+  WriteColours(rgb, view, /*dead_zone=*/true, a);
+  rep->view_dead_zone = true;
 }
 
 // Stage 4 within the download budget: while the kept blocks' first-guess
@@ -402,13 +436,18 @@ uint64_t BakeGrid(const NgpModel& model, int t, const std::vector<Camera>& camer
   Visibility(cameras, options, &density, w, &max_w, &dir, &rep->visibility_rays);
   rep->evaluated_blocks = density.evaluated();
   rep->visibility_seconds += Since(t1);
+  // A ray leaves in a block of a finer grid than the kind's default a
+  // share smaller by the ratio of their sizes.
+  const int default_base = a.contracted ? 512 : 256;
+  const float min_weight = options.min_block_weight * std::min(1.0f, float(default_base) / float(resolution));
   kept->clear();
   for (size_t s = 0; s < w->blocks.size(); ++s) {
-    if (max_w[s] >= options.min_block_weight && max_w[s] > 0.0f) kept->push_back(int(s));
+    if (max_w[s] >= min_weight && max_w[s] > 0.0f) kept->push_back(int(s));
   }
   rep->visible_blocks = int(kept->size());
   const auto t2 = std::chrono::steady_clock::now();
-  const uint64_t bytes = ColourWithinBudget(model, t, uint64_t(options.max_asset_bytes), max_w, dir, kept, w, rgb);
+  const uint64_t bytes =
+      ColourWithinBudget(model, t, uint64_t(AssetBudget(options, a.contracted)), max_w, dir, kept, w, rgb);
   ComputeBlockDistances(&a);
   rep->colour_seconds += Since(t2);
   return bytes;
@@ -437,7 +476,9 @@ absl::Status BakeOptions::Validate() const {
     return absl::InvalidArgumentError("bake: min_block_weight must be in [0, 1)");
   }
   if (threads < 0) return absl::InvalidArgumentError("bake: threads must be >= 0");
-  if (max_asset_bytes < 0) return absl::InvalidArgumentError("bake: max_asset_bytes must be >= 0");
+  if (max_asset_bytes < 0 || max_object_asset_bytes < 0) {
+    return absl::InvalidArgumentError("bake: max_asset_bytes and max_object_asset_bytes must be >= 0");
+  }
   if (!IsBakedStep(step_cells)) {
     return absl::InvalidArgumentError("bake: step_cells must be a multiple of 1/32 in [0.5, 2]");
   }
@@ -498,7 +539,7 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
     return s;
   }
   rep.fit_seconds = Since(t3);
-  WriteColours(rgb, view, &a);
+  WriteWithinBudget(rgb, view, AssetBudget(options, a.contracted), &a, &rep);
   omp_set_num_threads(saved_threads);
   rep.resolution = a.resolution;
   rep.candidate_blocks = int(w.blocks.size());

@@ -51,7 +51,9 @@ struct BakeOptions {
   // A block is kept when some training ray deposits at least this much of
   // its weight in it. 0.1 against 0.01: assets 8-46 % smaller for at most
   // 0.06 dB on lego_100, fox_8 and flower_4, 0.55 dB on beer_2's haze
-  // (docs/baking.md).
+  // (docs/baking.md). On a grid finer than the kind's default (256 objects,
+  // 512 unbounded) the threshold shrinks with the block: x 512/R (flower_4
+  // at 768: +0.09 dB).
   float min_block_weight = 0.1f;
   int threads = 0;  // OpenMP threads; 0 = all available.
   ColourFitOptions fit;  // Stage 5; fit.rays = 0 skips it.
@@ -67,11 +69,18 @@ struct BakeOptions {
   // [0.5, 2] (0.5: every asset before format 3). A derived finer grid keeps
   // the step's length: R/512 of its cells (at most 2).
   float step_cells = 1.0f;
-  // Download budget in bytes (0 = none): before the colour fit, while the
-  // kept blocks' first-guess colours compress (gzip level 1, ~10 % above
-  // the stored level 6, about what the fit adds) to more than this, the
-  // blocks the training rays weigh least are dropped.
+  // Download budget in bytes for an unbounded scene (0 = none): before the
+  // colour fit, while the kept blocks' first-guess colours compress (gzip
+  // level 1, ~10 % above the stored level 6, about what the fit adds) to
+  // more than this, the blocks the training rays weigh least are dropped;
+  // after it, only when the asset would store more than this are the
+  // view-dependent codes within one step of none written as none (fox_8:
+  // 9.51 -> 9.91 MB without, +0.13 dB; lego_100 4.33 -> 3.92 MB with,
+  // 0.11 dB).
   int64_t max_asset_bytes = 12'000'000;
+  // The same for a bounded (object) scene: objects are small (lego_100's
+  // asset: 3.9 MB at 256^3).
+  int64_t max_object_asset_bytes = 4'000'000;
   absl::Status Validate() const;
 };
 
@@ -85,6 +94,10 @@ struct BakeReport {
   // The first guess's estimated download at the base resolution (512 for
   // unbounded scenes), which a derived resolution is chosen from.
   long long base_resolution_bytes = 0;
+  // The stored asset's estimated bytes before the view term's dead zone
+  // (0 = not estimated: no view term or no budget), and whether it applied.
+  long long estimated_bytes = 0;
+  bool view_dead_zone = false;
   ColourFitReport fit;
   // candidate_seconds: stage 1; visibility_seconds: stages 2 and 3 (densities
   // are computed as rays reach candidates). With a derived finer grid the

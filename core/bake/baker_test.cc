@@ -1,5 +1,7 @@
 #include "core/bake/baker.h"
 
+#include <algorithm>
+
 #include "core/bake/baked_renderer.h"
 #include "core/data/image.h"
 #include "core/data/procedural_scene.h"
@@ -150,7 +152,7 @@ TEST(BakerTest, ADownloadBudgetKeepsTheMostSeenBlocks) {
   const Trained& t = TrainTiny(false);
   BakeOptions o;
   o.resolution = 128;
-  o.max_asset_bytes = 0;
+  o.max_object_asset_bytes = 0;
   BakeReport full_rep;
   absl::StatusOr<BakedAsset> full = BakeModel(*t.model, -1, t.cameras, o, &full_rep);
   ASSERT_TRUE(full.ok()) << full.status();
@@ -159,7 +161,7 @@ TEST(BakerTest, ADownloadBudgetKeepsTheMostSeenBlocks) {
   ASSERT_TRUE(files.ok());
   size_t full_bytes = 0;
   for (const auto& f : *files) full_bytes += f.first == "manifest.json" ? 0 : f.second.size();
-  o.max_asset_bytes = int64_t(full_bytes / 2);
+  o.max_object_asset_bytes = int64_t(full_bytes / 2);
   BakeReport rep;
   absl::StatusOr<BakedAsset> half = BakeModel(*t.model, -1, t.cameras, o, &rep);
   ASSERT_TRUE(half.ok()) << half.status();
@@ -170,9 +172,9 @@ TEST(BakerTest, ADownloadBudgetKeepsTheMostSeenBlocks) {
   ASSERT_TRUE(files.ok());
   size_t bytes = 0;
   for (const auto& f : *files) bytes += f.first == "manifest.json" ? 0 : f.second.size();
-  std::printf("budget %lld bytes: %zu bytes stored (%zu without), %d of %d blocks\n", (long long)o.max_asset_bytes,
+  std::printf("budget %lld bytes: %zu bytes stored (%zu without), %d of %d blocks\n", (long long)o.max_object_asset_bytes,
               bytes, full_bytes, rep.kept_blocks, rep.visible_blocks);
-  EXPECT_LE(double(bytes), 1.1 * double(o.max_asset_bytes));
+  EXPECT_LE(double(bytes), 1.1 * double(o.max_object_asset_bytes));
   // Every kept block was kept without the budget too, and the asset still
   // shows the object.
   for (size_t i = 0; i < half->index.size(); ++i) {
@@ -181,6 +183,42 @@ TEST(BakerTest, ADownloadBudgetKeepsTheMostSeenBlocks) {
     }
   }
   EXPECT_GT(BakedAgainstModel(*half, t), 18.0);
+}
+
+// The view-dependent codes one step from none are written as none only
+// when the asset would otherwise store more than its budget: with room
+// they are kept (they are the term's finest steps), over it they go and
+// the asset shrinks, with the same blocks.
+TEST(BakerTest, TheViewTermsDeadZoneAppliesOnlyOverTheBudget) {
+  const Trained& t = TrainTiny(false);
+  BakeOptions o;
+  o.resolution = 128;
+  o.max_object_asset_bytes = int64_t(1) << 40;
+  BakeReport roomy;
+  absl::StatusOr<BakedAsset> kept = BakeModel(*t.model, -1, t.cameras, o, &roomy);
+  ASSERT_TRUE(kept.ok()) << kept.status();
+  ASSERT_TRUE(kept->view_dependent());
+  EXPECT_FALSE(roomy.view_dead_zone);
+  auto one_step = [](const BakedAsset& a) {
+    return std::count_if(a.view.begin(), a.view.end(), [](uint8_t v) { return v == 127 || v == 129; });
+  };
+  EXPECT_GT(one_step(*kept), 0);
+  ASSERT_LT(roomy.base_resolution_bytes, roomy.estimated_bytes);
+  o.max_object_asset_bytes = (roomy.base_resolution_bytes + roomy.estimated_bytes) / 2;
+  BakeReport tight;
+  absl::StatusOr<BakedAsset> zoned = BakeModel(*t.model, -1, t.cameras, o, &tight);
+  ASSERT_TRUE(zoned.ok()) << zoned.status();
+  EXPECT_TRUE(tight.view_dead_zone);
+  EXPECT_EQ(tight.kept_blocks, roomy.kept_blocks);
+  EXPECT_EQ(one_step(*zoned), 0);
+  auto stored = [](const BakedAsset& a) {
+    size_t bytes = 0;
+    absl::StatusOr<std::vector<std::pair<std::string, std::string>>> files = SerializeBakedAsset(a);
+    EXPECT_TRUE(files.ok());
+    for (const auto& f : *files) bytes += f.second.size();
+    return bytes;
+  };
+  EXPECT_LT(stored(*zoned), stored(*kept));
 }
 
 TEST(BakerTest, BadRequestsAreRefused) {
@@ -201,6 +239,9 @@ TEST(BakerTest, BadRequestsAreRefused) {
   EXPECT_EQ(BakeModel(*t.model, -1, t.cameras, o, nullptr).status().code(), absl::StatusCode::kInvalidArgument);
   o = BakeOptions();
   o.max_asset_bytes = -1;
+  EXPECT_EQ(BakeModel(*t.model, -1, t.cameras, o, nullptr).status().code(), absl::StatusCode::kInvalidArgument);
+  o = BakeOptions();
+  o.max_object_asset_bytes = -1;
   EXPECT_EQ(BakeModel(*t.model, -1, t.cameras, o, nullptr).status().code(), absl::StatusCode::kInvalidArgument);
   o = BakeOptions();
   o.step_cells = 0.25f;

@@ -38,11 +38,12 @@ struct ColourFitOptions {
   // cameras have fewer). 0 = no fit.
   int rays = 1 << 20;
   // ... thinned so that A has at most about this many entries (0 = no
-  // limit): A's size sets the fit's time (~0.2 s per million entries on 2
+  // limit): A's size sets the fit's time (~0.1 s per million entries on 2
   // cores) and memory (~20 bytes per entry). More rays fit better: fox_8's
   // test views 27.70 dB from 209 K rays (19 M entries) and 28.04 from 473 K
-  // (43 M); flower_4 25.63 -> 25.85 (docs/baking.md).
-  int64_t max_nonzeros = 40'000'000;
+  // (43 M); at 640^3 40 M -> 80 M entries +0.24 dB (476 K -> 952 K rays),
+  // flower_4 +0.14 dB (docs/baking.md).
+  int64_t max_nonzeros = 80'000'000;
   // ... and so that the model's renders of their targets take at most about
   // this many field samples (0 = no limit): a hazy capture marches ~500 per
   // ray (beer_2: 360 K rays took 12.8 s to render, for no gain over 245 K).
