@@ -36,7 +36,7 @@ struct ColourFitOptions {
   // Training-camera rays the fit may use (one per pixel cell of a stride that
   // gives about this many, jittered within the cell; all pixels when the
   // cameras have fewer). 0 = no fit.
-  int rays = 1 << 20;
+  int rays = 1 << 21;
   // ... thinned so that A has at most about this many entries (0 = no
   // limit): A's size sets the fit's time (~0.1 s per million entries on 2
   // cores) and memory (~20 bytes per entry). More rays fit better: fox_8's
