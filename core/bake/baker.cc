@@ -145,11 +145,72 @@ class LazyDensity {
   std::atomic<int> evaluated_{0};
 };
 
+// One visibility ray through pixel (x, y) of `cam` (model space): per
+// candidate it crosses, the weight it leaves there raises my_w (the most
+// any ray left) and adds that much of its direction to my_dir.
+void MarchVisibility(const Camera& cam, int x, int y, LazyDensity* density, const BakeWork& w,
+                     std::vector<float>* my_w, std::vector<Eigen::Vector3f>* my_dir) {
+  const BakedAsset& a = w.asset;
+  Eigen::Vector3f o, d;
+  cam.Ray(float(x) + 0.5f, float(y) + 0.5f, &o, &d);
+  int cur = -1;
+  float acc = 0.0f;
+  auto flush = [&]() {
+    if (cur < 0) return;
+    (*my_w)[cur] = std::max((*my_w)[cur], acc);
+    (*my_dir)[cur] += acc * d;
+  };
+  MarchBaked(
+      a, o, d,
+      [&](int block, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
+        const int32_t s = w.slot[block];
+        if (s < 0) return false;
+        const uint8_t* c = density->Codes(s);
+        float l[3];
+        LocalInBlock(u, b, l);
+        const float v = TrilinearBrick(l, [&](int xx, int yy, int zz, int ch) {
+                          return ch == 3 ? float(c[xx + kBakeBrick * (yy + kBakeBrick * zz)]) : 0.0f;
+                        })[3];
+        *rgba = Eigen::Vector4f(0, 0, 0, v / 255.0f);
+        return true;
+      },
+      [&](int block, float weight, float, const Eigen::Vector4f&) {
+        const int s = w.slot[block];
+        if (s != cur) {
+          flush();
+          cur = s;
+          acc = 0.0f;
+        }
+        acc += weight;
+      });
+  flush();
+}
+
+// The pixels the visibility pass marches in a W x H image: the centres of
+// a stride x stride grid, and every pixel of the image's border (which the
+// grid's centres miss by up to half a stride: what only the edges of the
+// photos saw was culled, and a test view of fox_8 showed holes there).
+std::vector<std::pair<int, int>> VisibilityPixels(int W, int H, int stride) {
+  std::vector<std::pair<int, int>> px;
+  for (int y = stride / 2; y < H; y += stride) {
+    for (int x = stride / 2; x < W; x += stride) px.emplace_back(x, y);
+  }
+  if (stride == 1) return px;
+  for (int x = 0; x < W; ++x) {
+    px.emplace_back(x, 0);
+    if (H > 1) px.emplace_back(x, H - 1);
+  }
+  for (int y = 1; y + 1 < H; ++y) {
+    px.emplace_back(0, y);
+    if (W > 1) px.emplace_back(W - 1, y);
+  }
+  return px;
+}
+
 // Stage 3: training rays march the density codes; per candidate, the most
 // weight one ray left in it and the weighted sum of those rays' directions.
 void Visibility(const std::vector<Camera>& cameras, const BakeOptions& o, LazyDensity* density, BakeWork* w,
                 std::vector<float>* max_w, std::vector<Eigen::Vector3f>* dir, long long* rays_marched) {
-  const BakedAsset& a = w->asset;
   double pixels = 0;
   for (const Camera& c : cameras) pixels += double(c.intrinsics.width) * c.intrinsics.height;
   const int stride = std::max(1, int(std::ceil(std::sqrt(pixels / double(o.visibility_rays)))));
@@ -163,44 +224,10 @@ void Visibility(const std::vector<Camera>& cameras, const BakeOptions& o, LazyDe
     std::vector<Eigen::Vector3f> my_dir(n, Eigen::Vector3f::Zero());
 #pragma omp for schedule(dynamic)
     for (int ci = 0; ci < int(cameras.size()); ++ci) {
-      const Camera cam = BakedModelCamera(a, cameras[ci]);
-      for (int y = stride / 2; y < cam.intrinsics.height; y += stride) {
-        for (int x = stride / 2; x < cam.intrinsics.width; x += stride) {
-          Eigen::Vector3f or_, d;
-          cam.Ray(float(x) + 0.5f, float(y) + 0.5f, &or_, &d);
-          int cur = -1;
-          float acc = 0.0f;
-          auto flush = [&]() {
-            if (cur < 0) return;
-            my_w[cur] = std::max(my_w[cur], acc);
-            my_dir[cur] += acc * d;
-          };
-          MarchBaked(
-              a, or_, d,
-              [&](int block, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
-                const int32_t s = w->slot[block];
-                if (s < 0) return false;
-                const uint8_t* c = density->Codes(s);
-                float l[3];
-                LocalInBlock(u, b, l);
-                const float v = TrilinearBrick(l, [&](int xx, int yy, int zz, int ch) {
-                                  return ch == 3 ? float(c[xx + kBakeBrick * (yy + kBakeBrick * zz)]) : 0.0f;
-                                })[3];
-                *rgba = Eigen::Vector4f(0, 0, 0, v / 255.0f);
-                return true;
-              },
-              [&](int block, float weight, float, const Eigen::Vector4f&) {
-                const int s = w->slot[block];
-                if (s != cur) {
-                  flush();
-                  cur = s;
-                  acc = 0.0f;
-                }
-                acc += weight;
-              });
-          flush();
-          ++marched;
-        }
+      const Camera cam = BakedModelCamera(w->asset, cameras[ci]);
+      for (const auto& [x, y] : VisibilityPixels(cam.intrinsics.width, cam.intrinsics.height, stride)) {
+        MarchVisibility(cam, x, y, density, *w, &my_w, &my_dir);
+        ++marched;
       }
     }
 #pragma omp critical

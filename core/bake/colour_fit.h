@@ -38,8 +38,8 @@ struct ColourFitOptions {
   // cameras have fewer). 0 = no fit.
   int rays = 1 << 21;
   // ... thinned so that A has at most about this many entries (0 = no
-  // limit): A's size sets the fit's time (~0.1 s per million entries on 2
-  // cores) and memory (~20 bytes per entry). More rays fit better: fox_8's
+  // limit): A's size sets the fit's time (~0.2 s per million entries on 2
+  // cores) and memory (~20 bytes per entry; fox_8's bake peaks at 2.1 GB). More rays fit better: fox_8's
   // test views 27.70 dB from 209 K rays (19 M entries) and 28.04 from 473 K
   // (43 M); at 640^3 40 M -> 80 M entries +0.24 dB (476 K -> 952 K rays),
   // flower_4 +0.14 dB (docs/baking.md).
