@@ -93,6 +93,26 @@ TEST(BakerTest, AnObjectBakesIntoAnAssetThatRendersLikeTheModel) {
   EXPECT_LT(BakedAgainstModel(*none, t), psnr - 5.0);
 }
 
+// The visibility pass marches a strided grid of pixel centres and, since
+// the grid's centres miss up to half a stride at each edge, every pixel of
+// each photo's border: what only the photos' edges saw is kept too.
+TEST(BakerTest, VisibilityMarchesEveryBorderPixel) {
+  const Trained& t = TrainTiny(false);
+  const int W = t.cameras[0].intrinsics.width, H = t.cameras[0].intrinsics.height;
+  BakeOptions o;
+  o.resolution = 64;
+  o.fit.rays = 0;
+  o.visibility_rays = int(t.cameras.size()) * 4;  // A stride of half the image: a 2 x 2 grid per photo.
+  BakeReport rep;
+  ASSERT_TRUE(BakeModel(*t.model, -1, t.cameras, o, &rep).ok());
+  const long long border = 2LL * W + 2LL * (H - 2);
+  EXPECT_EQ(rep.visibility_rays, (long long)t.cameras.size() * (4 + border));
+  // Every pixel once: nothing is added at stride 1.
+  o.visibility_rays = int(t.cameras.size()) * W * H;
+  ASSERT_TRUE(BakeModel(*t.model, -1, t.cameras, o, &rep).ok());
+  EXPECT_EQ(rep.visibility_rays, (long long)t.cameras.size() * W * H);
+}
+
 TEST(BakerTest, AnUnboundedSceneBakesItsFarShellToo) {
   const Trained& t = TrainTiny(true);
   ASSERT_TRUE(t.model->contracted());
