@@ -73,14 +73,15 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
                 "Cells per axis over the field space, a multiple of 32 (0 = derived: 256 objects; 512 unbounded, "
                 "finer up to 768 where the download budget allows)")
       ->capture_default_str();
-  c->add_option("--visibility-rays", a->bake.visibility_rays, "Training-camera rays that decide which blocks are kept")
+  c->add_option("--visibility-rays", a->bake.visibility_rays,
+                "Training-camera rays that decide which blocks are kept (a strided grid; every border pixel too)")
       ->capture_default_str();
   c->add_option("--min-block-weight", a->bake.min_block_weight,
                 "Keep a block when some training ray puts at least this much weight in it")
       ->capture_default_str();
   c->add_option("--max-asset-bytes", a->bake.max_asset_bytes,
                 "Download budget of an unbounded scene: drop the least-seen blocks until the asset compresses to "
-                "about this (0 = none)")
+                "about this, and round the faintest view-dependent codes to none if still over (0 = none)")
       ->capture_default_str();
   c->add_option("--max-object-asset-bytes", a->bake.max_object_asset_bytes,
                 "The same for a bounded (object) scene (0 = none)")

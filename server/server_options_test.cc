@@ -16,6 +16,14 @@ TEST(ServerOptionsTest, DefaultsAreValidAndConfigOverrides) {
   EXPECT_EQ(o.update.method, ContinualMethod::kCLNeRFNoER);
   EXPECT_FLOAT_EQ(o.gate.min_new_psnr, 21.5f);
   EXPECT_TRUE(o.Validate().ok());
+  // The bake's budgets: an unbounded scene's and an object's.
+  EXPECT_EQ(o.bake.max_object_asset_bytes, 4'000'000);
+  ASSERT_TRUE(ApplyConfigJson(R"({"bake": {"max_asset_bytes": 9000000, "max_object_asset_bytes": 2000000,
+                                           "fit_max_entries": 40000000}})", &o).ok());
+  EXPECT_EQ(o.bake.max_asset_bytes, 9'000'000);
+  EXPECT_EQ(o.bake.max_object_asset_bytes, 2'000'000);
+  EXPECT_EQ(o.bake.fit.max_nonzeros, 40'000'000);
+  EXPECT_FALSE(ApplyConfigJson(R"({"bake": {"max_object_bytes": 1}})", &o).ok());
 }
 
 TEST(ServerOptionsTest, BadConfigIsRejectedWithTheKey) {

@@ -18,8 +18,10 @@ namespace clnerf {
 namespace {
 
 constexpr int kLattice = kBakeBrick * kBakeBrick * kBakeBrick;  // Points per brick.
-// View-dependent codes within this many steps of zero are written as zero:
-// lego_100's asset 4.33 -> 3.88 MB for 0.11 dB (2: 3.71 MB, 0.20 dB).
+// View-dependent codes within this many steps of zero are written as zero
+// when the asset would otherwise exceed its download budget
+// (WriteWithinBudget): lego_100's asset 4.33 -> 3.88 MB for 0.11 dB (2:
+// 3.71 MB, 0.20 dB; session 45's asset).
 constexpr long kViewDeadZone = 1;
 
 double Since(std::chrono::steady_clock::time_point t0) {
@@ -147,8 +149,9 @@ class LazyDensity {
 
 // One visibility ray through pixel (x, y) of `cam` (model space): per
 // candidate it crosses, the weight it leaves there raises my_w (the most
-// any ray left) and adds that much of its direction to my_dir.
-void MarchVisibility(const Camera& cam, int x, int y, LazyDensity* density, const BakeWork& w,
+// any ray left) and adds dir_weight times that much of its direction to
+// my_dir.
+void MarchVisibility(const Camera& cam, int x, int y, float dir_weight, LazyDensity* density, const BakeWork& w,
                      std::vector<float>* my_w, std::vector<Eigen::Vector3f>* my_dir) {
   const BakedAsset& a = w.asset;
   Eigen::Vector3f o, d;
@@ -158,7 +161,7 @@ void MarchVisibility(const Camera& cam, int x, int y, LazyDensity* density, cons
   auto flush = [&]() {
     if (cur < 0) return;
     (*my_w)[cur] = std::max((*my_w)[cur], acc);
-    (*my_dir)[cur] += acc * d;
+    (*my_dir)[cur] += dir_weight * acc * d;
   };
   MarchBaked(
       a, o, d,
@@ -187,14 +190,18 @@ void MarchVisibility(const Camera& cam, int x, int y, LazyDensity* density, cons
 }
 
 // The pixels the visibility pass marches in a W x H image: the centres of
-// a stride x stride grid, and every pixel of the image's border (which the
-// grid's centres miss by up to half a stride: what only the edges of the
-// photos saw was culled, and a test view of fox_8 showed holes there).
-std::vector<std::pair<int, int>> VisibilityPixels(int W, int H, int stride) {
+// a stride x stride grid, then (from index *grid on) every other pixel of
+// the image's border, which the grid's centres miss by up to half a
+// stride: what only the edges of the photos saw was culled, and a test
+// view of fox_8 showed holes there.
+std::vector<std::pair<int, int>> VisibilityPixels(int W, int H, int stride, size_t* grid) {
   std::vector<std::pair<int, int>> px;
   for (int y = stride / 2; y < H; y += stride) {
-    for (int x = stride / 2; x < W; x += stride) px.emplace_back(x, y);
+    for (int x = stride / 2; x < W; x += stride) {
+      if (stride == 1 || (x != W - 1 && y != H - 1)) px.emplace_back(x, y);  // Else a border pixel.
+    }
   }
+  *grid = px.size();
   if (stride == 1) return px;
   for (int x = 0; x < W; ++x) {
     px.emplace_back(x, 0);
@@ -225,8 +232,14 @@ void Visibility(const std::vector<Camera>& cameras, const BakeOptions& o, LazyDe
 #pragma omp for schedule(dynamic)
     for (int ci = 0; ci < int(cameras.size()); ++ci) {
       const Camera cam = BakedModelCamera(w->asset, cameras[ci]);
-      for (const auto& [x, y] : VisibilityPixels(cam.intrinsics.width, cam.intrinsics.height, stride)) {
-        MarchVisibility(cam, x, y, density, *w, &my_w, &my_dir);
+      size_t grid = 0;
+      const std::vector<std::pair<int, int>> px =
+          VisibilityPixels(cam.intrinsics.width, cam.intrinsics.height, stride, &grid);
+      for (size_t k = 0; k < px.size(); ++k) {
+        // A grid ray stands for stride^2 pixels, a border ray for about
+        // stride: so the edges do not pull the mean viewing direction.
+        MarchVisibility(cam, px[k].first, px[k].second, k < grid ? 1.0f : 1.0f / float(stride), density, *w, &my_w,
+                        &my_dir);
         ++marched;
       }
     }
@@ -368,22 +381,29 @@ uint64_t EstimatedAssetBytes(const BakedAsset& a, const std::vector<float>& rgb)
   absl::StatusOr<std::string> zipped = GzipCompress(sample, /*level=*/1);
   const double ratio = zipped.ok() && !sample.empty() ? double(zipped->size()) / double(sample.size()) : 1.0;
   // The index is mostly zeros: ~1/64 of its bytes (measured 1/70-1/130).
-  return uint64_t(double(packed.atlas.size()) * ratio) + a.index.size() / 64;
+  return uint64_t(double(packed.atlas.size()) * ratio) + 4 * a.index.size() / 64;
 }
 
 // The asset's stored bytes (gzip level 6, as SerializeBakedAsset writes
 // them), estimated from every fourth z-slab of bricks of each atlas.
 uint64_t EstimatedStoredBytes(const BakedAsset& a) {
   const size_t plane = a.atlas.size(), slab = plane / size_t(std::max(1, a.bricks[2]));
-  double bytes = double(a.index.size()) / 64.0;
-  for (size_t at = 0; at < 1 + a.view.size() / std::max<size_t>(plane, 1); ++at) {
-    const uint8_t* data = at == 0 ? a.atlas.data() : a.view.data() + (at - 1) * plane;
+  const int planes = int(1 + a.view.size() / std::max<size_t>(plane, 1));  // The atlas, then H's three.
+  std::vector<double> bytes(size_t(planes), 0.0);
+#pragma omp parallel for schedule(dynamic)
+  for (int at = 0; at < planes; ++at) {
+    const uint8_t* data = at == 0 ? a.atlas.data() : a.view.data() + size_t(at - 1) * plane;
     std::string sample;
-    for (int z = 0; z < a.bricks[2]; z += 4) sample.append(reinterpret_cast<const char*>(data) + size_t(z) * slab, slab);
+    for (int z = 0; z < a.bricks[2]; z += 4) {
+      sample.append(reinterpret_cast<const char*>(data) + size_t(z) * slab, slab);
+    }
     absl::StatusOr<std::string> zipped = GzipCompress(sample);
-    bytes += zipped.ok() && !sample.empty() ? double(plane) * double(zipped->size()) / double(sample.size()) : double(plane);
+    const double ratio = zipped.ok() && !sample.empty() ? double(zipped->size()) / double(sample.size()) : 1.0;
+    bytes[size_t(at)] = double(plane) * ratio;
   }
-  return uint64_t(bytes);
+  double total = 4.0 * double(a.index.size()) / 64.0;  // The index: ~1/64 of its bytes.
+  for (double b : bytes) total += b;
+  return uint64_t(total);
 }
 
 // The download budget for the model's kind of scene (0 = none).

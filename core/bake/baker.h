@@ -41,19 +41,21 @@ struct BakeOptions {
   // download budget leaves room: baked at 512 first, the finest grid (up to
   // 768) whose download, scaled by the surface area (R^2), stays within
   // 70 % of max_asset_bytes is baked instead, stepping one base cell
-  // (fox_8, 5.1 MB estimated at 512, -> 640: +0.18 dB; flower_4 -> 768:
+  // (fox_8, 5.1 MB estimated at 512 in session 49, -> 640: +0.18 dB; 5.6 MB
+  // with session 50's visibility pass, -> 608; flower_4 -> 768:
   // +0.48 dB; beer_2, over the budget at 512, stays). Past 768 the fit has
   // too few rays per unknown (flower_4 at 960 and 1024: below 768).
   int resolution = 0;
-  // Training-camera rays marched for visibility (pixels on a stride that
-  // gives about this many over all cameras).
+  // Training-camera rays marched for visibility: pixels on a stride that
+  // gives about this many over all cameras, plus every border pixel of
+  // each photo (lego_100: 280 K rays in all, beer_2: 347 K).
   int visibility_rays = 1 << 18;
   // A block is kept when some training ray deposits at least this much of
   // its weight in it. 0.1 against 0.01: assets 8-46 % smaller for at most
   // 0.06 dB on lego_100, fox_8 and flower_4, 0.55 dB on beer_2's haze
-  // (docs/baking.md). On a grid finer than the kind's default (256 objects,
-  // 512 unbounded) the threshold shrinks with the block: x 512/R (flower_4
-  // at 768: +0.09 dB).
+  // (docs/baking.md). On a grid finer than the kind's default D (256
+  // objects, 512 unbounded) the threshold shrinks with the block: x D/R
+  // (flower_4 at 768: +0.09 dB).
   float min_block_weight = 0.1f;
   int threads = 0;  // OpenMP threads; 0 = all available.
   ColourFitOptions fit;  // Stage 5; fit.rays = 0 skips it.
@@ -79,7 +81,8 @@ struct BakeOptions {
   // 0.11 dB).
   int64_t max_asset_bytes = 12'000'000;
   // The same for a bounded (object) scene: objects are small (lego_100's
-  // asset: 3.9 MB at 256^3).
+  // asset: 3.9 MB at 256^3). A finer object grid (`resolution`) needs it
+  // raised, or its least-seen blocks are dropped to fit.
   int64_t max_object_asset_bytes = 4'000'000;
   absl::Status Validate() const;
 };

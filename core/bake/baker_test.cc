@@ -107,6 +107,12 @@ TEST(BakerTest, VisibilityMarchesEveryBorderPixel) {
   ASSERT_TRUE(BakeModel(*t.model, -1, t.cameras, o, &rep).ok());
   const long long border = 2LL * W + 2LL * (H - 2);
   EXPECT_EQ(rep.visibility_rays, (long long)t.cameras.size() * (4 + border));
+  // At stride 2 the grid's last column and row are border pixels: each
+  // pixel is marched once.
+  o.visibility_rays = int(t.cameras.size()) * W * H / 4;
+  ASSERT_TRUE(BakeModel(*t.model, -1, t.cameras, o, &rep).ok());
+  const long long grid = (long long)((W - 1) / 2) * ((H - 1) / 2);  // Centres 1, 3, ... below the last.
+  EXPECT_EQ(rep.visibility_rays, (long long)t.cameras.size() * (grid + border));
   // Every pixel once: nothing is added at stride 1.
   o.visibility_rays = int(t.cameras.size()) * W * H;
   ASSERT_TRUE(BakeModel(*t.model, -1, t.cameras, o, &rep).ok());
