@@ -3,6 +3,7 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
@@ -151,8 +152,13 @@ class LazyDensity {
 // candidate it crosses, the weight it leaves there raises my_w (the most
 // any ray left) and adds dir_weight times that much of its direction to
 // my_dir.
+// Directions are summed in fixed point (kDirScale per unit), so the sums
+// are the same whichever thread adds which ray, in whatever order.
+constexpr double kDirScale = double(int64_t(1) << 32);
+using DirSum = std::array<int64_t, 3>;
+
 void MarchVisibility(const Camera& cam, int x, int y, float dir_weight, LazyDensity* density, const BakeWork& w,
-                     std::vector<float>* my_w, std::vector<Eigen::Vector3f>* my_dir) {
+                     std::vector<float>* my_w, std::vector<DirSum>* my_dir) {
   const BakedAsset& a = w.asset;
   Eigen::Vector3f o, d;
   cam.Ray(float(x) + 0.5f, float(y) + 0.5f, &o, &d);
@@ -161,7 +167,7 @@ void MarchVisibility(const Camera& cam, int x, int y, float dir_weight, LazyDens
   auto flush = [&]() {
     if (cur < 0) return;
     (*my_w)[cur] = std::max((*my_w)[cur], acc);
-    (*my_dir)[cur] += dir_weight * acc * d;
+    for (int k = 0; k < 3; ++k) (*my_dir)[cur][k] += std::llround(kDirScale * double(dir_weight * acc * d[k]));
   };
   MarchBaked(
       a, o, d,
@@ -215,7 +221,8 @@ std::vector<std::pair<int, int>> VisibilityPixels(int W, int H, int stride, size
 }
 
 // Stage 3: training rays march the density codes; per candidate, the most
-// weight one ray left in it and the weighted sum of those rays' directions.
+// weight one ray left in it and the weighted sum of those rays' directions
+// (the same on every run: max and integer sums do not depend on order).
 void Visibility(const std::vector<Camera>& cameras, const BakeOptions& o, LazyDensity* density, BakeWork* w,
                 std::vector<float>* max_w, std::vector<Eigen::Vector3f>* dir, long long* rays_marched) {
   double pixels = 0;
@@ -225,10 +232,11 @@ void Visibility(const std::vector<Camera>& cameras, const BakeOptions& o, LazyDe
   max_w->assign(n, 0.0f);
   dir->assign(n, Eigen::Vector3f::Zero());
   long long marched = 0;
+  std::vector<DirSum> sum(n, DirSum{0, 0, 0});
 #pragma omp parallel reduction(+ : marched)
   {
     std::vector<float> my_w(n, 0.0f);
-    std::vector<Eigen::Vector3f> my_dir(n, Eigen::Vector3f::Zero());
+    std::vector<DirSum> my_dir(n, DirSum{0, 0, 0});
 #pragma omp for schedule(dynamic)
     for (int ci = 0; ci < int(cameras.size()); ++ci) {
       const Camera cam = BakedModelCamera(w->asset, cameras[ci]);
@@ -246,8 +254,12 @@ void Visibility(const std::vector<Camera>& cameras, const BakeOptions& o, LazyDe
 #pragma omp critical
     for (size_t k = 0; k < n; ++k) {
       (*max_w)[k] = std::max((*max_w)[k], my_w[k]);
-      (*dir)[k] += my_dir[k];
+      for (int c = 0; c < 3; ++c) sum[k][c] += my_dir[k][c];
     }
+  }
+  for (size_t k = 0; k < n; ++k) {
+    (*dir)[k] = Eigen::Vector3f(float(double(sum[k][0]) / kDirScale), float(double(sum[k][1]) / kDirScale),
+                                float(double(sum[k][2]) / kDirScale));
   }
   *rays_marched = marched;
 }

@@ -8,17 +8,31 @@
 namespace clnerf {
 namespace {
 
+// Sums f(i) over [0, n) in fixed chunks, in parallel, then the chunks in
+// order: the same bits at any thread count and on every run (an OpenMP
+// reduction adds the threads' shares in whatever order they finish).
+template <class T, class F>
+T OrderedSum(int64_t n, F f) {
+  constexpr int64_t kChunk = 1 << 14;
+  const int64_t chunks = (n + kChunk - 1) / kChunk;
+  std::vector<T> part(size_t(std::max<int64_t>(chunks, 0)), T::Zero());
+#pragma omp parallel for schedule(static)
+  for (int64_t c = 0; c < chunks; ++c) {
+    T acc = T::Zero();
+    for (int64_t i = c * kChunk; i < std::min(n, (c + 1) * kChunk); ++i) acc += f(i);
+    part[size_t(c)] = acc;
+  }
+  T sum = T::Zero();
+  for (const T& p : part) sum += p;
+  return sum;
+}
+
 // Per-channel dot products of two (n x 3) arrays.
 Eigen::Array3d Dot3(const std::vector<float>& u, const std::vector<float>& v) {
-  const int64_t n = int64_t(u.size() / 3);
-  double s0 = 0, s1 = 0, s2 = 0;
-#pragma omp parallel for schedule(static) reduction(+ : s0, s1, s2)
-  for (int64_t i = 0; i < n; ++i) {
-    s0 += double(u[3 * i]) * v[3 * i];
-    s1 += double(u[3 * i + 1]) * v[3 * i + 1];
-    s2 += double(u[3 * i + 2]) * v[3 * i + 2];
-  }
-  return Eigen::Array3d(s0, s1, s2);
+  return OrderedSum<Eigen::Array3d>(int64_t(u.size() / 3), [&](int64_t i) {
+    return Eigen::Array3d(double(u[3 * i]) * v[3 * i], double(u[3 * i + 1]) * v[3 * i + 1],
+                          double(u[3 * i + 2]) * v[3 * i + 2]);
+  });
 }
 
 // y += a (per channel) * x over (n x 3) arrays.
@@ -206,11 +220,9 @@ void FitSystem::MultiplyTransposed(const std::vector<float>& y, std::vector<floa
 double FitSystem::MeanDiffuseDiagonal() const {
   const int64_t P = int64_t(num_diffuse());
   if (P == 0) return 1.0;
-  double sum = 0;
-#pragma omp parallel for schedule(static) reduction(+ : sum)
-  for (int64_t k = 0; k < int64_t(diffuse_cols.val.size()); ++k) {
-    sum += double(diffuse_cols.val[size_t(k)]) * diffuse_cols.val[size_t(k)];
-  }
+  const double sum = OrderedSum<Eigen::Array<double, 1, 1>>(int64_t(diffuse_cols.val.size()), [&](int64_t k) {
+    return Eigen::Array<double, 1, 1>(double(diffuse_cols.val[size_t(k)]) * diffuse_cols.val[size_t(k)]);
+  })[0];
   return sum / double(P);
 }
 
