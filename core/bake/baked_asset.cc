@@ -303,8 +303,16 @@ void ComputeBlockDistances(BakedAsset* asset) {
   const size_t n = size_t(nb) * nb * nb;
   std::vector<uint8_t>& dist = asset->block_distance;
   dist.assign(n, 255);
+  asset->occupied_lo = {nb, nb, nb};
+  asset->occupied_hi = {-1, -1, -1};
   for (size_t i = 0; i < n && i < asset->index.size(); ++i) {
-    if (asset->index[i] != 0) dist[i] = 0;
+    if (asset->index[i] == 0) continue;
+    dist[i] = 0;
+    const int b[3] = {int(i % size_t(nb)), int((i / size_t(nb)) % size_t(nb)), int(i / (size_t(nb) * nb))};
+    for (int k = 0; k < 3; ++k) {
+      asset->occupied_lo[size_t(k)] = std::min(asset->occupied_lo[size_t(k)], b[k]);
+      asset->occupied_hi[size_t(k)] = std::max(asset->occupied_hi[size_t(k)], b[k]);
+    }
   }
   // Forward then backward raster passes, each taking the minimum over the
   // whole 26-neighbourhood plus one: exact for the chessboard metric.

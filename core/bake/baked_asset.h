@@ -102,6 +102,11 @@ struct BakedAsset {
   // nearest occupied block (0 = occupied, capped at 255). Empty = not
   // computed: renderers then skip one empty block at a time.
   std::vector<uint8_t> block_distance;
+  // Also derived there, for an object (bounded) asset: the box of blocks
+  // that holds every occupied one, [occupied_lo, occupied_hi] (block
+  // coordinates; lo > hi when none is). Rays march only where they cross
+  // it (from the lattice point before they enter to one step past).
+  std::array<int, 3> occupied_lo = {0, 0, 0}, occupied_hi = {-1, -1, -1};
 
   int blocks_per_axis() const { return resolution / kBakeBlock; }
   float cell() const { return 2.0f * half_size / float(resolution); }
@@ -136,7 +141,8 @@ bool IsBakedAssetFileName(const std::string& name);
 bool IsBakedAssetDir(const std::string& dir);
 
 // Fills asset->block_distance from its index (two raster passes over the
-// 26-neighbourhood; exact for the chessboard distance).
+// 26-neighbourhood; exact for the chessboard distance), and the occupied
+// blocks' box.
 void ComputeBlockDistances(BakedAsset* asset);
 
 // The model-space camera of a world-space one (as NgpModel::ToModelCamera).

@@ -34,6 +34,26 @@ inline bool BakedRayInterval(const BakedAsset& a, const Eigen::Vector3f& o, cons
   return *t1 > *t0;
 }
 
+// The interval [*ta, *tb] of ray o + t d inside the box [lo, hi] (any t);
+// false when it misses the box (or the box is empty).
+inline bool IntersectAabb(const Eigen::Vector3f& o, const Eigen::Vector3f& d, const Eigen::Vector3f& lo,
+                          const Eigen::Vector3f& hi, float* ta, float* tb) {
+  float a = -1e30f, b = 1e30f;
+  for (int k = 0; k < 3; ++k) {
+    if (std::abs(d[k]) < 1e-12f) {
+      if (o[k] < lo[k] || o[k] > hi[k]) return false;
+      continue;
+    }
+    const float inv = 1.0f / d[k];
+    const float u = (lo[k] - o[k]) * inv, v = (hi[k] - o[k]) * inv;
+    a = std::max(a, std::min(u, v));
+    b = std::min(b, std::max(u, v));
+  }
+  *ta = a;
+  *tb = b;
+  return b > a;
+}
+
 // Model-space t at which a ray leaves the box [lo, hi] it is in.
 inline float BakedExitT(const Eigen::Vector3f& o, const Eigen::Vector3f& d, const Eigen::Vector3f& lo,
                         const Eigen::Vector3f& hi) {
@@ -59,6 +79,21 @@ float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vec
   const float step = a.step(), cell = a.cell(), B = a.half_size, to_cells = float(a.resolution) / (2.0f * B);
   const float block_size = float(kBakeBlock) / to_cells;  // Field units.
   float t = t0 + 0.5f * step;
+  if (!a.contracted && !a.block_distance.empty()) {
+    // An object: only the box of occupied blocks can add to the ray, so
+    // the march starts at the lattice point before the ray enters it and
+    // ends one step after it leaves (the same samples that can show).
+    if (a.occupied_hi[0] < a.occupied_lo[0]) return T;  // Nothing occupied.
+    Eigen::Vector3f lo, hi;
+    for (int k = 0; k < 3; ++k) {
+      lo[k] = float(a.occupied_lo[size_t(k)]) * block_size - B;
+      hi[k] = float(a.occupied_hi[size_t(k)] + 1) * block_size - B;
+    }
+    float ta = 0, tb = 0;
+    if (!IntersectAabb(o, d, lo, hi, &ta, &tb) || tb <= t0 || ta >= t1) return T;
+    t += std::max(0.0f, std::floor((ta - t0) / step - 0.5f)) * step;
+    t1 = std::min(t1, tb + step);
+  }
   for (int it = 0; it < kBakedMaxSteps && t < t1 && T > kBakedMinTransmittance; ++it) {
     const Eigen::Vector3f x = o + t * d;
     const float r = InfNorm(x);

@@ -9,6 +9,9 @@
 // contracted point reaches the grid's last half cell, clipped to the near
 // plane), step = step_cells * cell:
 //   t = t0 + step / 2; T = 1; C = 0
+//   object (bounded) asset: the ray crosses the box of occupied blocks over
+//     [ta, tb] or the pixel is the background; t advances by
+//     max(0, floor((ta - t0) / step - 1/2)) steps, t1 = min(t1, tb + step)
 //   while t < t1 and T > kBakedMinTransmittance:
 //     x = o + t d; r = |x|_inf
 //     dt = step * r^2 beyond the inner cube of an unbounded scene, else step

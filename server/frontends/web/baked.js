@@ -41,6 +41,8 @@ uniform float uNear;
 uniform vec3 uBg;
 uniform ivec3 uBricks;
 uniform vec3 uAtlasDims;
+uniform ivec3 uOccLo;      // An object's box of occupied blocks (lo > hi: none).
+uniform ivec3 uOccHi;
 out vec4 outColor;
 
 const int kBlock = 8;
@@ -67,6 +69,21 @@ bool intersectBox(vec3 o, vec3 d, float b, out float t0, out float t1) {
   }
   t0 = lo; t1 = hi;
   return hi > max(lo, 0.0);
+}
+bool intersectAabb(vec3 o, vec3 d, vec3 lo, vec3 hi, out float ta, out float tb) {
+  float a = -1e30, b = 1e30;
+  for (int k = 0; k < 3; ++k) {
+    if (abs(d[k]) < 1e-12) {
+      if (o[k] < lo[k] || o[k] > hi[k]) return false;
+      continue;
+    }
+    float inv = 1.0 / d[k];
+    float u = (lo[k] - o[k]) * inv, v = (hi[k] - o[k]) * inv;
+    a = max(a, min(u, v));
+    b = min(b, max(u, v));
+  }
+  ta = a; tb = b;
+  return b > a;
 }
 float exitT(vec3 o, vec3 d, vec3 lo, vec3 hi) {
   float t = 1e30;
@@ -96,9 +113,19 @@ void main() {
   float codeMedian = 0.0;
   float t0, t1;
   float box = uContracted == 1 ? 2.0 / cell : uHalf;
-  if (intersectBox(o, d, box, t0, t1)) {
-    t0 = max(t0, uNear);
-    float t = t0 + 0.5 * stp;
+  bool hit = intersectBox(o, d, box, t0, t1);
+  t0 = max(t0, uNear);
+  float t = t0 + 0.5 * stp;
+  if (hit && uContracted == 0) {  // An object: march only across the box of occupied blocks.
+    float ta, tb;
+    vec3 lo = vec3(uOccLo) * blockSize - uHalf, hi = vec3(uOccHi + 1) * blockSize - uHalf;
+    hit = uOccHi.x >= uOccLo.x && intersectAabb(o, d, lo, hi, ta, tb) && tb > t0 && ta < t1;
+    if (hit) {
+      t += max(0.0, floor((ta - t0) / stp - 0.5)) * stp;
+      t1 = min(t1, tb + stp);
+    }
+  }
+  if (hit) {
     for (int it = 0; it < kMaxSteps; ++it) {
       if (!(t < t1) || T <= kMinT) break;
       vec3 x = o + t * d;
@@ -175,6 +202,21 @@ function skipIndex(index, nb) {
   const out = new Uint32Array(n);
   for (let i = 0; i < n; ++i) out[i] = index[i] !== 0 ? index[i] : (0x80000000 | dist[i]) >>> 0;
   return out;
+}
+
+// The box of occupied blocks, {lo, hi} in block coordinates (lo > hi when
+// none is): ComputeBlockDistances's occupied_lo / occupied_hi.
+function occupiedBox(index, nb) {
+  const lo = [nb, nb, nb], hi = [-1, -1, -1];
+  for (let i = 0; i < index.length; ++i) {
+    if (index[i] === 0) continue;
+    const b = [i % nb, Math.floor(i / nb) % nb, Math.floor(i / (nb * nb))];
+    for (let k = 0; k < 3; ++k) {
+      lo[k] = Math.min(lo[k], b[k]);
+      hi[k] = Math.max(hi[k], b[k]);
+    }
+  }
+  return {lo, hi};
 }
 
 // The ray step in cells a manifest gives (as LoadBakedAsset reads it).
@@ -294,6 +336,7 @@ class BakedRenderer {
       linear();
       this.viewTex.push(t);
     }
+    this.occ = occupiedBox(new Uint32Array(index.buffer, index.byteOffset, index.byteLength / 4), nb);
     this.viewMode = viewMode;
     this.stepCells = steps;
     this.manifest = m;
@@ -344,6 +387,8 @@ class BakedRenderer {
     gl.uniform3fv(u("uBg"), m.background);
     gl.uniform3iv(u("uBricks"), m.bricks);
     gl.uniform3fv(u("uAtlasDims"), this.dims);
+    gl.uniform3iv(u("uOccLo"), this.occ.lo);
+    gl.uniform3iv(u("uOccHi"), this.occ.hi);
     gl.drawArrays(gl.TRIANGLES, 0, 3);
   }
 
