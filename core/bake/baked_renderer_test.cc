@@ -160,6 +160,17 @@ TEST(BakedRendererTest, BlockDistancesSkipOnlyEmptySpace) {
       }
       ASSERT_EQ(int(a.block_distance[size_t(i)]), best) << i;
     }
+    // The occupied blocks' box (an object's rays march only across it).
+    std::array<int, 3> lo = {nb, nb, nb}, hi = {-1, -1, -1};
+    for (int j = 0; j < nb * nb * nb; ++j) {
+      if (a.index[size_t(j)] == 0) continue;
+      const int b[3] = {j % nb, (j / nb) % nb, j / (nb * nb)};
+      for (int k = 0; k < 3; ++k) lo[size_t(k)] = std::min(lo[size_t(k)], b[k]), hi[size_t(k)] = std::max(hi[size_t(k)], b[k]);
+    }
+    EXPECT_EQ(a.occupied_lo, lo);
+    EXPECT_EQ(a.occupied_hi, hi);
+    // Without distances (nor the box) every empty block is stepped through:
+    // the same samples and pixels.
     BakedAsset plain = a;
     plain.block_distance.clear();
     std::uniform_real_distribution<float> u(-1.0f, 1.0f);
