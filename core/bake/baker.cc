@@ -148,15 +148,15 @@ class LazyDensity {
   std::atomic<int> evaluated_{0};
 };
 
-// One visibility ray through pixel (x, y) of `cam` (model space): per
-// candidate it crosses, the weight it leaves there raises my_w (the most
-// any ray left) and adds dir_weight times that much of its direction to
-// my_dir.
 // Directions are summed in fixed point (kDirScale per unit), so the sums
 // are the same whichever thread adds which ray, in whatever order.
 constexpr double kDirScale = double(int64_t(1) << 32);
 using DirSum = std::array<int64_t, 3>;
 
+// One visibility ray through pixel (x, y) of `cam` (model space): per
+// candidate it crosses, the weight it leaves there raises my_w (the most
+// any ray left) and adds dir_weight times that much of its direction to
+// my_dir.
 void MarchVisibility(const Camera& cam, int x, int y, float dir_weight, LazyDensity* density, const BakeWork& w,
                      std::vector<float>* my_w, std::vector<DirSum>* my_dir) {
   const BakedAsset& a = w.asset;
@@ -378,45 +378,49 @@ void WriteColours(const std::vector<float>& rgb, const std::vector<float>& view,
   }
 }
 
+// Bytes a `plane` of atlas texels (bricks_z contiguous z-slabs of bricks)
+// compresses to at gzip `level`, estimated from every fourth slab.
+double SampledCompressedBytes(const uint8_t* data, size_t plane, int bricks_z, int level) {
+  const size_t slab = plane / size_t(std::max(1, bricks_z));
+  std::string sample;
+  for (int z = 0; z < bricks_z; z += 4) sample.append(reinterpret_cast<const char*>(data) + size_t(z) * slab, slab);
+  absl::StatusOr<std::string> zipped = GzipCompress(sample, level);
+  const double ratio = zipped.ok() && !sample.empty() ? double(zipped->size()) / double(sample.size()) : 1.0;
+  return double(plane) * ratio;
+}
+
+// The index is mostly zeros: ~1/64 of its bytes (measured 1/70-1/130).
+uint64_t IndexBytes(const BakedAsset& a) { return 4 * a.index.size() / 64; }
+
 // Bytes the asset's arrays compress to at gzip level 1 with colours `rgb`
 // (the stored level 6 is ~10 % smaller; the colour fit makes the atlas
-// 3-10 % larger: lego_100, fox_8, flower_4, beer_2, docs/baking.md),
-// estimated from every fourth z-slab of bricks (each slab is contiguous).
+// 3-10 % larger: lego_100, fox_8, flower_4, beer_2, docs/baking.md).
 uint64_t EstimatedAssetBytes(const BakedAsset& a, const std::vector<float>& rgb) {
   BakedAsset packed = a;
   WriteColours(rgb, {}, /*dead_zone=*/false, &packed);
-  const size_t slab = packed.atlas.size() / size_t(packed.bricks[2]);
-  std::string sample;
-  for (int z = 0; z < packed.bricks[2]; z += 4) {
-    sample.append(reinterpret_cast<const char*>(packed.atlas.data()) + size_t(z) * slab, slab);
-  }
-  absl::StatusOr<std::string> zipped = GzipCompress(sample, /*level=*/1);
-  const double ratio = zipped.ok() && !sample.empty() ? double(zipped->size()) / double(sample.size()) : 1.0;
-  // The index is mostly zeros: ~1/64 of its bytes (measured 1/70-1/130).
-  return uint64_t(double(packed.atlas.size()) * ratio) + 4 * a.index.size() / 64;
+  return uint64_t(SampledCompressedBytes(packed.atlas.data(), packed.atlas.size(), packed.bricks[2], 1)) +
+         IndexBytes(a);
 }
 
 // The asset's stored bytes (gzip level 6, as SerializeBakedAsset writes
-// them), estimated from every fourth z-slab of bricks of each atlas.
+// them): its atlas and H's three, compressed in parallel.
 uint64_t EstimatedStoredBytes(const BakedAsset& a) {
-  const size_t plane = a.atlas.size(), slab = plane / size_t(std::max(1, a.bricks[2]));
-  const int planes = int(1 + a.view.size() / std::max<size_t>(plane, 1));  // The atlas, then H's three.
+  const size_t plane = a.atlas.size();
+  const int planes = int(1 + a.view.size() / std::max<size_t>(plane, 1));
   std::vector<double> bytes(size_t(planes), 0.0);
 #pragma omp parallel for schedule(dynamic)
   for (int at = 0; at < planes; ++at) {
     const uint8_t* data = at == 0 ? a.atlas.data() : a.view.data() + size_t(at - 1) * plane;
-    std::string sample;
-    for (int z = 0; z < a.bricks[2]; z += 4) {
-      sample.append(reinterpret_cast<const char*>(data) + size_t(z) * slab, slab);
-    }
-    absl::StatusOr<std::string> zipped = GzipCompress(sample);
-    const double ratio = zipped.ok() && !sample.empty() ? double(zipped->size()) / double(sample.size()) : 1.0;
-    bytes[size_t(at)] = double(plane) * ratio;
+    bytes[size_t(at)] = SampledCompressedBytes(data, plane, a.bricks[2], 6);
   }
-  double total = 4.0 * double(a.index.size()) / 64.0;  // The index: ~1/64 of its bytes.
+  double total = double(IndexBytes(a));
   for (double b : bytes) total += b;
   return uint64_t(total);
 }
+
+// The grid an asset is baked at unless a resolution is given: 256 for an
+// object, 512 for an unbounded scene (a derived finer grid starts there).
+int DefaultResolution(bool contracted) { return contracted ? 512 : 256; }
 
 // The download budget for the model's kind of scene (0 = none).
 int64_t AssetBudget(const BakeOptions& o, bool contracted) {
@@ -497,8 +501,8 @@ uint64_t BakeGrid(const NgpModel& model, int t, const std::vector<Camera>& camer
   rep->visibility_seconds += Since(t1);
   // A ray leaves in a block of a finer grid than the kind's default a
   // share smaller by the ratio of their sizes.
-  const int default_base = a.contracted ? 512 : 256;
-  const float min_weight = options.min_block_weight * std::min(1.0f, float(default_base) / float(resolution));
+  const float min_weight =
+      options.min_block_weight * std::min(1.0f, float(DefaultResolution(a.contracted)) / float(resolution));
   kept->clear();
   for (size_t s = 0; s < w->blocks.size(); ++s) {
     if (max_w[s] >= min_weight && max_w[s] > 0.0f) kept->push_back(int(s));
@@ -577,7 +581,7 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
   for (int k = 0; k < 4 && k < int(cameras.size()); ++k) a.views.push_back(cameras[k * cameras.size() / 4]);
   std::vector<int> kept;
   std::vector<float> rgb;
-  const int base = options.resolution > 0 ? options.resolution : (model.contracted() ? 512 : 256);
+  const int base = options.resolution > 0 ? options.resolution : DefaultResolution(model.contracted());
   const uint64_t bytes = BakeGrid(model, t, cameras, options, base, &w, &kept, &rgb, &rep);
   rep.base_resolution_bytes = int64_t(bytes);
   if (options.resolution == 0 && model.contracted()) {

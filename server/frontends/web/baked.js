@@ -55,21 +55,6 @@ vec3 contractP(vec3 x) {
   float r = infNorm(x);
   return r > 1.0 ? x * ((2.0 - 1.0 / r) / r) : x;
 }
-bool intersectBox(vec3 o, vec3 d, float b, out float t0, out float t1) {
-  float lo = -1e30, hi = 1e30;
-  for (int a = 0; a < 3; ++a) {
-    if (abs(d[a]) < 1e-12) {
-      if (o[a] < -b || o[a] > b) return false;
-      continue;
-    }
-    float inv = 1.0 / d[a];
-    float ta = (-b - o[a]) * inv, tb = (b - o[a]) * inv;
-    lo = max(lo, min(ta, tb));
-    hi = min(hi, max(ta, tb));
-  }
-  t0 = lo; t1 = hi;
-  return hi > max(lo, 0.0);
-}
 bool intersectAabb(vec3 o, vec3 d, vec3 lo, vec3 hi, out float ta, out float tb) {
   float a = -1e30, b = 1e30;
   for (int k = 0; k < 3; ++k) {
@@ -84,6 +69,9 @@ bool intersectAabb(vec3 o, vec3 d, vec3 lo, vec3 hi, out float ta, out float tb)
   }
   ta = a; tb = b;
   return b > a;
+}
+bool intersectBox(vec3 o, vec3 d, float b, out float t0, out float t1) {  // [-b, b]^3, ahead of o.
+  return intersectAabb(o, d, vec3(-b), vec3(b), t0, t1) && t1 > max(t0, 0.0);
 }
 float exitT(vec3 o, vec3 d, vec3 lo, vec3 hi) {
   float t = 1e30;
