@@ -79,6 +79,9 @@ CLI::App* BindBenchRegister(CLI::App* parent, BenchRegisterArgs* a) {
   c->add_option("--references", a->registration.max_references, "Renders of the place")->capture_default_str();
   c->add_option("--max-side", a->registration.localizer.max_side, "Matching size (long side, pixels)")
       ->capture_default_str();
+  c->add_option("--min-side", a->registration.localizer.min_side,
+                "Smaller photos are scaled up to this long side before matching (1 = never)")
+      ->capture_default_str();
   BindDatasetFlags(c, &a->dataset);
   BindThreadsFlag(c, &a->threads);
   c->add_flag("--verbose", a->verbose, "Print each frame's PnP inliers, matches and pose error");

@@ -66,9 +66,14 @@ void Accept(const RobustSimilarity& fit, const std::vector<PosePair>& pairs, con
     const Eigen::Vector3d c = p.from.col(3).cast<double>();
     moved = std::max(moved, (fit.transform.Apply(c) - c).norm());
   }
-  r->identity = std::abs(fit.transform.scale - 1) <= o.identity_scale &&
-                fit.transform.RotationDegrees() <= o.identity_rotation_deg &&
-                moved <= o.identity_centre * r->place_extent;
+  auto within = [&](double k) {
+    return std::abs(fit.transform.scale - 1) <= k * o.identity_scale &&
+           fit.transform.RotationDegrees() <= k * o.identity_rotation_deg &&
+           moved <= k * o.identity_centre * r->place_extent;
+  };
+  r->identity_likelihood_ratio = IdentityLikelihoodRatio(fit, pairs);
+  r->identity = within(1.0) || (within(o.identity_noise_limit) &&
+                                r->identity_likelihood_ratio <= o.identity_chi_square);
   r->transform = r->identity ? Similarity() : fit.transform;
   r->status = absl::OkStatus();
 }
@@ -100,6 +105,9 @@ absl::Status RegistrationOptions::Validate() const {
   }
   if (!(max_centre_residual > 0) || !(max_rotation_residual_deg > 0) || !(max_distance > 0)) {
     return absl::InvalidArgumentError("registration residual limits must be > 0");
+  }
+  if (!(identity_chi_square >= 0) || !(identity_noise_limit >= 1)) {
+    return absl::InvalidArgumentError("identity_chi_square must be >= 0 and identity_noise_limit >= 1");
   }
   if (identity_scale < 0 || identity_rotation_deg < 0 || identity_centre < 0) {
     return absl::InvalidArgumentError("identity tolerances must be >= 0");

@@ -24,6 +24,7 @@
 
 #include <atomic>
 #include <functional>
+#include <limits>
 #include <map>
 #include <string>
 #include <vector>
@@ -68,6 +69,15 @@ struct RegistrationOptions {
   double identity_scale = 0.005;
   double identity_rotation_deg = 0.25;
   double identity_centre = 0.005;
+  // A larger fit, up to identity_noise_limit times those, is also taken as
+  // the identity when the frames cannot tell it from one: when the identity
+  // explains the agreeing frames within this chi-square (7 degrees of
+  // freedom; 18.5 = 99 %) of the fit, with each frame's centre and rotation
+  // over the frames' own noise (IdentityLikelihoodRatio). On lego_100 the
+  // fit of a scan in the place's frame turned 0.32 degrees, well inside its
+  // noise. 0: only the fixed thresholds.
+  double identity_chi_square = 18.5;
+  double identity_noise_limit = 4.0;
   // A scan the service posed itself (SfM over the scan alone) has, after
   // RefineAgainstPlace, each frame aligned photometrically to the place's
   // renders (photometric_refine.h). On the procedural forward-facing rescan
@@ -82,6 +92,9 @@ struct RegistrationReport {
   absl::Status status;    // OK, or FAILED_PRECONDITION saying why.
   Similarity transform;   // Scan frame -> place frame (identity when `identity`).
   bool identity = false;  // Snapped: the scan was already in the place's frame.
+  // IdentityLikelihoodRatio of the fit (how far the frames put the scan
+  // from the identity, in its own noise; +inf without a fit).
+  double identity_likelihood_ratio = std::numeric_limits<double>::infinity();
   int references = 0;     // Renders made.
   int map_points = 0;     // 3-D points over the renders.
   int frames = 0;         // Scan frames tried.

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 
 #include "absl/strings/str_cat.h"
@@ -115,6 +116,46 @@ absl::StatusOr<Similarity> Refine(const Similarity& start, const std::vector<Pos
     s.translation = mb - s.scale * (s.rotation * ma);
   }
   return s;
+}
+
+// Per-axis noise of the inliers' localised centres (target units) and
+// rotations (radians, scaled for the chordal term Refine weighs: an error
+// theta costs 2 theta^2), from their median residuals under `fit` (the median
+// of a 3-D Gaussian error's norm is 1.54 sigma per axis), floored at 1e-4 of
+// the tolerances. False with fewer than 3 inliers.
+bool NoiseScales(const Similarity& fit, const std::vector<PosePair>& pairs, const std::vector<int>& inliers,
+                 double centre_tol, double rot_tol_deg, double* sc, double* sr) {
+  if (inliers.size() < 3) return false;
+  std::vector<double> ce, re;
+  for (int i : inliers) {
+    const Errors e = PairErrors(fit, pairs[i]);
+    ce.push_back(e.centre);
+    re.push_back(e.rotation_deg * M_PI / 180.0);
+  }
+  constexpr double kMedianToSigma = 1.0 / 1.54;
+  *sc = std::max(Median(ce) * kMedianToSigma, 1e-4 * centre_tol);
+  *sr = std::max(std::sqrt(2.0) * Median(re) * kMedianToSigma, 1e-4 * rot_tol_deg * M_PI / 180.0);
+  return true;
+}
+
+// The inliers' own noise sets the final weights: a frame's centre and
+// rotation each count by how precisely the frames were localised (their
+// median residuals under the current fit), not by the inlier tolerances,
+// which only bound what an outlier is. On lego_100 (100 px photos matched at
+// 240 px) a frame's PnP centre was within 0.4 % of the place and its
+// rotation within 1.1 degrees (median): with the tolerances' weights the
+// rotations pulled the fit 0.97 degrees off, with these 0.32. Kept when the
+// refit keeps at least 90 % of the inliers.
+void ReweightByNoise(const std::vector<PosePair>& pairs, double centre_tol, double rot_tol_deg,
+                     RobustSimilarity* out) {
+  double sc = 0, sr = 0;
+  if (!NoiseScales(out->transform, pairs, out->inliers, centre_tol, rot_tol_deg, &sc, &sr)) return;
+  absl::StatusOr<Similarity> refined = Refine(out->transform, pairs, out->inliers, sc, sr);
+  if (!refined.ok()) return;
+  Scored rescored = Score(*refined, pairs, centre_tol, rot_tol_deg);
+  if (10 * rescored.inliers.size() < 9 * out->inliers.size()) return;
+  out->transform = *refined;
+  out->inliers = std::move(rescored.inliers);
 }
 
 }  // namespace
@@ -249,6 +290,8 @@ absl::StatusOr<RobustSimilarity> FitSimilarityRobust(const std::vector<PosePair>
     out.transform = *refined;
     out.inliers = std::move(sc.inliers);
   }
+  ReweightByNoise(pairs, centre_tol, rot_tol, &out);
+  NoiseScales(out.transform, pairs, out.inliers, centre_tol, rot_tol, &out.centre_sigma, &out.rotation_sigma);
   std::vector<double> ce, re;
   for (int i : out.inliers) {
     const Errors e = PairErrors(out.transform, pairs[i]);
@@ -258,6 +301,20 @@ absl::StatusOr<RobustSimilarity> FitSimilarityRobust(const std::vector<PosePair>
   out.median_centre_error = Median(ce);
   out.median_rotation_error_deg = Median(re);
   return out;
+}
+
+double IdentityLikelihoodRatio(const RobustSimilarity& fit, const std::vector<PosePair>& pairs) {
+  if (!(fit.centre_sigma > 0) || !(fit.rotation_sigma > 0)) return std::numeric_limits<double>::infinity();
+  auto cost = [&](const Similarity& s) {
+    double j = 0;
+    for (int i : fit.inliers) {
+      const Errors e = PairErrors(s, pairs[i]);
+      const double theta = e.rotation_deg * M_PI / 180.0;
+      j += std::pow(e.centre / fit.centre_sigma, 2) + 2.0 * theta * theta / std::pow(fit.rotation_sigma, 2);
+    }
+    return j;
+  };
+  return cost(Similarity()) - cost(fit.transform);
 }
 
 }  // namespace clnerf

@@ -73,6 +73,10 @@ struct RobustSimilarity {
   // Over the inliers, after refinement: centre error in target units and
   // rotation error in degrees.
   double median_centre_error = 0, median_rotation_error_deg = 0;
+  // The inliers' per-axis noise, estimated from those medians: centres in
+  // target units, rotations in radians (0 with fewer than 3 inliers). The
+  // final refinement weighs each frame's centre and rotation by these.
+  double centre_sigma = 0, rotation_sigma = 0;
 };
 
 // `target_extent`: the size of the place in target units (sets the centre
@@ -80,6 +84,14 @@ struct RobustSimilarity {
 // FAILED_PRECONDITION when no hypothesis gathers 2 inliers.
 absl::StatusOr<RobustSimilarity> FitSimilarityRobust(const std::vector<PosePair>& pairs, double target_extent,
                                                      const RobustSimilarityOptions& options);
+
+// How much worse the identity explains the fit's inlier frames than the fit
+// does: the difference of their weighted squared residuals (centres and
+// rotations over the fit's own noise, centre_sigma and rotation_sigma). A
+// scan that is already in the target frame gives about a chi-square with 7
+// degrees of freedom (under 18.5 in 99 % of cases); +inf without a noise
+// estimate.
+double IdentityLikelihoodRatio(const RobustSimilarity& fit, const std::vector<PosePair>& pairs);
 
 }  // namespace clnerf
 
