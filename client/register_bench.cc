@@ -119,7 +119,8 @@ int RunBenchRegister(const BenchRegisterArgs& a) {
     const PoseErrors e = FrameErrors(scan.train, visit_b.train, extent);
     const double seconds = r.render_seconds + r.localize_seconds + r.fit_seconds;
     out["cases"].push_back({{"frame", which}, {"placed", r.status.ok()}, {"status", r.status.ToString()},
-                            {"identity", r.identity}, {"frames", r.frames}, {"frames_localized", r.frames_localized},
+                            {"identity", r.identity}, {"identity_likelihood_ratio", r.identity_likelihood_ratio},
+                            {"frames", r.frames}, {"frames_localized", r.frames_localized},
                             {"frames_agreeing", r.frames_agreeing}, {"references", r.references},
                             {"centre_error_pct_median", e.centre_median}, {"centre_error_pct_max", e.centre_max},
                             {"rotation_error_deg_median", e.rotation_median}, {"rotation_error_deg_max", e.rotation_max},

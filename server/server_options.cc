@@ -173,6 +173,8 @@ absl::Status ApplyRegistration(const nlohmann::json& g, RegistrationOptions* o) 
     if (k == "max_references") s = Get(*it, "registration.max_references", &o->max_references);
     else if (k == "max_frames") s = Get(*it, "registration.max_frames", &o->max_frames);
     else if (k == "max_side") s = Get(*it, "registration.max_side", &o->localizer.max_side);
+    else if (k == "min_side") s = Get(*it, "registration.min_side", &o->localizer.min_side);
+    else if (k == "identity_chi_square") s = Get(*it, "registration.identity_chi_square", &o->identity_chi_square);
     else if (k == "min_inliers") s = Get(*it, "registration.min_inliers", &o->localizer.min_inliers);
     else if (k == "min_frames") s = Get(*it, "registration.min_frames", &o->min_frames);
     else if (k == "photometric") s = Get(*it, "registration.photometric", &o->photometric);

@@ -90,7 +90,7 @@ absl::StatusOr<RobustSimilarity> FitSimilarityRobust(const std::vector<PosePair>
 // rotations over the fit's own noise, centre_sigma and rotation_sigma). A
 // scan that is already in the target frame gives about a chi-square with 7
 // degrees of freedom (under 18.5 in 99 % of cases); +inf without a noise
-// estimate.
+// estimate (fewer than 3 inliers).
 double IdentityLikelihoodRatio(const RobustSimilarity& fit, const std::vector<PosePair>& pairs);
 
 }  // namespace clnerf

@@ -156,7 +156,7 @@ TEST(SimilarityTest, IdentityLikelihoodRatioTellsANoisyIdentityFromASmallMove) {
   absl::StatusOr<RobustSimilarity> fit = FitSimilarityRobust(pairs, 8, RobustSimilarityOptions());
   ASSERT_TRUE(fit.ok()) << fit.status();
   EXPECT_GT(IdentityLikelihoodRatio(*fit, pairs), 100.0);
-  // Without a noise estimate (fewer than 3 frames) nothing is the identity.
+  // Without a noise estimate (fewer than 3 frames) the ratio is infinite.
   RobustSimilarity none;
   EXPECT_TRUE(std::isinf(IdentityLikelihoodRatio(none, pairs)));
 }
