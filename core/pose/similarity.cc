@@ -118,24 +118,27 @@ absl::StatusOr<Similarity> Refine(const Similarity& start, const std::vector<Pos
   return s;
 }
 
-// Per-axis noise of the inliers' localised centres (target units) and
-// rotations (radians, scaled for the chordal term Refine weighs: an error
-// theta costs 2 theta^2), from their median residuals under `fit` (the median
-// of a 3-D Gaussian error's norm is 1.54 sigma per axis), floored at 1e-4 of
-// the tolerances. False with fewer than 3 inliers.
-bool NoiseScales(const Similarity& fit, const std::vector<PosePair>& pairs, const std::vector<int>& inliers,
-                 double centre_tol, double rot_tol_deg, double* sc, double* sr) {
-  if (inliers.size() < 3) return false;
+// Median centre and rotation residuals of `inliers` under `fit`.
+Errors MedianErrors(const Similarity& fit, const std::vector<PosePair>& pairs, const std::vector<int>& inliers) {
   std::vector<double> ce, re;
   for (int i : inliers) {
     const Errors e = PairErrors(fit, pairs[i]);
     ce.push_back(e.centre);
-    re.push_back(e.rotation_deg * M_PI / 180.0);
+    re.push_back(e.rotation_deg);
   }
+  return {Median(ce), Median(re)};
+}
+
+// Per-axis noise of the inliers' localised centres (target units) and
+// rotations (radians, scaled for the chordal term Refine weighs: an error
+// theta costs 2 theta^2), from their median residuals `median` (the median
+// of a 3-D Gaussian error's norm is 1.54 sigma per axis), floored at 1e-4 of
+// the tolerances.
+void NoiseScales(const Errors& median, double centre_tol, double rot_tol_deg, double* sc, double* sr) {
   constexpr double kMedianToSigma = 1.0 / 1.54;
-  *sc = std::max(Median(ce) * kMedianToSigma, 1e-4 * centre_tol);
-  *sr = std::max(std::sqrt(2.0) * Median(re) * kMedianToSigma, 1e-4 * rot_tol_deg * M_PI / 180.0);
-  return true;
+  constexpr double kRadians = M_PI / 180.0;
+  *sc = std::max(median.centre * kMedianToSigma, 1e-4 * centre_tol);
+  *sr = std::max(std::sqrt(2.0) * median.rotation_deg * kRadians * kMedianToSigma, 1e-4 * rot_tol_deg * kRadians);
 }
 
 // The inliers' own noise sets the final weights: a frame's centre and
@@ -148,8 +151,9 @@ bool NoiseScales(const Similarity& fit, const std::vector<PosePair>& pairs, cons
 // refit keeps at least 90 % of the inliers.
 void ReweightByNoise(const std::vector<PosePair>& pairs, double centre_tol, double rot_tol_deg,
                      RobustSimilarity* out) {
+  if (out->inliers.size() < 3) return;
   double sc = 0, sr = 0;
-  if (!NoiseScales(out->transform, pairs, out->inliers, centre_tol, rot_tol_deg, &sc, &sr)) return;
+  NoiseScales(MedianErrors(out->transform, pairs, out->inliers), centre_tol, rot_tol_deg, &sc, &sr);
   absl::StatusOr<Similarity> refined = Refine(out->transform, pairs, out->inliers, sc, sr);
   if (!refined.ok()) return;
   Scored rescored = Score(*refined, pairs, centre_tol, rot_tol_deg);
@@ -291,15 +295,10 @@ absl::StatusOr<RobustSimilarity> FitSimilarityRobust(const std::vector<PosePair>
     out.inliers = std::move(sc.inliers);
   }
   ReweightByNoise(pairs, centre_tol, rot_tol, &out);
-  NoiseScales(out.transform, pairs, out.inliers, centre_tol, rot_tol, &out.centre_sigma, &out.rotation_sigma);
-  std::vector<double> ce, re;
-  for (int i : out.inliers) {
-    const Errors e = PairErrors(out.transform, pairs[i]);
-    ce.push_back(e.centre);
-    re.push_back(e.rotation_deg);
-  }
-  out.median_centre_error = Median(ce);
-  out.median_rotation_error_deg = Median(re);
+  const Errors median = MedianErrors(out.transform, pairs, out.inliers);
+  out.median_centre_error = median.centre;
+  out.median_rotation_error_deg = median.rotation_deg;
+  if (out.inliers.size() >= 3) NoiseScales(median, centre_tol, rot_tol, &out.centre_sigma, &out.rotation_sigma);
   return out;
 }
 
