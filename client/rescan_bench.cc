@@ -4,7 +4,9 @@
 // capture's held-out views. Cases (--cases):
 //   place           visit B in the place's frame (registration must snap to
 //                   the identity);
-//   own             visit B moved into a frame of its own (a similarity);
+//   own             visit B moved into a frame of its own (a similarity),
+//                   registered and its similarity refined photometrically
+//                   ("own-nophoto" skips that refinement);
 //   unposed         visit B's photos only, posed by COLMAP started from the
 //                   place's camera, registered, its camera and poses refined
 //                   against the place (as the service does;
@@ -37,6 +39,7 @@
 #include "core/data/image.h"
 #include "core/data/stopwatch.h"
 #include "core/pose/photometric_refine.h"
+#include "core/pose/photometric_similarity.h"
 #include "core/pose/place_map.h"
 #include "core/pose/registration.h"
 #include "core/pose/sfm.h"
@@ -161,6 +164,30 @@ void RefineLikeTheService(const NgpModel& model, const RegistrationReport& r, do
               "%.2f%% / %.2f deg from the known\n",
               which.c_str(), pr->accepted, pr->frames, pr->median_rotation_deg, pr->seconds, pe.centre_median,
               pe.rotation_median);
+}
+
+// As the update worker does for a scan posed in its own frame, once placed:
+// its whole similarity refined photometrically against the place's renders.
+void RefineSimilarityLikeTheService(const NgpModel& model, double extent, const RegistrationOptions& o,
+                                    const std::vector<View>& truth, Scene* scan, nlohmann::json* row) {
+  absl::StatusOr<SimilarityRefinement> s =
+      RefineSimilarityPhotometric(ModelPlaceMap(model, RenderOptions()), *scan, extent, o.similarity_options);
+  if (!s.ok()) {
+    std::printf("  own: photometric similarity failed: %s\n", std::string(s.status().message()).c_str());
+    return;
+  }
+  if (s->accepted) ApplySimilarity(s->correction, scan);
+  const PoseErrors e = FrameErrors(scan->train, truth, extent);
+  (*row)["similarity_refined"] = s->accepted;
+  (*row)["similarity_refine_why"] = s->why;
+  (*row)["similarity_refine_deg"] = s->rotation_deg;
+  (*row)["similarity_refine_seconds"] = s->seconds;
+  (*row)["similarity_refined_centre_error_pct_median"] = e.centre_median;
+  (*row)["similarity_refined_rotation_error_deg_median"] = e.rotation_median;
+  std::printf("  own: similarity %s photometrically (turned %.3f deg, %d frames, %.1f s%s%s); poses %.2f%% / %.2f deg "
+              "from the known\n",
+              s->accepted ? "refined" : "kept", s->rotation_deg, s->frames, s->seconds, s->accepted ? "" : ": ",
+              s->why.c_str(), e.centre_median, e.rotation_median);
 }
 
 // What every case shares: the two visits, the held-out views of each time,
@@ -303,6 +330,12 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   if (refine && r.status.ok()) {
     RefineLikeTheService(*c.place_state->model, r, c.extent, which, cs->posed_truth, &cs->scan, row);
   }
+  // A scan posed in its own frame: its similarity refined photometrically
+  // ("own-nophoto" skips it).
+  if (which == "own" && r.status.ok() && !r.identity && c.args->registration.photometric_similarity) {
+    RefineSimilarityLikeTheService(*c.place_state->model, c.extent, c.args->registration, cs->posed_truth,
+                                   &cs->scan, row);
+  }
   (*row)["centre_error_pct_median"] = e.centre_median;
   (*row)["centre_error_pct_max"] = e.centre_max;
   (*row)["rotation_error_deg_median"] = e.rotation_median;
@@ -337,8 +370,9 @@ absl::StatusOr<nlohmann::json> RunCase(const RescanContext& c, const std::string
   cs.scan = c.visit_b;
   cs.truth = cs.scan.train;
   cs.scored = c.test;
-  if (which == "own") ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, c.extent), &cs.scan);
-  if (which != "place" && which != "own") {
+  const bool own = which == "own" || which == "own-nophoto";
+  if (own) ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, c.extent), &cs.scan);
+  if (which != "place" && !own) {
     if (!PoseCase(c, which, &cs, &row)) return row;
   } else {
     for (size_t i = 0; i < cs.scan.train.size(); ++i) cs.posed.push_back(int(i));
@@ -444,13 +478,15 @@ absl::StatusOr<nlohmann::json> RunFirstScanCase(const RescanContext& c) {
 }
 
 absl::Status CheckCases(const std::vector<std::string>& cases) {
-  static const std::set<std::string> kCases = {"place", "own", "unposed", "unposed-unseeded", "unposed-unrefined",
+  static const std::set<std::string> kCases = {"place",           "own",
+                                               "own-nophoto",     "unposed",
+                                               "unposed-unseeded", "unposed-unrefined",
                                                "unposed-nophoto", "unposed-first"};
   for (const std::string& c : cases) {
     if (!kCases.count(c)) {
       return absl::InvalidArgumentError(absl::StrCat(
           "unknown case '", c,
-          "' (place, own, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first)"));
+          "' (place, own, own-nophoto, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first)"));
     }
   }
   return absl::OkStatus();
@@ -469,8 +505,11 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--first-iters", a->first_iterations, "Training steps of visit A (the first scan)")
       ->capture_default_str();
   c->add_option("--iters", a->update.train.iterations, "Training steps of visit B's update")->capture_default_str();
-  c->add_option("--cases", a->cases, "Comma-separated: place, own, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first")->capture_default_str();
+  c->add_option("--cases", a->cases, "Comma-separated: place, own, own-nophoto, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first")->capture_default_str();
   c->add_option("--rotation", a->rotation_deg, "Visit B's own frame: rotation (degrees)")->capture_default_str();
+  c->add_option("--min-side", a->registration.localizer.min_side,
+                "Registration: photos smaller than this (long side, pixels) are matched at this size")
+      ->capture_default_str();
   c->add_option("--scale", a->scale, "... and scale")->capture_default_str();
   c->add_option("--seed", a->seed, "Seed of its axis and shift")->capture_default_str();
   c->add_option("--eval-views", a->eval_views, "Held-out views scored (0 = all)")->capture_default_str();

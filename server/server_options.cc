@@ -178,6 +178,9 @@ absl::Status ApplyRegistration(const nlohmann::json& g, RegistrationOptions* o) 
     else if (k == "min_inliers") s = Get(*it, "registration.min_inliers", &o->localizer.min_inliers);
     else if (k == "min_frames") s = Get(*it, "registration.min_frames", &o->min_frames);
     else if (k == "photometric") s = Get(*it, "registration.photometric", &o->photometric);
+    else if (k == "photometric_similarity") {
+      s = Get(*it, "registration.photometric_similarity", &o->photometric_similarity);
+    }
     else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'registration.", k, "'"));
     if (!s.ok()) return s;
   }

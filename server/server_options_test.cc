@@ -24,12 +24,16 @@ TEST(ServerOptionsTest, DefaultsAreValidAndConfigOverrides) {
   EXPECT_EQ(o.bake.max_object_asset_bytes, 2'000'000);
   EXPECT_EQ(o.bake.fit.max_nonzeros, 40'000'000);
   EXPECT_FALSE(ApplyConfigJson(R"({"bake": {"max_object_bytes": 1}})", &o).ok());
-  // Registration: small photos are matched at their own size unless
-  // min_side says otherwise.
-  EXPECT_EQ(o.registration.localizer.min_side, 1);
-  ASSERT_TRUE(ApplyConfigJson(R"({"registration": {"min_side": 240, "identity_chi_square": 0}})", &o).ok());
+  // Registration: photos under 240 px are matched at 240 unless min_side
+  // says otherwise.
   EXPECT_EQ(o.registration.localizer.min_side, 240);
+  // A scan in its own frame has its similarity refined photometrically.
+  EXPECT_TRUE(o.registration.photometric_similarity);
+  ASSERT_TRUE(ApplyConfigJson(
+      R"({"registration": {"min_side": 1, "identity_chi_square": 0, "photometric_similarity": false}})", &o).ok());
+  EXPECT_EQ(o.registration.localizer.min_side, 1);
   EXPECT_EQ(o.registration.identity_chi_square, 0.0);
+  EXPECT_FALSE(o.registration.photometric_similarity);
   EXPECT_TRUE(o.Validate().ok());
   ASSERT_TRUE(ApplyConfigJson(R"({"registration": {"min_side": 999}})", &o).ok());
   EXPECT_FALSE(o.Validate().ok());  // Above max_side (480).

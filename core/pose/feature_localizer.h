@@ -32,13 +32,14 @@ struct LocalizerOptions {
   int max_side = 480;
   // ... and at least this many (smaller photos are scaled up, their renders
   // made at that size). lego_100's 100 px photos localised 5 of 50 frames at
-  // their own size and 33 of 50 at 240 (256: 33, 300: 33, 400: 34), but the
-  // fit was then 0.27 degrees off and the update trained on it scored 27.82
-  // dB held out against 30.73 in the place's frame (bench rescan), below the
-  // place before it (28.83): refusing is safer until such scans are also
-  // aligned photometrically. Scaling 240 x 180 photos to 320 localised 5 of
-  // 16 frames where their own size localised 14. 1 = never scale up.
-  int min_side = 1;
+  // their own size and 33 of 50 at 240 (256: 33, 300: 33, 400: 34). The fit
+  // was then 0.27 degrees off, which cost the update 2.9 dB until the
+  // similarity was refined photometrically (photometric_similarity.h: 0.03
+  // degrees, 30.65 dB held out against 30.73 in the place's frame). Scaling
+  // 240 x 180 photos to 320 localised 5 of 16 frames where their own size
+  // localised 14, so photos of 240 px and more keep their size. 1 = never
+  // scale up.
+  int min_side = 240;
   // SIFT keypoints kept per image (strongest first).
   int max_features = 2000;
   // Lowe's ratio test: best / second-best descriptor distance below this.

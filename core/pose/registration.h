@@ -33,6 +33,7 @@
 #include "core/data/scene.h"
 #include "core/pose/feature_localizer.h"
 #include "core/pose/photometric_refine.h"
+#include "core/pose/photometric_similarity.h"
 #include "core/pose/place_map.h"
 #include "core/pose/similarity.h"
 
@@ -85,6 +86,13 @@ struct RegistrationOptions {
   // from 29.37 to 31.25 dB. False: skip it.
   bool photometric = true;
   PhotometricRefineOptions photometric_options;
+  // A scan posed in its own frame (by the user's SfM or AR session) keeps
+  // its own relative poses; once placed (and not the identity), its whole
+  // similarity is refined photometrically against the place's renders
+  // (photometric_similarity.h), which PnP's noisy per-frame poses leave a
+  // few tenths of a degree off. False: skip it.
+  bool photometric_similarity = true;
+  SimilarityRefineOptions similarity_options;
   absl::Status Validate() const;
 };
 

@@ -92,6 +92,10 @@ TEST_F(ServerFixture, LaterScansAreRegisteredIntoThePlacesFrame) {
   EXPECT_NEAR(j.metrics().at("registration_rotation_deg"), moved.RotationDegrees(), 3.0);
   EXPECT_EQ(j.metrics().at("registration_identity"), 0.0);
   EXPECT_GE(j.metrics().at("registration_frames_agreeing"), 3.0);
+  // Then its whole similarity was refined against the map's renders (taken
+  // or refused: this map is blurry; PhotometricSimilarityTest checks it).
+  ASSERT_TRUE(j.metrics().count("registration_similarity_refined"));
+  EXPECT_LT(j.metrics().at("registration_similarity_refine_deg"), 2.0);
   EXPECT_EQ(Versions().size(), 2u);
 }
 

@@ -321,6 +321,38 @@ bool UpdateWorker::AlignToPlace(const std::string& job_id, const std::string& sc
   return true;
 }
 
+// A scan posed in its own frame, once placed: its whole similarity refined
+// photometrically against the place's renders (photometric_similarity.h),
+// with progress in the REGISTERING phase. False when the job ended
+// (cancelled); a render error or a refused refinement keeps the placement.
+bool UpdateWorker::AlignSimilarityToPlace(const std::string& job_id, const std::string& scan_id,
+                                          const PlaceMap& map, double extent, Scene* scene,
+                                          std::map<std::string, double>* metrics) {
+  absl::StatusOr<SimilarityRefinement> r = RefineSimilarityPhotometric(
+      map, *scene, extent, options_.registration.similarity_options, StepProgress(job_id), &cancel_);
+  if (absl::IsCancelled(r.status())) {
+    FinishCancelled(job_id, scan_id);
+    return false;
+  }
+  if (!r.ok()) {
+    spdlog::warn("job {}: photometric similarity refinement skipped: {}", job_id, r.status().ToString());
+    return true;
+  }
+  (*metrics)["registration_similarity_refined"] = r->accepted ? 1 : 0;
+  (*metrics)["registration_similarity_refine_deg"] = r->rotation_deg;
+  (*metrics)["registration_similarity_refine_seconds"] = r->seconds;
+  if (!r->accepted) {
+    spdlog::info("job {}: similarity kept as registered ({}) after {:.1f} s", job_id, r->why, r->seconds);
+    return true;
+  }
+  ApplySimilarity(r->correction, scene);
+  spdlog::info("job {}: similarity refined against the place's renders: turned {:.3f} deg, scaled {:.4f}, cameras "
+               "moved up to {:.2f}% of the place, robust cost {:.4g} -> {:.4g}, {} frames, {:.1f} s",
+               job_id, r->rotation_deg, r->scale, 100 * r->max_centre, r->cost_before, r->cost_after, r->frames,
+               r->seconds);
+  return true;
+}
+
 bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,
                                      Scene* scene, std::map<std::string, double>* metrics) {
   const std::string frame = PoseFrameOf(*scans_, scan_id);
@@ -359,6 +391,9 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
       if (options_.registration.photometric && !AlignToPlace(job_id, scan_id, map, extent, scene, metrics)) {
         return false;
       }
+    } else if (!r.identity && options_.registration.photometric_similarity &&
+               !AlignSimilarityToPlace(job_id, scan_id, map, extent, scene, metrics)) {
+      return false;
     }
     spdlog::info("job {}: registered into the place's frame: {}", job_id, r.Summary());
     return true;
