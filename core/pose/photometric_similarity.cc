@@ -238,6 +238,31 @@ void SetScales(const Eigen::Vector3d& pivot, double huber_k, std::vector<FrameLe
   for (size_t f = 0; f < frames->size(); ++f) (*frames)[f].delta = huber_k * RobustSigma(res[f].r);
 }
 
+// The finest level: the scan where registration put it and where the
+// solver moves it, scored against the same keyframes, each with its own
+// exposure fit; fills the costs, frames and pixels of `out`.
+void FinestLevel(const std::vector<FrameLevel>& frames, const Eigen::Vector3d& pivot,
+                 const SimilarityRefineOptions& o, State* s, SimilarityRefinement* out) {
+  State before;
+  before.gain.assign(frames.size(), 1.0);
+  before.bias.assign(frames.size(), 0.0);
+  out->cost_before = Solve(frames, pivot, 4 * o.alignment.iterations, false, &before);
+  // The fine level starts from the coarse levels' result and, in case a
+  // blurry map's coarse optimum lies elsewhere, from where registration
+  // put the scan; the lower cost wins.
+  State from_start = before;
+  Solve(frames, pivot, o.alignment.iterations, true, s);
+  Solve(frames, pivot, o.alignment.iterations, true, &from_start);
+  out->cost_after = Solve(frames, pivot, 4 * o.alignment.iterations, false, s);
+  const double cost_from_start = Solve(frames, pivot, 4 * o.alignment.iterations, false, &from_start);
+  if (cost_from_start < out->cost_after) {
+    *s = std::move(from_start);
+    out->cost_after = cost_from_start;
+  }
+  out->frames = int(frames.size());
+  for (const FrameLevel& f : frames) out->pixels += int(f.key.points.size());
+}
+
 double FarthestMove(const Scene& scene, const std::vector<int>& picked, const Similarity& t) {
   double worst = 0;
   for (int i : picked) {
@@ -307,17 +332,7 @@ absl::StatusOr<SimilarityRefinement> RefineSimilarityPhotometric(const PlaceMap&
       Solve(*frames, pivot, o.alignment.iterations, true, &s);
       continue;
     }
-    // The finest level: the scan where registration put it and where the
-    // coarse levels moved it, scored against the same keyframes, each with
-    // its own exposure fit.
-    State before;
-    before.gain.assign(frames->size(), 1.0);
-    before.bias.assign(frames->size(), 0.0);
-    out.cost_before = Solve(*frames, pivot, 4 * o.alignment.iterations, false, &before);
-    Solve(*frames, pivot, o.alignment.iterations, true, &s);
-    out.cost_after = Solve(*frames, pivot, 4 * o.alignment.iterations, false, &s);
-    out.frames = int(frames->size());
-    for (const FrameLevel& f : *frames) out.pixels += int(f.key.points.size());
+    FinestLevel(*frames, pivot, o, &s, &out);
   }
   out.correction = s.t;
   out.rotation_deg = s.t.RotationDegrees();
