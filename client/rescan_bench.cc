@@ -6,7 +6,9 @@
 //                   the identity);
 //   own             visit B moved into a frame of its own (a similarity),
 //                   registered and its similarity refined photometrically
-//                   ("own-nophoto" skips that refinement);
+//                   ("own-nophoto" skips that refinement, "own-frames" then
+//                   also aligns each frame on its own, as for a scan the
+//                   service posed);
 //   unposed         visit B's photos only, posed by COLMAP started from the
 //                   place's camera, registered, its camera and poses refined
 //                   against the place (as the service does;
@@ -332,9 +334,23 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   }
   // A scan posed in its own frame: its similarity refined photometrically
   // ("own-nophoto" skips it).
-  if (which == "own" && r.status.ok() && !r.identity && c.args->registration.photometric_similarity) {
+  if ((which == "own" || which == "own-frames") && r.status.ok() && !r.identity &&
+      c.args->registration.photometric_similarity) {
     RefineSimilarityLikeTheService(*c.place_state->model, c.extent, c.args->registration, cs->posed_truth,
                                    &cs->scan, row);
+  }
+  if (which == "own-frames" && r.status.ok()) {  // Then each frame on its own, as for a scan the service posed.
+    absl::StatusOr<ScanPhotometricReport> pr = RefineScanPhotometric(
+        ModelPlaceMap(*c.place_state->model, RenderOptions()), &cs->scan, c.extent, PhotometricRefineOptions());
+    if (pr.ok()) {
+      const PoseErrors pe = FrameErrors(cs->scan.train, cs->posed_truth, c.extent);
+      (*row)["photometric_accepted"] = pr->accepted;
+      (*row)["photometric_seconds"] = pr->seconds;
+      (*row)["photometric_centre_error_pct_median"] = pe.centre_median;
+      (*row)["photometric_rotation_error_deg_median"] = pe.rotation_median;
+      std::printf("  own-frames: %d of %d frames aligned (%.1f s); poses %.2f%% / %.2f deg from the known\n",
+                  pr->accepted, pr->frames, pr->seconds, pe.centre_median, pe.rotation_median);
+    }
   }
   (*row)["centre_error_pct_median"] = e.centre_median;
   (*row)["centre_error_pct_max"] = e.centre_max;
@@ -370,7 +386,7 @@ absl::StatusOr<nlohmann::json> RunCase(const RescanContext& c, const std::string
   cs.scan = c.visit_b;
   cs.truth = cs.scan.train;
   cs.scored = c.test;
-  const bool own = which == "own" || which == "own-nophoto";
+  const bool own = which == "own" || which == "own-nophoto" || which == "own-frames";
   if (own) ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, c.extent), &cs.scan);
   if (which != "place" && !own) {
     if (!PoseCase(c, which, &cs, &row)) return row;
@@ -479,14 +495,14 @@ absl::StatusOr<nlohmann::json> RunFirstScanCase(const RescanContext& c) {
 
 absl::Status CheckCases(const std::vector<std::string>& cases) {
   static const std::set<std::string> kCases = {"place",           "own",
-                                               "own-nophoto",     "unposed",
+                                               "own-nophoto",     "own-frames", "unposed",
                                                "unposed-unseeded", "unposed-unrefined",
                                                "unposed-nophoto", "unposed-first"};
   for (const std::string& c : cases) {
     if (!kCases.count(c)) {
       return absl::InvalidArgumentError(absl::StrCat(
           "unknown case '", c,
-          "' (place, own, own-nophoto, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first)"));
+          "' (place, own, own-nophoto, own-frames, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first)"));
     }
   }
   return absl::OkStatus();
