@@ -38,7 +38,10 @@ absl::StatusOr<Scene> LoadVisitScene(const std::string& data, const DatasetOptio
     // object left, one was recoloured and a new one came.
     po.layout = ProceduralLayout::kOrbit;
     po.backdrop = true;
-    po.num_train_views = 32;
+    // 64 frames a visit, as a phone walk-around gives: with 32 the model of
+    // an unbounded orbit grew floaters between the views (11.7 dB held out
+    // while its training views scored 28.9).
+    po.num_train_views = 64;
     po.num_test_views = 4;
     po.num_time_steps = 2;
     po.change_geometry = true;
