@@ -441,34 +441,37 @@ std::optional<BakedAsset> UpdateWorker::BakeForViewers(const std::string& job_id
   return *std::move(asset);
 }
 
-void UpdateWorker::RunJob(const std::string& job_id) {
-  cancel_ = false;
-  job_started_ = std::chrono::steady_clock::now();
-  absl::StatusOr<JobStatus> job = jobs_->Get(job_id);
-  if (!job.ok() || IsFinal(job->phase)) return;
-  const std::string scan_id = job->scan_id;
+bool UpdateWorker::ReadyToRun(const std::string& job_id, const JobStatus& job) {
+  const std::string& scan_id = job.scan_id;
   if (coordinator_ != nullptr) {
     // Another replica may have trained it while this one waited for the lease.
     if (std::optional<VersionInfo> v = publisher_->VersionOfScan(scan_id)) {
       (void)scans_->Remove(scan_id);
       jobs_->Update(job_id, [&](JobStatus* j) { MarkDoneBy(*v, j); });
-      return;
+      return false;
     }
   }
-  if (job->cancel_requested) return Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled", true);
+  if (job.cancel_requested) {
+    Finish(job_id, scan_id, JobPhase::kCancelled, "cancelled", true);
+    return false;
+  }
   // A deployed version not loaded yet is checked first: if it cannot load,
   // the store turns read-only and the job waits like any write would.
   (void)publisher_->VerifyDeployed();
-  if (!WaitForWritableStore(job_id)) return FinishStopped(job_id, scan_id);
+  if (!WaitForWritableStore(job_id)) {
+    FinishStopped(job_id, scan_id);
+    return false;
+  }
   if (absl::StatusOr<int> a = scans_->RecordAttempt(scan_id); !a.ok()) {
     spdlog::warn("job {}: attempt not recorded: {}", job_id, a.status().ToString());
   } else if (*a > 1) {
     spdlog::warn("job {}: attempt {} of {} for scan {}", job_id, *a, options_.max_scan_attempts, scan_id);
   }
+  return true;
+}
 
-  // 1. Load the scan as the next time step of the deployed model.
-  std::shared_ptr<const Servable> prev;  // Held for the whole update: the cache never evicts it meanwhile.
-  PlaceHead head;                        // Replicas: where this update starts; its publish is fenced by it.
+bool UpdateWorker::LoadDeployed(const std::string& job_id, const std::string& scan_id,
+                                std::shared_ptr<const Servable>* prev, PlaceHead* head) {
   if (coordinator_ != nullptr) {
     absl::StatusOr<PlaceHead> h = publisher_->SyncToHead();
     if (!h.ok()) {
@@ -476,22 +479,27 @@ void UpdateWorker::RunJob(const std::string& job_id) {
       scans_->ClearAttempts(scan_id);
       jobs_->Requeue(job_id, absl::StrCat("waiting for the coordinator: ", h.status().message()));
       (void)Pause();
-      return;
+      return false;
     }
-    head = *h;
+    *head = *h;
   }
-  if (absl::StatusOr<std::shared_ptr<const Servable>> d = publisher_->registry().Get(head.version); d.ok()) {
-    prev = *std::move(d);
+  if (absl::StatusOr<std::shared_ptr<const Servable>> d = publisher_->registry().Get(head->version); d.ok()) {
+    *prev = *std::move(d);
   } else if (!absl::IsFailedPrecondition(d.status())) {  // FAILED_PRECONDITION: nothing deployed yet.
-    return Finish(job_id, scan_id, JobPhase::kFailed,
-                  absl::StrCat("cannot load the deployed version ", publisher_->registry().deployed_version(), ": ",
-                               d.status().message(), "; the scan is kept and retried after a restart"),
-                  false);
+    Finish(job_id, scan_id, JobPhase::kFailed,
+           absl::StrCat("cannot load the deployed version ", publisher_->registry().deployed_version(), ": ",
+                        d.status().message(), "; the scan is kept and retried after a restart"),
+           false);
+    return false;
   }
+  return true;
+}
+
+std::optional<Scene> UpdateWorker::PrepareScan(const std::string& job_id, const std::string& scan_id,
+                                               const Servable* prev, std::map<std::string, double>* metrics) {
   const int t = prev ? prev->model().num_time_steps() : 0;
-  std::map<std::string, double> registration_metrics;  // Posing's and registration's.
   if (absl::StatusOr<ScanRecord> rec = scans_->Record(scan_id); rec.ok() && rec->pose_frame == "unposed") {
-    if (!PoseScan(job_id, *rec, prev.get(), &registration_metrics)) return;
+    if (!PoseScan(job_id, *rec, prev, metrics)) return std::nullopt;
   }
   absl::StatusOr<Scene> scene =
       scans_->Load(scan_id, t, prev ? std::optional<Eigen::Vector3f>(prev->model().background()) : std::nullopt);
@@ -499,31 +507,23 @@ void UpdateWorker::RunJob(const std::string& job_id) {
     // A stored scan that cannot be read will never train: park it.
     const std::string why = absl::StrCat("cannot read the stored scan: ", scene.status().message());
     if (absl::Status s = scans_->Park(scan_id, why); !s.ok()) spdlog::warn("job {}: {}", job_id, s.ToString());
-    return Finish(job_id, scan_id, JobPhase::kFailed, absl::StrCat(why, " (parked in ", scans_->parked_dir(), ")"),
-                  false);
+    Finish(job_id, scan_id, JobPhase::kFailed, absl::StrCat(why, " (parked in ", scans_->parked_dir(), ")"), false);
+    return std::nullopt;
   }
   if (prev) scene->kind = prev->model().kind();
-  if (prev && !RegisterIntoPlace(job_id, scan_id, *prev, &*scene, &registration_metrics)) return;
-  std::vector<View> test = std::move(scene->test);
-  scene->test.clear();
-  jobs_->Update(job_id, [&](JobStatus* j) {
-    j->phase = JobPhase::kPreparingReplay;
-    j->time_step = t;
-    j->total_iterations = !prev && options_.first_scan_iterations > 0 ? options_.first_scan_iterations
-                                                                      : options_.update.train.iterations;
-  });
-  spdlog::info("job {}: training scan {} as time step {} on version {}", job_id, scan_id, t,
-               prev ? prev->info.version : 0);
+  if (prev && !RegisterIntoPlace(job_id, scan_id, *prev, &*scene, metrics)) return std::nullopt;
+  return *std::move(scene);
+}
 
-  // 2. Train.
+std::optional<ContinualState> UpdateWorker::Train(const std::string& job_id, const std::string& scan_id,
+                                                  const Servable* prev, const Scene& scene, UpdateReport* report) {
+  const int t = prev ? prev->model().num_time_steps() : 0;
   UpdateOptions uo = options_.update;
   if (!prev && options_.first_scan_iterations > 0) uo.train.iterations = options_.first_scan_iterations;
   uo.train.threads = options_.train_threads;
   uo.train.seed = options_.update.train.seed + uint64_t(t);
   auto last_report = std::chrono::steady_clock::now() - std::chrono::seconds(1);
   JobPhase last_phase = JobPhase::kPreparingReplay;
-  UpdateReport report;
-  const auto t0 = std::chrono::steady_clock::now();
   // θ_{t-1}'s optimiser state, when updates carry it (read from its version;
   // without one, e.g. a version from before, the update starts a fresh one).
   // (A copy of the state only then: it shares the model, copies M_t.)
@@ -538,7 +538,7 @@ void UpdateWorker::RunJob(const std::string& job_id) {
     }
   }
   absl::StatusOr<ContinualState> next = ContinualUpdate(
-      *scene, prev_state ? &*prev_state : prev ? &prev->state : nullptr, uo,
+      scene, prev_state ? &*prev_state : prev ? &prev->state : nullptr, uo,
       [&](const UpdateProgress& p) {
         const JobPhase phase = ToJobPhase(p.phase);
         const auto now = std::chrono::steady_clock::now();
@@ -556,13 +556,87 @@ void UpdateWorker::RunJob(const std::string& job_id) {
           j->psnr = p.psnr;
         });
       },
-      &cancel_, &report);
-  if (!next.ok()) {
-    if (absl::IsCancelled(next.status())) {
-      return FinishCancelled(job_id, scan_id);
-    }
-    return Finish(job_id, scan_id, JobPhase::kFailed, std::string(next.status().message()), true);
+      &cancel_, report);
+  if (next.ok()) return *std::move(next);
+  if (absl::IsCancelled(next.status())) {
+    FinishCancelled(job_id, scan_id);
+  } else {
+    Finish(job_id, scan_id, JobPhase::kFailed, std::string(next.status().message()), true);
   }
+  return std::nullopt;
+}
+
+std::optional<VersionInfo> UpdateWorker::PublishUpdate(const std::string& job_id, const JobStatus& job,
+                                                       const Servable* prev, const PlaceHead& head,
+                                                       const ContinualState& next, const Scene& scene,
+                                                       const std::map<std::string, double>& metrics,
+                                                       const std::optional<BakedAsset>& baked) {
+  const std::string& scan_id = job.scan_id;
+  jobs_->Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kPublishing; });
+  while (true) {
+    absl::StatusOr<VersionInfo> published =
+        publisher_->Publish(next, prev ? prev->info.version : 0, {scan_id, job.scan_name, job_id, FrameNames(scene)},
+                            metrics, coordinator_ != nullptr ? &head : nullptr, baked ? &*baked : nullptr);
+    if (published.ok()) return *std::move(published);
+    if (coordinator_ != nullptr && absl::IsAborted(published.status())) {
+      // Fenced: this replica lost the place's lease (paused, cut off) or the
+      // head moved. Nothing was published; the scan stays for the lease's
+      // holder, and this job waits for the outcome like any other replica.
+      spdlog::warn("job {}: {}", job_id, std::string(published.status().message()));
+      scans_->ClearAttempts(scan_id);
+      jobs_->Requeue(job_id, std::string(published.status().message()));
+      return std::nullopt;
+    }
+    if (coordinator_ != nullptr && publisher_->error().empty()) {
+      // The coordinator could not be reached: the store is fine, try again.
+      spdlog::warn("job {}: publishing: {}; retrying", job_id, std::string(published.status().message()));
+      if (!Pause()) break;
+      continue;
+    }
+    spdlog::error("job {}: publishing failed: {}; retrying when the store recovers", job_id,
+                  std::string(published.status().message()));
+    if (!WaitForWritableStore(job_id)) break;
+    // Recovery may itself have deployed a version of this scan (a write whose
+    // error was reported after it landed): then the job is done.
+    const std::optional<DeployedSummary> now = publisher_->registry().deployed();
+    if (now && now->info.scan_id == scan_id) return now->info;
+  }
+  FinishStopped(job_id, scan_id);
+  return std::nullopt;
+}
+
+void UpdateWorker::RunJob(const std::string& job_id) {
+  cancel_ = false;
+  job_started_ = std::chrono::steady_clock::now();
+  absl::StatusOr<JobStatus> job = jobs_->Get(job_id);
+  if (!job.ok() || IsFinal(job->phase) || !ReadyToRun(job_id, *job)) return;
+  const std::string scan_id = job->scan_id;
+
+  // 1. Load the scan as the next time step of the deployed model, posed and
+  // registered into its frame.
+  std::shared_ptr<const Servable> prev;  // Held for the whole update: the cache never evicts it meanwhile.
+  PlaceHead head;                        // Replicas: where this update starts; its publish is fenced by it.
+  if (!LoadDeployed(job_id, scan_id, &prev, &head)) return;
+  const int t = prev ? prev->model().num_time_steps() : 0;
+  std::map<std::string, double> registration_metrics;  // Posing's and registration's.
+  std::optional<Scene> scene = PrepareScan(job_id, scan_id, prev.get(), &registration_metrics);
+  if (!scene) return;
+  std::vector<View> test = std::move(scene->test);
+  scene->test.clear();
+  jobs_->Update(job_id, [&](JobStatus* j) {
+    j->phase = JobPhase::kPreparingReplay;
+    j->time_step = t;
+    j->total_iterations = !prev && options_.first_scan_iterations > 0 ? options_.first_scan_iterations
+                                                                      : options_.update.train.iterations;
+  });
+  spdlog::info("job {}: training scan {} as time step {} on version {}", job_id, scan_id, t,
+               prev ? prev->info.version : 0);
+
+  // 2. Train.
+  UpdateReport report;
+  const auto t0 = std::chrono::steady_clock::now();
+  std::optional<ContinualState> next = Train(job_id, scan_id, prev.get(), *scene, &report);
+  if (!next) return;
 
   // 3. Deployment gate.
   jobs_->Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kValidating; });
@@ -590,39 +664,9 @@ void UpdateWorker::RunJob(const std::string& job_id) {
 
   // 5. Publish; on a store error keep the trained state and retry once the
   // store recovers (or until shutdown: the scan is then retrained).
-  jobs_->Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kPublishing; });
-  absl::StatusOr<VersionInfo> published;
-  while (true) {
-    published = publisher_->Publish(*next, prev ? prev->info.version : 0,
-                                    {scan_id, job->scan_name, job_id, FrameNames(*scene)}, gate.metrics,
-                                    coordinator_ != nullptr ? &head : nullptr, baked ? &*baked : nullptr);
-    if (published.ok()) break;
-    if (coordinator_ != nullptr && absl::IsAborted(published.status())) {
-      // Fenced: this replica lost the place's lease (paused, cut off) or the
-      // head moved. Nothing was published; the scan stays for the lease's
-      // holder, and this job waits for the outcome like any other replica.
-      spdlog::warn("job {}: {}", job_id, std::string(published.status().message()));
-      scans_->ClearAttempts(scan_id);
-      jobs_->Requeue(job_id, std::string(published.status().message()));
-      return;
-    }
-    if (coordinator_ != nullptr && publisher_->error().empty()) {
-      // The coordinator could not be reached: the store is fine, try again.
-      spdlog::warn("job {}: publishing: {}; retrying", job_id, std::string(published.status().message()));
-      if (!Pause()) return FinishStopped(job_id, scan_id);
-      continue;
-    }
-    spdlog::error("job {}: publishing failed: {}; retrying when the store recovers", job_id,
-                  std::string(published.status().message()));
-    if (!WaitForWritableStore(job_id)) return FinishStopped(job_id, scan_id);
-    // Recovery may itself have deployed a version of this scan (a write whose
-    // error was reported after it landed): then the job is done.
-    const std::optional<DeployedSummary> now = publisher_->registry().deployed();
-    if (now && now->info.scan_id == scan_id) {
-      published = now->info;
-      break;
-    }
-  }
+  const std::optional<VersionInfo> published =
+      PublishUpdate(job_id, *job, prev.get(), head, *next, *scene, gate.metrics, baked);
+  if (!published) return;
   if (absl::Status s = scans_->Remove(scan_id); !s.ok()) spdlog::warn("job {}: {}", job_id, s.ToString());
   CrashPoint("publish:scan-removed");
   jobs_->Update(job_id, [&](JobStatus* j) {

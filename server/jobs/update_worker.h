@@ -24,10 +24,14 @@
 #include <chrono>
 #include <condition_variable>
 #include <functional>
+#include <map>
+#include <memory>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 
+#include "core/continual/continual_update.h"
 #include "server/cluster/coordinator.h"
 #include "server/jobs/job_tracker.h"
 #include "server/store/model_registry.h"
@@ -85,6 +89,29 @@ class UpdateWorker {
  private:
   void Loop();
   void RunJob(const std::string& job_id);
+  // RunJob's steps, each false / nullopt when the job ended (finished,
+  // cancelled, stopped or requeued) and RunJob returns.
+  // Whether the job runs at all: not done by another replica, not
+  // cancelled, the store writable; records the attempt.
+  bool ReadyToRun(const std::string& job_id, const JobStatus& job);
+  // The deployed version the update starts from (null for a place's first
+  // scan) and, with replicas, the head its publish is fenced by.
+  bool LoadDeployed(const std::string& job_id, const std::string& scan_id, std::shared_ptr<const Servable>* prev,
+                    PlaceHead* head);
+  // The stored scan as the next time step, posed (unposed uploads) and
+  // registered into the place's frame; posing and registration metrics
+  // into `metrics`.
+  std::optional<Scene> PrepareScan(const std::string& job_id, const std::string& scan_id, const Servable* prev,
+                                   std::map<std::string, double>* metrics);
+  // θ_t trained on `scene` from `prev` (ContinualUpdate), progress in the job.
+  std::optional<ContinualState> Train(const std::string& job_id, const std::string& scan_id, const Servable* prev,
+                                      const Scene& scene, UpdateReport* report);
+  // Publishes θ_t, retrying store errors until the store recovers (fenced
+  // publishes of replicas requeue the job instead).
+  std::optional<VersionInfo> PublishUpdate(const std::string& job_id, const JobStatus& job, const Servable* prev,
+                                           const PlaceHead& head, const ContinualState& next, const Scene& scene,
+                                           const std::map<std::string, double>& metrics,
+                                           const std::optional<BakedAsset>& baked);
   // Replicas: takes (or keeps) the place's lease; false if another holds it.
   bool HoldLease();
   // Sleeps replica_poll_seconds or until Stop(); false on Stop.
