@@ -179,7 +179,7 @@ int EvalBakedAsset(const EvalArgs& a, const std::vector<View>& views) {
   if (!asset.ok()) return Fail(asset.status());
   absl::StatusOr<uint64_t> bytes = BakedAssetBytes(a.model);
   if (!bytes.ok()) return Fail(bytes.status());
-  long long samples = 0, pixels = 0;
+  long long samples = 0, steps = 0, pixels = 0;
   BakedRenderOptions ro;
   ro.threads = a.threads;
   absl::StatusOr<EvalResult> ev = EvaluateWith(
@@ -187,6 +187,7 @@ int EvalBakedAsset(const EvalArgs& a, const std::vector<View>& views) {
         absl::StatusOr<RenderedView> r = RenderBakedView(*asset, v.camera, ro);
         if (r.ok()) {
           samples += r->samples;
+          steps += r->steps;
           pixels += (long long)r->rgb.num_pixels();
         }
         return r;
@@ -198,11 +199,13 @@ int EvalBakedAsset(const EvalArgs& a, const std::vector<View>& views) {
   j["baked"] = true;
   j["asset_bytes"] = *bytes;
   j["samples_per_ray"] = pixels > 0 ? double(samples) / double(pixels) : 0.0;
+  j["steps_per_ray"] = pixels > 0 ? double(steps) / double(pixels) : 0.0;  // The shader's loop count.
   j["split"] = a.split;
   std::printf("%s (baked asset, reference renderer): PSNR %.2f dB (colour-corrected %.2f), SSIM %.4f, speckle %.4f, "
-              "blur %.4f over %zu images, %.1f ms/image, %.1f samples per ray\n",
+              "blur %.4f over %zu images, %.1f ms/image, %.1f samples (%.1f steps) per ray\n",
               a.split.c_str(), ev->psnr, ev->psnr_cc, ev->ssim, ev->speckle, ev->blur, ev->views.size(),
-              ev->mean_render_seconds * 1e3, j["samples_per_ray"].get<double>());
+              ev->mean_render_seconds * 1e3, j["samples_per_ray"].get<double>(),
+              j["steps_per_ray"].get<double>());
   if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
   return 0;
 }

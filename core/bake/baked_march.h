@@ -65,6 +65,47 @@ inline float BakedExitT(const Eigen::Vector3f& o, const Eigen::Vector3f& d, cons
   return t;
 }
 
+// How far (model units) a ray o + t d, now at x beyond the inner cube
+// (r = |x|_inf > 1) and heading outwards, stays where every point contracts
+// into the box [lo, hi] of contracted coordinates: at most that far, and
+// exactly that far along a ray from the centre. Beyond the inner cube,
+// with x's dominant axis m and sign s, contract(x)_m = s rho(r) and
+// contract(x)_k = q_k rho(r) for q_k = x_k / r, rho(r) = 2 - 1/r. So while
+// rho stays in [rho(r), rho_hi] (rho_hi: where axis m leaves [lo_m, hi_m],
+// or sooner, so that x's own q_k keep inside) and each q_k stays in a range
+// that keeps q_k rho in [lo_k, hi_k] for every such rho (inside [-1, 1], so
+// m stays dominant), the point is inside; r and r q_k = x_k are linear in
+// t, so each bound is crossed where a linear function is. 0 for a ray
+// heading inwards (rays from cameras inside the inner cube never do there).
+// Pure function.
+inline float ShellEmptyRun(const Eigen::Vector3f& x, const Eigen::Vector3f& d, const Eigen::Vector3f& lo,
+                           const Eigen::Vector3f& hi) {
+  int m = 0;
+  for (int k = 1; k < 3; ++k) {
+    if (std::abs(x[k]) > std::abs(x[m])) m = k;
+  }
+  const float s = x[m] < 0.0f ? -1.0f : 1.0f, r = s * x[m], r1 = s * d[m];
+  if (r1 <= 0.0f) return 0.0f;
+  const float rho_lo = 2.0f - 1.0f / r;
+  float rho_hi = std::min(2.0f, s > 0.0f ? hi[m] : -lo[m]);
+  for (int k = 0; k < 3; ++k) {
+    const float q = x[k] / r;
+    if (k != m && q > 0.0f && hi[k] >= 0.0f) rho_hi = std::min(rho_hi, hi[k] / q);
+    if (k != m && q < 0.0f && lo[k] <= 0.0f) rho_hi = std::min(rho_hi, lo[k] / q);
+  }
+  float run = rho_hi >= 2.0f ? INFINITY : (1.0f / (2.0f - rho_hi) - r) / r1;
+  for (int k = 0; k < 3; ++k) {
+    if (k == m) continue;
+    const float q_lo = std::max(-1.0f, lo[k] / (lo[k] <= 0.0f ? rho_hi : rho_lo));
+    const float q_hi = std::min(1.0f, hi[k] / (hi[k] >= 0.0f ? rho_hi : rho_lo));
+    // x_k - q_lo r >= 0 and q_hi r - x_k >= 0, each linear in the distance.
+    const float f1 = d[k] - q_lo * r1, g1 = q_hi * r1 - d[k];
+    if (f1 < 0.0f) run = std::min(run, (x[k] - q_lo * r) / -f1);
+    if (g1 < 0.0f) run = std::min(run, (q_hi * r - x[k]) / -g1);
+  }
+  return std::max(run, 0.0f);
+}
+
 // Marches ray o + t d (unit d, model space) over the grid of `a` (only its
 // geometry fields are read). sample(block, u, &rgba) returns false for an
 // empty block, else the lattice's RGBA in [0, 1] at cell coordinates u;
@@ -105,23 +146,29 @@ float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vec
     Eigen::Vector4f rgba;
     if (!sample(block, u, b, &rgba)) {
       // An empty block, and every block within its distance D - 1 (cube of
-      // blocks around it) is empty too: skipped at once where that cube lies
+      // blocks around it) is empty too: skipped at once. Where the cube lies
       // in model space unchanged (for unbounded scenes: clipped to the inner
-      // cube), by whole steps, so samples stay on t0 + (k + 1/2) step.
+      // cube) by whole steps, so samples stay on t0 + (k + 1/2) step; in the
+      // contracted shell past where the ray leaves it (ShellEmptyRun).
       const float D = float(a.block_distance.empty() ? 1 : std::max<int>(1, a.block_distance[size_t(block)])) - 1.0f;
       Eigen::Vector3f lo, hi;
       for (int k = 0; k < 3; ++k) {
         lo[k] = (float(b[k]) - D) * block_size - B;
         hi[k] = (float(b[k]) + D + 1.0f) * block_size - B;
       }
-      if (a.contracted) {
-        lo = lo.cwiseMax(-1.0f);
-        hi = hi.cwiseMin(1.0f);
-      }
       if (!a.contracted || r <= 1.0f) {
+        if (a.contracted) {
+          lo = lo.cwiseMax(-1.0f);
+          hi = hi.cwiseMin(1.0f);
+        }
         t += std::max(1.0f, std::ceil((BakedExitT(o, d, lo, hi) - t) / step)) * step;
       } else {
-        t += dt;
+        // In the shell the cube is one in contracted space: the ray is
+        // inside it for ShellEmptyRun at least; the next sample is half a
+        // step past that point.
+        const float te = std::min(t + ShellEmptyRun(x, d, lo, hi), t1);
+        const float re = InfNorm(o + te * d);
+        t = std::max(t + dt, te + 0.5f * step * re * re);
       }
       continue;
     }

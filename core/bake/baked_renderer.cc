@@ -49,6 +49,7 @@ BakedRay RenderBakedRay(const BakedAsset& a, const Eigen::Vector3f& o, const Eig
   const float T = MarchBaked(
       a, o, d,
       [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
+        ++out.steps;
         return SampleBlock(a, u, b, d, rgba, &brick, l);
       },
       [&](int, float w, float t, const Eigen::Vector4f& rgba) {
@@ -78,9 +79,9 @@ absl::StatusOr<RenderedView> RenderBakedView(const BakedAsset& asset, const Came
   view.rgb = Image(W, H);
   view.opacity.assign(size_t(W) * H, 0.0f);
   view.depth.assign(size_t(W) * H, 0.0f);
-  long long samples = 0;
+  long long samples = 0, steps = 0;
   const int threads = options.threads > 0 ? options.threads : omp_get_max_threads();
-#pragma omp parallel for schedule(dynamic) reduction(+ : samples) num_threads(threads)
+#pragma omp parallel for schedule(dynamic) reduction(+ : samples, steps) num_threads(threads)
   for (int y = 0; y < H; ++y) {
     for (int x = 0; x < W; ++x) {
       Eigen::Vector3f o, d;
@@ -91,9 +92,11 @@ absl::StatusOr<RenderedView> RenderBakedView(const BakedAsset& asset, const Came
       view.opacity[p] = r.opacity;
       view.depth[p] = r.depth / asset.normalization.scale;
       samples += r.samples;
+      steps += r.steps;
     }
   }
   view.samples = samples;
+  view.steps = steps;
   return view;
 }
 

@@ -17,10 +17,12 @@
 //     dt = step * r^2 beyond the inner cube of an unbounded scene, else step
 //     u = (contract(x) [or x] + B) * R / (2B)            (cell coordinates)
 //     block empty, at chessboard distance D from the nearest occupied one:
-//       t advances past the cube of blocks within D - 1 of it (by whole
-//       steps, so samples stay on the lattice t0 + (k + 1/2) step) where
-//       that cube lies in model space unchanged (unbounded: clipped to the
-//       inner cube, and only from inside it), else by dt
+//       t advances past the cube of blocks within D - 1 of it: inside the
+//       model box (unbounded: the inner cube, the cube clipped to it) by
+//       whole steps, so samples stay on the lattice t0 + (k + 1/2) step;
+//       in the shell to te + step * r(te)^2 / 2 (at least by dt), te where
+//       the contracted point leaves the cube (ShellEmptyRun; a lower bound
+//       off the ray from the centre)
 //     else: rgba = trilinear(brick, u - 8 * block)
 //       (format 2: rgba.rgb += the view term, sum_k d_k H_k, premultiplied)
 //       alpha = 1 - exp(-(-log(1 - min(a^2, kBakedMaxAlpha))) * dt / cell)
@@ -53,11 +55,13 @@ struct BakedRay {
   float opacity = 0.0f;
   float depth = 0.0f;   // Expected distance (model units).
   int samples = 0;      // Brick lookups (samples in occupied blocks).
+  int steps = 0;        // March iterations, empty blocks included: the shader's loop count.
 };
 BakedRay RenderBakedRay(const BakedAsset& asset, const Eigen::Vector3f& o, const Eigen::Vector3f& d);
 
 // A full image for a world-space camera (its distortion honoured, as the
-// model's renderer does). RenderedView::samples counts brick lookups.
+// model's renderer does). RenderedView::samples counts brick lookups and
+// RenderedView::steps the march's iterations.
 absl::StatusOr<RenderedView> RenderBakedView(const BakedAsset& asset, const Camera& world_camera,
                                              const BakedRenderOptions& options = {});
 

@@ -57,6 +57,7 @@ struct RenderedView {
   std::vector<float> opacity;  // Accumulated alpha per pixel.
   std::vector<float> depth;    // Expected distance (world units) per pixel.
   long long samples = 0;       // Network evaluations (density).
+  long long steps = 0;         // Baked renderer only: march iterations, empty blocks included.
 };
 
 // Renders rays given in model space (origins/directions n x 3; directions

@@ -39,7 +39,6 @@ uniform float uRes;       // R.
 uniform int uContracted;
 uniform float uNear;
 uniform vec3 uBg;
-uniform ivec3 uBricks;
 uniform vec3 uAtlasDims;
 uniform ivec3 uOccLo;      // An object's box of occupied blocks (lo > hi: none).
 uniform ivec3 uOccHi;
@@ -73,13 +72,37 @@ bool intersectAabb(vec3 o, vec3 d, vec3 lo, vec3 hi, out float ta, out float tb)
 bool intersectBox(vec3 o, vec3 d, float b, out float t0, out float t1) {  // [-b, b]^3, ahead of o.
   return intersectAabb(o, d, vec3(-b), vec3(b), t0, t1) && t1 > max(t0, 0.0);
 }
-float exitT(vec3 o, vec3 d, vec3 lo, vec3 hi) {
-  float t = 1e30;
-  for (int k = 0; k < 3; ++k) {
-    if (d[k] > 1e-12) t = min(t, (hi[k] - o[k]) / d[k]);
-    if (d[k] < -1e-12) t = min(t, (lo[k] - o[k]) / d[k]);
-  }
-  return t;
+float exitT(vec3 o, vec3 d, vec3 lo, vec3 hi) {  // BakedExitT, as vector code.
+  bvec3 moving = greaterThan(abs(d), vec3(1e-12));
+  vec3 e = mix(vec3(1e30), (mix(lo, hi, greaterThan(d, vec3(0.0))) - o) / mix(vec3(1.0), d, moving), moving);
+  return min(e.x, min(e.y, e.z));
+}
+
+// ShellEmptyRun (baked_march.h): how far the ray at x (beyond the inner
+// cube, heading outwards) stays where every point contracts into [lo, hi],
+// at most; 0 heading inwards. Branch-free vector code (SwiftShader runs it
+// far better than loops over the axes).
+float shellEmptyRun(vec3 x, vec3 d, vec3 lo, vec3 hi) {
+  vec3 ax = abs(x);
+  vec3 dom = ax.x >= ax.y && ax.x >= ax.z ? vec3(1, 0, 0) : (ax.y >= ax.z ? vec3(0, 1, 0) : vec3(0, 0, 1));
+  float xm = dot(dom, x), s = xm < 0.0 ? -1.0 : 1.0, r = s * xm, r1 = s * dot(dom, d);
+  if (r1 <= 0.0) return 0.0;
+  bvec3 other = lessThan(dom, vec3(0.5));
+  float rhoLo = 2.0 - 1.0 / r;
+  vec3 q = x / r;
+  // rho_hi: axis m's face, or sooner where x's own q_k would leave.
+  vec3 capP = mix(vec3(2.0), hi / max(q, 1e-30), bvec3(vec3(other) * step(1e-30, q) * step(0.0, hi)));
+  vec3 capN = mix(vec3(2.0), lo / min(q, -1e-30), bvec3(vec3(other) * step(1e-30, -q) * step(0.0, -lo)));
+  vec3 caps = min(capP, capN);
+  float rhoHi = min(min(2.0, s > 0.0 ? dot(dom, hi) : -dot(dom, lo)), min(caps.x, min(caps.y, caps.z)));
+  float run = rhoHi >= 2.0 ? 1e30 : (1.0 / (2.0 - rhoHi) - r) / r1;
+  vec3 qLo = max(vec3(-1.0), lo / mix(vec3(rhoLo), vec3(rhoHi), lessThanEqual(lo, vec3(0.0))));
+  vec3 qHi = min(vec3(1.0), hi / mix(vec3(rhoLo), vec3(rhoHi), greaterThanEqual(hi, vec3(0.0))));
+  vec3 f1 = d - qLo * r1, g1 = qHi * r1 - d;
+  vec3 rf = mix(vec3(1e30), (x - qLo * r) / -min(f1, -1e-30), bvec3(vec3(other) * step(f1, vec3(-1e-30))));
+  vec3 rg = mix(vec3(1e30), (qHi * r - x) / -min(g1, -1e-30), bvec3(vec3(other) * step(g1, vec3(-1e-30))));
+  vec3 runs = min(rf, rg);
+  return max(min(run, min(runs.x, min(runs.y, runs.z))), 0.0);
 }
 
 vec3 viewTerm(vec3 tc, vec3 d) {  // sum_k d_k (texel_k - 128) / 127, premultiplied like the colour.
@@ -125,16 +148,17 @@ void main() {
       if (e >= 0x80000000u) {  // Empty, and so is every block within distance D - 1.
         float D = float(e & 0xffu) - 1.0;
         vec3 lo = (vec3(b) - D) * blockSize - uHalf, hi = (vec3(b) + D + 1.0) * blockSize - uHalf;
-        if (uContracted == 1) { lo = max(lo, vec3(-1.0)); hi = min(hi, vec3(1.0)); }
         if (uContracted == 0 || r <= 1.0) {
+          if (uContracted == 1) { lo = max(lo, vec3(-1.0)); hi = min(hi, vec3(1.0)); }
           t += max(1.0, ceil((exitT(o, d, lo, hi) - t) / stp)) * stp;
-        } else {
-          t += dt;
+        } else {  // In the shell: past the contracted cube, half a step beyond.
+          float te = min(t + shellEmptyRun(x, d, lo, hi), t1);
+          float re = infNorm(o + te * d);
+          t = max(t + dt, te + 0.5 * stp * re * re);
         }
         continue;
       }
-      int brick = int(e - 1u);
-      ivec3 bo = ivec3(brick % uBricks.x, (brick / uBricks.x) % uBricks.y, brick / (uBricks.x * uBricks.y)) * 9;
+      ivec3 bo = ivec3(int(e & 1023u), int((e >> 10) & 1023u), int(e >> 20)) * 9;  // skipIndex packs it.
       vec3 l = clamp(u - vec3(b * kBlock), 0.0, 8.0);
       vec3 tc = (vec3(bo) + l + 0.5) / uAtlasDims;
       vec4 s = texture(uAtlas, tc);
@@ -168,7 +192,7 @@ async function fetchGunzip(url) {
 // its chessboard distance in blocks to the nearest occupied block (at most
 // 255): ComputeBlockDistances (core/bake/baked_asset.h), two raster passes
 // over the 26-neighbourhood.
-function skipIndex(index, nb) {
+function skipIndex(index, nb, bricks) {
   const n = nb * nb * nb, dist = new Uint8Array(n);
   for (let i = 0; i < n; ++i) dist[i] = index[i] === 0 ? 255 : 0;
   for (let pass = 0; pass < 2; ++pass) {
@@ -187,8 +211,16 @@ function skipIndex(index, nb) {
       dist[i] = Math.min(best, 255);
     }
   }
-  const out = new Uint32Array(n);
-  for (let i = 0; i < n; ++i) out[i] = index[i] !== 0 ? index[i] : (0x80000000 | dist[i]) >>> 0;
+  // An occupied block's entry becomes its brick's atlas position, x | y << 10
+  // | z << 20 in bricks, so the shader decodes it with shifts (integer
+  // division is slow in software WebGL, which runs every instruction of the
+  // march's loop on every step).
+  const out = new Uint32Array(n), bx = bricks[0], by = bricks[1];
+  for (let i = 0; i < n; ++i) {
+    const b = index[i] - 1;
+    out[i] = index[i] !== 0 ? ((b % bx) | ((Math.floor(b / bx) % by) << 10) | (Math.floor(b / (bx * by)) << 20)) >>> 0
+                            : (0x80000000 | dist[i]) >>> 0;
+  }
   return out;
 }
 
@@ -295,7 +327,7 @@ class BakedRenderer {
     gl.activeTexture(gl.TEXTURE0);
     gl.bindTexture(gl.TEXTURE_3D, this.indexTex);
     gl.texImage3D(gl.TEXTURE_3D, 0, gl.R32UI, nb, nb, nb, 0, gl.RED_INTEGER, gl.UNSIGNED_INT,
-                  skipIndex(new Uint32Array(index.buffer, index.byteOffset, index.byteLength / 4), nb));
+                  skipIndex(new Uint32Array(index.buffer, index.byteOffset, index.byteLength / 4), nb, m.bricks));
     for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.NEAREST], [gl.TEXTURE_MAG_FILTER, gl.NEAREST]]) {
       gl.texParameteri(gl.TEXTURE_3D, k, v);
     }
@@ -373,7 +405,6 @@ class BakedRenderer {
     gl.uniform1i(u("uContracted"), m.kind === "unbounded" ? 1 : 0);
     gl.uniform1f(u("uNear"), m.near);
     gl.uniform3fv(u("uBg"), m.background);
-    gl.uniform3iv(u("uBricks"), m.bricks);
     gl.uniform3fv(u("uAtlasDims"), this.dims);
     gl.uniform3iv(u("uOccLo"), this.occ.lo);
     gl.uniform3iv(u("uOccHi"), this.occ.hi);
