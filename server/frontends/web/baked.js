@@ -18,8 +18,12 @@ void main() { gl_Position = vec4(aPos, 0.0, 1.0); }`;
 
 // VIEW_MODE (defined when the program is built for an asset): 0 no view
 // term, 1 at every sample (format 2), 2 once at the median sample (format 3).
+// CONTRACTED: 1 for an unbounded scene. Both are #defines, not uniforms:
+// software WebGL2 runs every instruction of the loop on every step, branch
+// taken or not, so an object's shader must not carry the shell's code.
 const BAKED_FS = `#version 300 es
 #define VIEW_MODE 0
+#define CONTRACTED 0
 precision highp float;
 precision highp int;
 precision highp usampler3D;
@@ -36,7 +40,6 @@ uniform vec4 uIntr;       // fx, fy, cx, cy.
 uniform float uHeight;
 uniform float uHalf;      // B.
 uniform float uRes;       // R.
-uniform int uContracted;
 uniform float uNear;
 uniform vec3 uBg;
 uniform vec3 uAtlasDims;
@@ -123,11 +126,11 @@ void main() {
   vec3 tcMedian = vec3(-1.0);  // The median sample (format 3): where T first falls below 1/2.
   float codeMedian = 0.0;
   float t0, t1;
-  float box = uContracted == 1 ? 2.0 / cell : uHalf;
+  float box = CONTRACTED == 1 ? 2.0 / cell : uHalf;
   bool hit = intersectBox(o, d, box, t0, t1);
   t0 = max(t0, uNear);
   float t = t0 + 0.5 * stp;
-  if (hit && uContracted == 0) {  // An object: march only across the box of occupied blocks.
+  if (hit && CONTRACTED == 0) {  // An object: march only across the box of occupied blocks.
     float ta, tb;
     vec3 lo = vec3(uOccLo) * blockSize - uHalf, hi = vec3(uOccHi + 1) * blockSize - uHalf;
     hit = uOccHi.x >= uOccLo.x && intersectAabb(o, d, lo, hi, ta, tb) && tb > t0 && ta < t1;
@@ -141,21 +144,30 @@ void main() {
       if (!(t < t1) || T <= kMinT) break;
       vec3 x = o + t * d;
       float r = infNorm(x);
-      float dt = (uContracted == 1 && r > 1.0) ? stp * r * r : stp;
-      vec3 u = ((uContracted == 1 ? contractP(x) : x) + uHalf) * toCells;
+#if CONTRACTED == 1
+      float dt = r > 1.0 ? stp * r * r : stp;
+      vec3 u = (contractP(x) + uHalf) * toCells;
+#else
+      float dt = stp;
+      vec3 u = (x + uHalf) * toCells;
+#endif
       ivec3 b = clamp(ivec3(floor(u / float(kBlock))), ivec3(0), ivec3(nb - 1));
       uint e = texelFetch(uIndex, b, 0).r;
       if (e >= 0x80000000u) {  // Empty, and so is every block within distance D - 1.
         float D = float(e & 0xffu) - 1.0;
         vec3 lo = (vec3(b) - D) * blockSize - uHalf, hi = (vec3(b) + D + 1.0) * blockSize - uHalf;
-        if (uContracted == 0 || r <= 1.0) {
-          if (uContracted == 1) { lo = max(lo, vec3(-1.0)); hi = min(hi, vec3(1.0)); }
+#if CONTRACTED == 1
+        if (r <= 1.0) {
+          lo = max(lo, vec3(-1.0)); hi = min(hi, vec3(1.0));
           t += max(1.0, ceil((exitT(o, d, lo, hi) - t) / stp)) * stp;
         } else {  // In the shell: past the contracted cube, half a step beyond.
           float te = min(t + shellEmptyRun(x, d, lo, hi), t1);
           float re = infNorm(o + te * d);
           t = max(t + dt, te + 0.5 * stp * re * re);
         }
+#else
+        t += max(1.0, ceil((exitT(o, d, lo, hi) - t) / stp)) * stp;
+#endif
         continue;
       }
       ivec3 bo = ivec3(int(e & 1023u), int((e >> 10) & 1023u), int(e >> 20)) * 9;  // skipIndex packs it.
@@ -272,18 +284,21 @@ class BakedRenderer {
     return s;
   }
 
-  // The program for a view mode (built once each; the mode is a #define, so
-  // the shader carries no branch for it), with its uniform locations.
-  program(viewMode) {
-    if (this.programs[viewMode]) return this.programs[viewMode];
+  // The program for a view mode and kind (built once each; both are
+  // #defines, so the shader carries no branch for them), with its uniform
+  // locations.
+  program(viewMode, contracted) {
+    const key = `${viewMode}/${contracted ? 1 : 0}`;
+    if (this.programs[key]) return this.programs[key];
     const gl = this.gl, p = gl.createProgram();
     gl.attachShader(p, this.compile(gl.VERTEX_SHADER, BAKED_VS));
     gl.attachShader(p, this.compile(gl.FRAGMENT_SHADER,
-                                    BAKED_FS.replace("#define VIEW_MODE 0", `#define VIEW_MODE ${viewMode}`)));
+                                    BAKED_FS.replace("#define VIEW_MODE 0", `#define VIEW_MODE ${viewMode}`)
+                                        .replace("#define CONTRACTED 0", `#define CONTRACTED ${contracted ? 1 : 0}`)));
     gl.bindAttribLocation(p, 0, "aPos");
     gl.linkProgram(p);
     if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error("link: " + gl.getProgramInfoLog(p));
-    return (this.programs[viewMode] = {p, uniforms: {}});
+    return (this.programs[key] = {p, uniforms: {}});
   }
 
   // Loads manifest.json and its arrays from `base` (a URL ending in "/", or
@@ -319,7 +334,7 @@ class BakedRenderer {
       this.programs = {};
     }
     const viewMode = !view ? 0 : m.format === 2 ? 1 : 2;
-    this.program(viewMode);  // Built now, so a shader error fails the load.
+    this.program(viewMode, m.kind === "unbounded");  // Built now, so a shader error fails the load.
     for (const t of [this.indexTex, this.atlasTex, ...(this.viewTex || [])]) if (t) gl.deleteTexture(t);
     this.viewTex = [];
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
@@ -382,7 +397,7 @@ class BakedRenderer {
   }
 
   draw(cam) {
-    const gl = this.gl, m = this.manifest, prog = this.program(this.viewMode), p = prog.p;
+    const gl = this.gl, m = this.manifest, prog = this.program(this.viewMode, m.kind === "unbounded"), p = prog.p;
     const W = this.canvas.width, H = this.canvas.height;
     const {rot, o} = this.modelCamera(cam.c2w);
     gl.viewport(0, 0, W, H);
@@ -402,7 +417,6 @@ class BakedRenderer {
     gl.uniform1f(u("uHeight"), H);
     gl.uniform1f(u("uHalf"), m.half_size);
     gl.uniform1f(u("uRes"), m.resolution);
-    gl.uniform1i(u("uContracted"), m.kind === "unbounded" ? 1 : 0);
     gl.uniform1f(u("uNear"), m.near);
     gl.uniform3fv(u("uBg"), m.background);
     gl.uniform3fv(u("uAtlasDims"), this.dims);
