@@ -137,24 +137,34 @@ def time_assets(args):
     print(json.dumps({"baked_browser_assets": results}))
 
 
-def check_fractional_step(args, driver, work, env, view, cam):
+def page_against_reference(args, driver, env, asset, cam, name, screenshot=None):
+    """Renders `asset` at cam = (W, H, pose, focal) with the C++ reference
+    renderer (saved as reference_<name>.png under --out) and in the page;
+    returns (page RGBA, reference RGBA)."""
+    W, H, pose, focal = cam
+    ref_png = f"{args.out}/reference_{name}.png"
+    run_client(args.client, ["render", "--model", asset, "--pose", pose, "--width", str(W), "--height", str(H),
+                             "--focal", f"{focal:.5f}", "--out", ref_png], env, f"reference render ({name})")
+    _, _, ref = read_png_rgba(ref_png)
+    srv = serve(asset)
+    try:
+        load(driver, f"http://127.0.0.1:{srv.server_address[1]}/baked.html?w={W}&h={H}&pose={pose}&focal={focal:.5f}")
+        got = page_pixels(driver)
+        if screenshot:
+            driver.save_screenshot(f"{args.out}/{screenshot}")
+    finally:
+        srv.shutdown()
+    return got, ref
+
+
+def check_fractional_step(args, driver, work, env, cam):
     """A derived finer grid steps R/512 of its cells (1.25 at 640^3): the
     page must march the same samples as the reference renderer there too."""
-    W, H, pose, focal = cam
     asset = f"{work}/asset_step"
     run_client(args.client, ["bake", "--model", f"{work}/demo/model.clnerf", "--data", f"{work}/demo/scene",
                              "--out", asset, "--resolution", "128", "--fit-rays", "16384", "--step-cells", "1.25"],
                env, "bake with 1.25-cell steps")
-    ref_png = f"{args.out}/reference_step.png"
-    run_client(args.client, ["render", "--model", asset, "--pose", pose, "--width", str(W), "--height", str(H),
-                             "--focal", f"{focal:.5f}", "--out", ref_png], env, "reference render (1.25-cell steps)")
-    _, _, ref = read_png_rgba(ref_png)
-    srv = serve(asset)
-    try:
-        load(driver, f"http://127.0.0.1:{srv.server_address[1]}/baked.html?{view}")
-        diff = mean_abs_diff(page_pixels(driver), ref)
-    finally:
-        srv.shutdown()
+    diff = mean_abs_diff(*page_against_reference(args, driver, env, asset, cam, "step"))
     print(f"WebGL2 frame with 1.25-cell steps against its reference render: mean |diff| {diff:.3f} / 255")
     if diff > MAX_MEAN_DIFF:
         fail(f"with 1.25-cell steps the WebGL2 frame differs from the reference render by {diff:.2f}")
@@ -175,18 +185,9 @@ def check_unbounded(args, driver, work, env):
     W, H = 200, 150
     focal = meta["fl_x"] * W / meta["w"]
     pose = ",".join(f"{v:.7f}" for row in meta["frames"][3]["transform_matrix"][:3] for v in row)
-    ref_png = f"{args.out}/reference_unbounded.png"
-    run_client(args.client, ["render", "--model", asset, "--pose", pose, "--width", str(W), "--height", str(H),
-                             "--focal", f"{focal:.5f}", "--out", ref_png], env, "reference render (unbounded)")
-    _, _, ref = read_png_rgba(ref_png)
-    srv = serve(asset)
-    try:
-        load(driver, f"http://127.0.0.1:{srv.server_address[1]}/baked.html?w={W}&h={H}&pose={pose}&focal={focal:.5f}")
-        got = page_pixels(driver)
-        diff = mean_abs_diff(got, ref)
-        driver.save_screenshot(f"{args.out}/baked_unbounded.png")
-    finally:
-        srv.shutdown()
+    got, ref = page_against_reference(args, driver, env, asset, (W, H, pose, focal), "unbounded",
+                                      screenshot="baked_unbounded.png")
+    diff = mean_abs_diff(got, ref)
     off = sum(1 for i in range(0, len(got), 4) if max(abs(got[i + c] - ref[i + c]) for c in range(3)) > MAX_PIXEL_DIFF)
     print(f"WebGL2 frame of an unbounded scene against its reference render: mean |diff| {diff:.3f} / 255, "
           f"{off} of {W * H} pixels off by more than {MAX_PIXEL_DIFF}")
@@ -258,7 +259,7 @@ def main():
         if mean_abs_diff(moved, got) < 1.0:
             fail("dragging did not change the frame")
         driver.save_screenshot(f"{args.out}/baked.png")
-        check_fractional_step(args, driver, work, env, view, (W, H, pose, focal))
+        check_fractional_step(args, driver, work, env, (W, H, pose, focal))
         check_unbounded(args, driver, work, env)
         errors = [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]
         if errors:
