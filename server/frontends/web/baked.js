@@ -53,8 +53,7 @@ const float kMaxAlpha = 0.9999;
 const int kMaxSteps = 4096;
 
 float infNorm(vec3 x) { return max(abs(x.x), max(abs(x.y), abs(x.z))); }
-vec3 contractP(vec3 x) {
-  float r = infNorm(x);
+vec3 contractP(vec3 x, float r) {  // r = infNorm(x), which the march has already.
   return r > 1.0 ? x * ((2.0 - 1.0 / r) / r) : x;
 }
 bool intersectAabb(vec3 o, vec3 d, vec3 lo, vec3 hi, out float ta, out float tb) {
@@ -146,7 +145,7 @@ void main() {
       float r = infNorm(x);
 #if CONTRACTED == 1
       float dt = r > 1.0 ? stp * r * r : stp;
-      vec3 u = (contractP(x) + uHalf) * toCells;
+      vec3 u = (contractP(x, r) + uHalf) * toCells;
 #else
       float dt = stp;
       vec3 u = (x + uHalf) * toCells;
