@@ -116,4 +116,11 @@ Camera AtSize(const Camera& c, int w, int h) {
   return out;
 }
 
+void PinLeading(int n, Eigen::MatrixXd* h, Eigen::VectorXd* g) {
+  h->topRows(n).setZero();
+  h->leftCols(n).setZero();
+  h->topLeftCorner(n, n).setIdentity();
+  g->head(n).setZero();
+}
+
 }  // namespace clnerf

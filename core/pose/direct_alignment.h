@@ -2,13 +2,16 @@
 // camera, photometric_similarity.h a whole scan's similarity): a grey photo
 // with its gradients, the place map's render lifted into a keyframe of 3-D
 // points with grey values, projection with its Jacobian, and the robust
-// (Huber) cost at a scale from the residuals' median absolute deviation.
+// (Huber) cost at a scale from the residuals' median absolute deviation, and
+// the Levenberg-Marquardt loop both solvers run.
 //
 // Thread-safety: plain values and pure functions; RenderKeyframe renders the
 // map with the calling context's threads.
 #ifndef CLNERF_CORE_POSE_DIRECT_ALIGNMENT_H_
 #define CLNERF_CORE_POSE_DIRECT_ALIGNMENT_H_
 
+#include <algorithm>
+#include <limits>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -16,6 +19,7 @@
 #include "core/data/image.h"
 #include "core/pose/place_map.h"
 #include "Eigen/Core"
+#include "Eigen/Dense"
 
 namespace clnerf {
 
@@ -78,6 +82,53 @@ double HuberCost(const std::vector<double>& r, double delta);
 
 // The same camera at another image size.
 Camera AtSize(const Camera& c, int w, int h);
+
+// A state's mean robust cost and how many residuals it could use.
+struct AlignmentCost {
+  double mean = std::numeric_limits<double>::infinity();
+  int used = 0;
+};
+
+// Pins the first `n` unknowns of the normal equations (h, g): their step is 0.
+void PinLeading(int n, Eigen::MatrixXd* h, Eigen::VectorXd* g);
+
+// Levenberg-Marquardt's loop, shared by the one-camera (photometric_refine.h)
+// and the whole-scan (photometric_similarity.h) alignment, from the state
+// whose cost is `current`. Per iteration: `normal(&h, &g)` builds the normal
+// equations at the current state; up to 6 damped steps are tried, each by
+// `trial(step)`, which evaluates the current state moved by `step`, keeps it
+// as the candidate and returns its cost; `accept()` makes the candidate
+// current. A candidate is taken when its cost falls and it keeps >= 95 % of
+// the used residuals (fewer usable points would fake a lower cost). Stops
+// when no step helps. Returns the final state's cost.
+template <class Normal, class Trial, class Accept>
+AlignmentCost LevenbergMarquardt(int iterations, AlignmentCost current, Normal normal, Trial trial,
+                                 Accept accept) {
+  double lambda = 1e-3;
+  Eigen::MatrixXd h;
+  Eigen::VectorXd g;
+  for (int it = 0; it < iterations; ++it) {
+    normal(&h, &g);
+    bool improved = false;
+    for (int tries = 0; tries < 6 && !improved; ++tries) {
+      Eigen::MatrixXd damped = h;
+      damped.diagonal() += lambda * h.diagonal().cwiseMax(1e-9);
+      const Eigen::VectorXd step = -damped.ldlt().solve(g);
+      if (!step.allFinite()) break;
+      const AlignmentCost c = trial(step);
+      if (c.mean < current.mean && c.used >= current.used * 0.95) {
+        accept();
+        current = c;
+        lambda = std::max(lambda * 0.5, 1e-6);
+        improved = true;
+      } else {
+        lambda *= 4;
+      }
+    }
+    if (!improved) break;
+  }
+  return current;
+}
 
 }  // namespace clnerf
 

@@ -76,52 +76,37 @@ struct AlignState {
 // the start when delta <= 0, and written back).
 double Align(const Keyframe& k, const GreyImage& photo, const Intrinsics& in, int iterations, bool pose_free,
              double huber_k, double* delta, AlignState* s) {
-  Residuals res = Evaluate(k, photo, in, s->pose, s->gain, s->bias, true);
+  Residuals res = Evaluate(k, photo, in, s->pose, s->gain, s->bias, true), cand;
   if (*delta <= 0) *delta = huber_k * RobustSigma(res.r);
-  double cost = HuberCost(res.r, *delta);
-  double lambda = 1e-3;
-  for (int it = 0; it < iterations; ++it) {
-    Mat8 h = Mat8::Zero();
-    Vec8 g = Vec8::Zero();
-    for (size_t i = 0; i < res.r.size(); ++i) {
-      const double r = res.r[i];
-      if (!std::isfinite(r)) continue;
-      const double w = std::abs(r) <= *delta ? 1.0 : *delta / std::abs(r);
-      h.noalias() += w * res.j[i].transpose() * res.j[i];
-      g.noalias() += w * r * res.j[i].transpose();
-    }
-    if (!pose_free) {
-      h.topRows<6>().setZero();
-      h.leftCols<6>().setZero();
-      h.topLeftCorner<6, 6>().setIdentity();
-      g.head<6>().setZero();
-    }
-    bool improved = false;
-    for (int tries = 0; tries < 6 && !improved; ++tries) {
-      Mat8 damped = h;
-      damped.diagonal() += lambda * h.diagonal().cwiseMax(1e-9);
-      const Vec8 step = -damped.ldlt().solve(g);
-      if (!step.allFinite()) break;
-      AlignState next = *s;
-      next.pose = s->pose.Moved(step.head<6>());
-      next.gain = s->gain + step(6);
-      next.bias = s->bias + step(7);
-      Residuals cand = Evaluate(k, photo, in, next.pose, next.gain, next.bias, true);
-      const double c = HuberCost(cand.r, *delta);
-      // Fewer usable points would fake a lower cost: require most to stay.
-      if (c < cost && cand.used >= res.used * 0.95) {
+  AlignState next;
+  const AlignmentCost cost = LevenbergMarquardt(
+      iterations, AlignmentCost{HuberCost(res.r, *delta), res.used},
+      [&](Eigen::MatrixXd* h, Eigen::VectorXd* g) {
+        Mat8 hf = Mat8::Zero();
+        Vec8 gf = Vec8::Zero();
+        for (size_t i = 0; i < res.r.size(); ++i) {
+          const double r = res.r[i];
+          if (!std::isfinite(r)) continue;
+          const double w = std::abs(r) <= *delta ? 1.0 : *delta / std::abs(r);
+          hf.noalias() += w * res.j[i].transpose() * res.j[i];
+          gf.noalias() += w * r * res.j[i].transpose();
+        }
+        *h = hf;
+        *g = gf;
+        if (!pose_free) PinLeading(6, h, g);
+      },
+      [&](const Eigen::VectorXd& step) {
+        next.pose = s->pose.Moved(step.head<6>());
+        next.gain = s->gain + step(6);
+        next.bias = s->bias + step(7);
+        cand = Evaluate(k, photo, in, next.pose, next.gain, next.bias, true);
+        return AlignmentCost{HuberCost(cand.r, *delta), cand.used};
+      },
+      [&] {
         *s = next;
         res = std::move(cand);
-        cost = c;
-        lambda = std::max(lambda * 0.5, 1e-6);
-        improved = true;
-      } else {
-        lambda *= 4;
-      }
-    }
-    if (!improved) break;
-  }
-  return cost;
+      });
+  return cost.mean;
 }
 
 }  // namespace

@@ -106,10 +106,7 @@ FrameResiduals Evaluate(const FrameLevel& f, const Similarity& t, double gain, d
   return out;
 }
 
-struct Cost {
-  double mean = std::numeric_limits<double>::infinity();
-  int used = 0;
-};
+using Cost = AlignmentCost;
 
 Cost TotalCost(const std::vector<FrameLevel>& frames, const std::vector<FrameResiduals>& res) {
   double sum = 0;
@@ -155,51 +152,31 @@ void NormalEquations(const std::vector<FrameLevel>& frames, const std::vector<Fr
       g->segment<2>(e) += w * r * j.tail<2>().transpose();
     }
   }
-  if (!pose_free) {
-    h->topRows<kSim>().setZero();
-    h->leftCols<kSim>().setZero();
-    h->topLeftCorner<kSim, kSim>().setIdentity();
-    g->head<kSim>().setZero();
-  }
+  if (!pose_free) PinLeading(kSim, h, g);
 }
 
 // Levenberg-Marquardt from `s`; returns the final mean robust cost.
 double Solve(const std::vector<FrameLevel>& frames, const Eigen::Vector3d& pivot, int iterations, bool pose_free,
              State* s) {
-  std::vector<FrameResiduals> res = EvaluateAll(frames, *s, pivot, true);
-  Cost cost = TotalCost(frames, res);
-  double lambda = 1e-3;
-  Eigen::MatrixXd h;
-  Eigen::VectorXd g;
-  for (int it = 0; it < iterations; ++it) {
-    NormalEquations(frames, res, pose_free, &h, &g);
-    bool improved = false;
-    for (int tries = 0; tries < 6 && !improved; ++tries) {
-      Eigen::MatrixXd damped = h;
-      damped.diagonal() += lambda * h.diagonal().cwiseMax(1e-9);
-      const Eigen::VectorXd step = -damped.ldlt().solve(g);
-      if (!step.allFinite()) break;
-      State next = *s;
-      next.t = Increment(step.head<kSim>(), pivot).Compose(s->t);
-      for (size_t f = 0; f < frames.size(); ++f) {
-        next.gain[f] += step(kSim + 2 * int(f));
-        next.bias[f] += step(kSim + 2 * int(f) + 1);
-      }
-      std::vector<FrameResiduals> cand = EvaluateAll(frames, next, pivot, true);
-      const Cost c = TotalCost(frames, cand);
-      // Fewer usable points would fake a lower cost: require most to stay.
-      if (c.mean < cost.mean && c.used >= cost.used * 0.95) {
+  std::vector<FrameResiduals> res = EvaluateAll(frames, *s, pivot, true), cand;
+  State next;
+  const Cost cost = LevenbergMarquardt(
+      iterations, TotalCost(frames, res),
+      [&](Eigen::MatrixXd* h, Eigen::VectorXd* g) { NormalEquations(frames, res, pose_free, h, g); },
+      [&](const Eigen::VectorXd& step) {
+        next = *s;
+        next.t = Increment(step.head<kSim>(), pivot).Compose(s->t);
+        for (size_t f = 0; f < frames.size(); ++f) {
+          next.gain[f] += step(kSim + 2 * int(f));
+          next.bias[f] += step(kSim + 2 * int(f) + 1);
+        }
+        cand = EvaluateAll(frames, next, pivot, true);
+        return TotalCost(frames, cand);
+      },
+      [&] {
         *s = std::move(next);
         res = std::move(cand);
-        cost = c;
-        lambda = std::max(lambda * 0.5, 1e-6);
-        improved = true;
-      } else {
-        lambda *= 4;
-      }
-    }
-    if (!improved) break;
-  }
+      });
   return cost.mean;
 }
 
