@@ -10,7 +10,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${BIN:-./build/client/clnerf}
-ITERS=${ITERS:-1000}
+ITERS=${ITERS:-2000}  # The first scan's budget in the service.
 OUT=${OUT:-bench/results/registration}
 mkdir -p "$OUT"
 DATA=("$@")

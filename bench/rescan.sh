@@ -13,7 +13,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 BIN=${BIN:-./build/client/clnerf}
-FIRST_ITERS=${FIRST_ITERS:-1000}
+FIRST_ITERS=${FIRST_ITERS:-2000}  # The first scan's budget in the service.
 ITERS=${ITERS:-1000}
 FIRST_SEEDS=${FIRST_SEEDS:-3}
 OUT=${OUT:-bench/results/rescan}

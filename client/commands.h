@@ -149,7 +149,7 @@ struct BenchRegisterArgs {
 
 struct BenchRescanArgs {
   std::string data;               // Dataset folder, or "procedural".
-  int first_iterations = 1000;    // Visit A (the place's first scan).
+  int first_iterations = TrainOptions().iterations;  // Visit A (the place's first scan), as the server gives it.
   UpdateOptions update;           // Visit B's update (the verb sets 1000 iterations).
   RegistrationOptions registration;
   DatasetOptions dataset;

@@ -168,17 +168,24 @@ void RefineLikeTheService(const NgpModel& model, const RegistrationReport& r, do
               pe.rotation_median);
 }
 
-// As the update worker does for a scan posed in its own frame, once placed:
-// its whole similarity refined photometrically against the place's renders.
-void RefineSimilarityLikeTheService(const NgpModel& model, double extent, const RegistrationOptions& o,
-                                    const std::vector<View>& truth, Scene* scan, nlohmann::json* row) {
+// As the update worker does for a scan it did not pose, once placed off
+// the identity by `r`: its whole similarity refined photometrically against
+// the place's renders, and the scan put back as uploaded (`uploaded`: its
+// centres then) when the two land within a hair of the identity.
+void RefineSimilarityLikeTheService(const NgpModel& model, const RegistrationReport& r, double extent,
+                                    const RegistrationOptions& o, const std::vector<View>& truth,
+                                    const std::vector<Eigen::Vector3d>& uploaded, Scene* scan,
+                                    nlohmann::json* row) {
   absl::StatusOr<SimilarityRefinement> s =
       RefineSimilarityPhotometric(ModelPlaceMap(model, RenderOptions()), *scan, extent, o.similarity_options);
   if (!s.ok()) {
-    std::printf("  own: photometric similarity failed: %s\n", std::string(s.status().message()).c_str());
+    std::printf("  photometric similarity failed: %s\n", std::string(s.status().message()).c_str());
     return;
   }
   if (s->accepted) ApplySimilarity(s->correction, scan);
+  const bool snapped = s->accepted && RefinedToIdentity(r, s->correction, uploaded, o);
+  if (snapped) ApplySimilarity(s->correction.Compose(r.transform).Inverse(), scan);
+  (*row)["similarity_refined_to_identity"] = snapped;
   const PoseErrors e = FrameErrors(scan->train, truth, extent);
   (*row)["similarity_refined"] = s->accepted;
   (*row)["similarity_refine_why"] = s->why;
@@ -186,9 +193,9 @@ void RefineSimilarityLikeTheService(const NgpModel& model, double extent, const 
   (*row)["similarity_refine_seconds"] = s->seconds;
   (*row)["similarity_refined_centre_error_pct_median"] = e.centre_median;
   (*row)["similarity_refined_rotation_error_deg_median"] = e.rotation_median;
-  std::printf("  own: similarity %s photometrically (turned %.3f deg, %d frames, %.1f s%s%s); poses %.2f%% / %.2f deg "
+  std::printf("  similarity %s photometrically (turned %.3f deg, %d frames, %.1f s%s%s); poses %.2f%% / %.2f deg "
               "from the known\n",
-              s->accepted ? "refined" : "kept", s->rotation_deg, s->frames, s->seconds, s->accepted ? "" : ": ",
+              snapped ? "refined to the identity" : s->accepted ? "refined" : "kept", s->rotation_deg, s->frames, s->seconds, s->accepted ? "" : ": ",
               s->why.c_str(), e.centre_median, e.rotation_median);
 }
 
@@ -310,6 +317,7 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   (*row)["registered"] = r.status.ok();
   (*row)["identity"] = r.identity;
   (*row)["status"] = r.status.ToString();
+  const std::vector<Eigen::Vector3d> uploaded = TrainCentres(cs->scan);
   if (r.status.ok()) ApplySimilarity(r.transform, &cs->scan);
   const PoseErrors e = FrameErrors(cs->scan.train, cs->posed_truth, c.extent);
   std::vector<View> pnp, pnp_truth;  // Each placed frame's own PnP pose against the place's renders.
@@ -332,12 +340,12 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   if (refine && r.status.ok()) {
     RefineLikeTheService(*c.place_state->model, r, c.extent, which, cs->posed_truth, &cs->scan, row);
   }
-  // A scan posed in its own frame: its similarity refined photometrically
-  // ("own-nophoto" skips it).
-  if ((which == "own" || which == "own-frames") && r.status.ok() && !r.identity &&
+  // A scan posed by its uploader (in the place's frame or its own): its
+  // similarity refined photometrically ("own-nophoto" skips it).
+  if ((which == "place" || which == "own" || which == "own-frames") && r.status.ok() && !r.identity &&
       c.args->registration.photometric_similarity) {
-    RefineSimilarityLikeTheService(*c.place_state->model, c.extent, c.args->registration, cs->posed_truth,
-                                   &cs->scan, row);
+    RefineSimilarityLikeTheService(*c.place_state->model, r, c.extent, c.args->registration, cs->posed_truth,
+                                   uploaded, &cs->scan, row);
   }
   if (which == "own-frames" && r.status.ok()) {  // Then each frame on its own, as for a scan the service posed.
     absl::StatusOr<ScanPhotometricReport> pr = RefineScanPhotometric(

@@ -61,16 +61,9 @@ void Accept(const RobustSimilarity& fit, const std::vector<PosePair>& pairs, con
     }
   }
   // Snap a fit within a hair of the identity.
-  double moved = 0;
-  for (const PosePair& p : pairs) {
-    const Eigen::Vector3d c = p.from.col(3).cast<double>();
-    moved = std::max(moved, (fit.transform.Apply(c) - c).norm());
-  }
-  auto within = [&](double k) {
-    return std::abs(fit.transform.scale - 1) <= k * o.identity_scale &&
-           fit.transform.RotationDegrees() <= k * o.identity_rotation_deg &&
-           moved <= k * o.identity_centre * r->place_extent;
-  };
+  std::vector<Eigen::Vector3d> centres;
+  for (const PosePair& p : pairs) centres.push_back(p.from.col(3).cast<double>());
+  auto within = [&](double k) { return WithinIdentityHair(fit.transform, centres, r->place_extent, o, k); };
   r->identity_likelihood_ratio = IdentityLikelihoodRatio(fit, pairs);
   r->identity = within(1.0) || (within(o.identity_noise_limit) &&
                                 r->identity_likelihood_ratio <= o.identity_chi_square);
@@ -230,6 +223,26 @@ void ApplySimilarity(const Similarity& s, Scene* scene) {
   }
   for (Eigen::Vector3f& p : scene->sparse_points) p = s.Apply(p);
   for (Eigen::Vector3f& p : scene->content_points) p = s.Apply(p);
+}
+
+bool WithinIdentityHair(const Similarity& t, const std::vector<Eigen::Vector3d>& centres, double place_extent,
+                        const RegistrationOptions& o, double k) {
+  double moved = 0;
+  for (const Eigen::Vector3d& c : centres) moved = std::max(moved, (t.Apply(c) - c).norm());
+  return std::abs(t.scale - 1) <= k * o.identity_scale && t.RotationDegrees() <= k * o.identity_rotation_deg &&
+         moved <= k * o.identity_centre * place_extent;
+}
+
+std::vector<Eigen::Vector3d> TrainCentres(const Scene& scene) {
+  std::vector<Eigen::Vector3d> out;
+  for (const View& v : scene.train) out.push_back(v.camera.position().cast<double>());
+  return out;
+}
+
+bool RefinedToIdentity(const RegistrationReport& report, const Similarity& correction,
+                       const std::vector<Eigen::Vector3d>& uploaded, const RegistrationOptions& o) {
+  return !report.identity &&
+         WithinIdentityHair(correction.Compose(report.transform), uploaded, report.place_extent, o);
 }
 
 }  // namespace clnerf

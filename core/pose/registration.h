@@ -154,6 +154,26 @@ absl::Status RefineAgainstPlace(const RegistrationReport& report, Scene* scene, 
 // target of `scene` by `s` (scan frame -> place frame).
 void ApplySimilarity(const Similarity& s, Scene* scene);
 
+// Whether `t` (scan frame -> place frame) is within `k` times the hair of the
+// identity that RegisterScan snaps to it: scale within identity_scale,
+// rotation within identity_rotation_deg, and each of `centres` (camera
+// centres in the scan's frame) moved less than identity_centre x
+// `place_extent`.
+bool WithinIdentityHair(const Similarity& t, const std::vector<Eigen::Vector3d>& centres, double place_extent,
+                        const RegistrationOptions& o, double k = 1.0);
+
+// The train views' camera centres (in whatever frame the scene is in).
+std::vector<Eigen::Vector3d> TrainCentres(const Scene& scene);
+
+// After RefineSimilarityPhotometric accepted `correction` for a scan that
+// `report` placed off the identity: true when the two together are within
+// the hair of the identity for the scan's uploaded camera centres
+// `uploaded`. The scan was in the place's frame all along and PnP's noise
+// had moved it (beer_2 in the place's frame: placed 0.66 deg off, refined to
+// 0.13 deg); the caller then keeps it as uploaded.
+bool RefinedToIdentity(const RegistrationReport& report, const Similarity& correction,
+                       const std::vector<Eigen::Vector3d>& uploaded, const RegistrationOptions& o);
+
 }  // namespace clnerf
 
 #endif  // CLNERF_CORE_POSE_REGISTRATION_H_

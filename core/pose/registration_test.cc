@@ -139,6 +139,39 @@ TEST(RegistrationTest, ApplySimilarityMovesEverySplitAndPoint) {
   EXPECT_TRUE(s.sparse_points[0].isApprox(Eigen::Vector3f(1, 4, 3)));
 }
 
+// A scan in the place's frame that PnP's noise placed 0.66 deg off, and the
+// photometric refinement brought back to 0.1 deg: put back as uploaded. The
+// same refinement of a scan that really was moved, or one left 1 deg off,
+// is not.
+TEST(RegistrationTest, ARefinementBackToTheIdentityKeepsTheScanAsUploaded) {
+  const std::vector<Eigen::Vector3d> centres = {{2, 0, 0}, {0, 2, 0.5}, {-2, 0, 0}, {0, -2, 0.2}};
+  const double extent = 4;
+  RegistrationOptions o;
+  auto turn = [](double deg) {
+    Similarity s;
+    s.rotation = Eigen::AngleAxisd(deg * M_PI / 180, Eigen::Vector3d(0.3, 1, 0.2).normalized()).toRotationMatrix();
+    return s;
+  };
+  RegistrationReport noisy;  // What registration found: 0.66 deg, 0.4 % larger.
+  noisy.transform = turn(0.66);
+  noisy.transform.scale = 1.004;
+  noisy.place_extent = extent;
+  Similarity back = noisy.transform.Inverse();  // The refinement, leaving 0.1 deg.
+  back = turn(0.1).Compose(back);
+  EXPECT_TRUE(WithinIdentityHair(back.Compose(noisy.transform), centres, extent, o));
+  EXPECT_TRUE(RefinedToIdentity(noisy, back, centres, o));
+  EXPECT_FALSE(RefinedToIdentity(noisy, Similarity(), centres, o));  // Still 0.66 deg off.
+  EXPECT_FALSE(RefinedToIdentity(noisy, turn(0.34).Compose(noisy.transform.Inverse()), centres, o));
+  Similarity shifted = back;  // Centres moved by 1 % of the place.
+  shifted.translation += Eigen::Vector3d(0.04, 0, 0);
+  EXPECT_FALSE(RefinedToIdentity(noisy, shifted, centres, o));
+  RegistrationReport own = noisy;  // A scan in its own frame.
+  own.transform = RandomSimilarity(3);
+  EXPECT_FALSE(RefinedToIdentity(own, turn(0.1), centres, o));
+  noisy.identity = true;  // Already snapped by registration: nothing to put back.
+  EXPECT_FALSE(RefinedToIdentity(noisy, back, centres, o));
+}
+
 TEST(RegistrationTest, OptionsAreValidated) {
   RegistrationOptions o;
   EXPECT_TRUE(o.Validate().ok());

@@ -326,7 +326,8 @@ bool UpdateWorker::AlignToPlace(const std::string& job_id, const std::string& sc
 // with progress in the REGISTERING phase. False when the job ended
 // (cancelled); a render error or a refused refinement keeps the placement.
 bool UpdateWorker::AlignSimilarityToPlace(const std::string& job_id, const std::string& scan_id,
-                                          const PlaceMap& map, double extent, Scene* scene,
+                                          const PlaceMap& map, double extent, const RegistrationReport& reg,
+                                          const std::vector<Eigen::Vector3d>& uploaded, Scene* scene,
                                           std::map<std::string, double>* metrics) {
   absl::StatusOr<SimilarityRefinement> r = RefineSimilarityPhotometric(
       map, *scene, extent, options_.registration.similarity_options, StepProgress(job_id), &cancel_);
@@ -346,6 +347,14 @@ bool UpdateWorker::AlignSimilarityToPlace(const std::string& job_id, const std::
     return true;
   }
   ApplySimilarity(r->correction, scene);
+  if (RefinedToIdentity(reg, r->correction, uploaded, options_.registration)) {
+    ApplySimilarity(r->correction.Compose(reg.transform).Inverse(), scene);
+    (*metrics)["registration_identity"] = 1;
+    (*metrics)["registration_refined_to_identity"] = 1;
+    spdlog::info("job {}: the refined similarity is within a hair of the identity (turned {:.3f} deg): the scan was "
+                 "in the place's frame, kept as uploaded", job_id, r->rotation_deg);
+    return true;
+  }
   spdlog::info("job {}: similarity refined against the place's renders: turned {:.3f} deg, scaled {:.4f}, cameras "
                "moved up to {:.2f}% of the place, robust cost {:.4g} -> {:.4g}, {} frames, {:.1f} s",
                job_id, r->rotation_deg, r->scale, 100 * r->max_centre, r->cost_before, r->cost_after, r->frames,
@@ -375,6 +384,7 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
   }
   r.AddMetrics(metrics);
   if (r.status.ok()) {
+    const std::vector<Eigen::Vector3d> uploaded = TrainCentres(*scene);
     ApplySimilarity(r.transform, scene);
     if (metrics->count("posing_frames") > 0) {
       // Posed here by SfM over this scan alone: its self-calibrated camera
@@ -392,7 +402,7 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
         return false;
       }
     } else if (!r.identity && options_.registration.photometric_similarity &&
-               !AlignSimilarityToPlace(job_id, scan_id, map, extent, scene, metrics)) {
+               !AlignSimilarityToPlace(job_id, scan_id, map, extent, r, uploaded, scene, metrics)) {
       return false;
     }
     spdlog::info("job {}: registered into the place's frame: {}", job_id, r.Summary());

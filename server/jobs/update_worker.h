@@ -150,12 +150,16 @@ class UpdateWorker {
   // `extent`: the place's size (PlaceExtent).
   bool AlignToPlace(const std::string& job_id, const std::string& scan_id, const PlaceMap& map, double extent,
                     Scene* scene, std::map<std::string, double>* metrics);
-  // After RegisterIntoPlace placed a scan posed in its own frame (not the
-  // identity): its whole similarity refined photometrically against `map`
-  // (RefineSimilarityPhotometric) and applied when accepted. False when the
-  // job ended (cancelled).
+  // After RegisterIntoPlace placed a scan it did not pose by `reg` (not as
+  // the identity; `uploaded`: its camera centres as uploaded): its whole
+  // similarity refined photometrically against `map`
+  // (RefineSimilarityPhotometric) and applied when accepted, or the scan put
+  // back as uploaded when the two land within a hair of the identity
+  // (RefinedToIdentity). False when the job ended (cancelled).
   bool AlignSimilarityToPlace(const std::string& job_id, const std::string& scan_id, const PlaceMap& map,
-                              double extent, Scene* scene, std::map<std::string, double>* metrics);
+                              double extent, const RegistrationReport& reg,
+                              const std::vector<Eigen::Vector3d>& uploaded, Scene* scene,
+                              std::map<std::string, double>* metrics);
   // Ends a job whose step saw its cancel flag: kept for a restart (or gone
   // with its place) when the server stops, "cancelled by request" otherwise.
   void FinishCancelled(const std::string& job_id, const std::string& scan_id);
