@@ -396,13 +396,14 @@ absl::StatusOr<nlohmann::json> RunCase(const RescanContext& c, const std::string
   cs.scored = c.test;
   const bool own = which == "own" || which == "own-nophoto" || which == "own-frames";
   if (own) ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, c.extent), &cs.scan);
-  if (which != "place" && !own) {
+  const bool known = which == "known";  // The truth: no registration at all.
+  if (which != "place" && !known && !own) {
     if (!PoseCase(c, which, &cs, &row)) return row;
   } else {
     for (size_t i = 0; i < cs.scan.train.size(); ++i) cs.posed.push_back(int(i));
   }
   for (int i : cs.posed) cs.posed_truth.push_back(cs.truth[size_t(i)]);
-  if (!RegisterCase(c, which, &cs, &row)) return row;
+  if (!known && !RegisterCase(c, which, &cs, &row)) return row;
   row["register_seconds"] = cs.register_seconds;
   const auto t0 = std::chrono::steady_clock::now();
   absl::StatusOr<ContinualState> next = ContinualUpdate(cs.scan, c.place_state, a.update, {}, nullptr, nullptr);
@@ -502,7 +503,7 @@ absl::StatusOr<nlohmann::json> RunFirstScanCase(const RescanContext& c) {
 }
 
 absl::Status CheckCases(const std::vector<std::string>& cases) {
-  static const std::set<std::string> kCases = {"place",           "own",
+  static const std::set<std::string> kCases = {"known",           "place",           "own",
                                                "own-nophoto",     "own-frames", "unposed",
                                                "unposed-unseeded", "unposed-unrefined",
                                                "unposed-nophoto", "unposed-first"};
@@ -510,7 +511,7 @@ absl::Status CheckCases(const std::vector<std::string>& cases) {
     if (!kCases.count(c)) {
       return absl::InvalidArgumentError(absl::StrCat(
           "unknown case '", c,
-          "' (place, own, own-nophoto, own-frames, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first)"));
+          "' (known, place, own, own-nophoto, own-frames, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first)"));
     }
   }
   return absl::OkStatus();
@@ -529,7 +530,7 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--first-iters", a->first_iterations, "Training steps of visit A (the first scan)")
       ->capture_default_str();
   c->add_option("--iters", a->update.train.iterations, "Training steps of visit B's update")->capture_default_str();
-  c->add_option("--cases", a->cases, "Comma-separated: place, own, own-nophoto, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first")->capture_default_str();
+  c->add_option("--cases", a->cases, "Comma-separated: known (visit B at its known poses, not registered), place, own, own-nophoto, unposed, unposed-unseeded, unposed-unrefined, unposed-nophoto, unposed-first")->capture_default_str();
   c->add_option("--rotation", a->rotation_deg, "Visit B's own frame: rotation (degrees)")->capture_default_str();
   c->add_option("--min-side", a->registration.localizer.min_side,
                 "Registration: photos smaller than this (long side, pixels) are matched at this size")
