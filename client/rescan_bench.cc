@@ -535,6 +535,9 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--min-side", a->registration.localizer.min_side,
                 "Registration: photos smaller than this (long side, pixels) are matched at this size")
       ->capture_default_str();
+  c->add_option("--similarity-frames", a->registration.similarity_options.max_frames,
+                "Registration: frames the photometric similarity refinement renders and aligns")
+      ->capture_default_str();
   c->add_option("--scale", a->scale, "... and scale")->capture_default_str();
   c->add_option("--seed", a->seed, "Seed of its axis and shift")->capture_default_str();
   c->add_option("--eval-views", a->eval_views, "Held-out views scored (0 = all)")->capture_default_str();
@@ -607,6 +610,7 @@ int RunBenchRescan(const BenchRescanArgs& a) {
                         {"iterations", a.update.train.iterations}, {"train_seed", a.update.train.seed},
                         {"grid_decay", a.update.train.grid_decay}, {"coarse_to_fine", a.update.train.coarse_to_fine},
                         {"distortion", a.update.train.distortion_reg}, {"learning_rate", a.update.train.learning_rate},
+                        {"similarity_frames", a.registration.similarity_options.max_frames},
                         {"oversample", a.update.capacity.oversample},
                         {"train_a_seconds", train_a},
                         {"psnr_a", c.psnr_a}, {"speckle_a", scores_a.speckle}, {"blur_a", scores_a.blur},
