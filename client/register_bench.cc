@@ -78,15 +78,18 @@ nlohmann::json RefineLikeTheService(const RegistrationReport& r, const PlaceMap&
   if (!s.ok()) return {{"status", s.status().ToString()}};
   if (s->accepted) ApplySimilarity(s->correction, scan);
   const bool snapped = s->accepted && RefinedToIdentity(r, s->correction, uploaded, o);
-  if (snapped) ApplySimilarity(s->correction.Compose(r.transform).Inverse(), scan);
-  if (snapped) std::printf("  photometric similarity: refined to within a hair of the identity: kept as uploaded\n");
+  if (snapped) {
+    ApplySimilarity(s->correction.Compose(r.transform).Inverse(), scan);
+    std::printf("  photometric similarity: refined to within a hair of the identity: kept as uploaded\n");
+  }
   const PoseErrors e = FrameErrors(scan->train, truth.train, extent);
   std::printf("  photometric similarity: %s (%s), turned %.3f deg, scale %.4f, %d frames, %.1f s | centre error "
               "median %.2f%% max %.2f%% | rotation median %.2f max %.2f deg\n",
               s->accepted ? "taken" : "kept as registered", s->accepted ? "cost fell" : s->why.c_str(),
               s->rotation_deg, s->scale, s->frames, s->seconds, e.centre_median, e.centre_max, e.rotation_median,
               e.rotation_max);
-  return {{"accepted", s->accepted}, {"refined_to_identity", snapped}, {"why", s->why}, {"rotation_deg", s->rotation_deg}, {"scale", s->scale},
+  return {{"accepted", s->accepted}, {"refined_to_identity", snapped}, {"why", s->why},
+          {"rotation_deg", s->rotation_deg}, {"scale", s->scale},
           {"cost_before", s->cost_before}, {"cost_after", s->cost_after}, {"frames", s->frames},
           {"seconds", s->seconds}, {"centre_error_pct_median", e.centre_median}, {"centre_error_pct_max", e.centre_max},
           {"rotation_error_deg_median", e.rotation_median}, {"rotation_error_deg_max", e.rotation_max}};
@@ -98,7 +101,8 @@ CLI::App* BindBenchRegister(CLI::App* parent, BenchRegisterArgs* a) {
                   "frame and in its own");
   // θ_A gets the place's first-scan budget, as the server gives it (TrainOptions' default).
   c->add_option("--data", a->data, "Dataset folder, or 'procedural'")->required();
-  c->add_option("--iters", a->fit.train.iterations, "Training steps of the first visit's model (the server's first-scan budget)")
+  c->add_option("--iters", a->fit.train.iterations,
+                "Training steps of the first visit's model (the server's first-scan budget)")
       ->capture_default_str();
   c->add_option("--rotation", a->rotation_deg, "The second visit's own frame: rotation (degrees)")
       ->capture_default_str();
