@@ -67,21 +67,16 @@ void PrintFrames(const RegistrationReport& r, const Scene* truth, double extent)
 
 // As the update worker does for a scan it did not pose: once placed (not
 // the identity), its similarity refined photometrically against the place's
-// renders, and the scan put back as uploaded (`uploaded`: its centres then)
-// when the two land within a hair of the identity. Returns what it did, with
+// renders, and the scan put back as uploaded when the two land within a
+// hair of the identity (ApplyRefinedSimilarity). Returns what it did, with
 // the poses' error after it.
 nlohmann::json RefineLikeTheService(const RegistrationReport& r, const PlaceMap& map, double extent,
-                                    const RegistrationOptions& o, const Scene& truth,
-                                    const std::vector<Eigen::Vector3d>& uploaded, Scene* scan) {
+                                    const RegistrationOptions& o, const Scene& truth, Scene* scan) {
   if (!r.status.ok() || r.identity || !o.photometric_similarity) return nullptr;
   absl::StatusOr<SimilarityRefinement> s = RefineSimilarityPhotometric(map, *scan, extent, o.similarity_options);
   if (!s.ok()) return {{"status", s.status().ToString()}};
-  if (s->accepted) ApplySimilarity(s->correction, scan);
-  const bool snapped = s->accepted && RefinedToIdentity(r, s->correction, uploaded, o);
-  if (snapped) {
-    ApplySimilarity(s->correction.Compose(r.transform).Inverse(), scan);
-    std::printf("  photometric similarity: refined to within a hair of the identity: kept as uploaded\n");
-  }
+  const bool snapped = s->accepted && ApplyRefinedSimilarity(r, s->correction, o, scan);
+  if (snapped) std::printf("  photometric similarity: refined to within a hair of the identity: kept as uploaded\n");
   const PoseErrors e = FrameErrors(scan->train, truth.train, extent);
   std::printf("  photometric similarity: %s (%s), turned %.3f deg, scale %.4f, %d frames, %.1f s | centre error "
               "median %.2f%% max %.2f%% | rotation median %.2f max %.2f deg\n",
@@ -147,7 +142,6 @@ int RunBenchRegister(const BenchRegisterArgs& a) {
     const bool own = std::string(which) == "own";
     if (own) ApplySimilarity(OwnFrame(a.rotation_deg, a.scale, a.seed, extent), &scan);
     RegistrationReport r = RegisterScan(scan, map, place, extent, a.registration);
-    const std::vector<Eigen::Vector3d> uploaded = TrainCentres(scan);
     if (r.status.ok()) ApplySimilarity(r.transform, &scan);
     const PoseErrors e = FrameErrors(scan.train, visit_b.train, extent);
     const double seconds = r.render_seconds + r.localize_seconds + r.fit_seconds;
@@ -157,7 +151,7 @@ int RunBenchRegister(const BenchRegisterArgs& a) {
                 r.frames_localized, r.frames, r.frames_agreeing, r.identity ? " (identity)" : "", e.centre_median,
                 e.centre_max, e.rotation_median, e.rotation_max, seconds, r.render_seconds, r.localize_seconds);
     if (!r.status.ok()) std::printf("  why: %s\n", std::string(r.status.message()).c_str());
-    nlohmann::json refined = RefineLikeTheService(r, map, extent, a.registration, visit_b, uploaded, &scan);
+    nlohmann::json refined = RefineLikeTheService(r, map, extent, a.registration, visit_b, &scan);
     out["cases"].push_back({{"frame", which}, {"placed", r.status.ok()}, {"status", r.status.ToString()},
                             {"identity", r.identity}, {"identity_likelihood_ratio", r.identity_likelihood_ratio},
                             {"frames", r.frames}, {"frames_localized", r.frames_localized},

@@ -170,11 +170,10 @@ void RefineLikeTheService(const NgpModel& model, const RegistrationReport& r, do
 
 // As the update worker does for a scan it did not pose, once placed off
 // the identity by `r`: its whole similarity refined photometrically against
-// the place's renders, and the scan put back as uploaded (`uploaded`: its
-// centres then) when the two land within a hair of the identity.
+// the place's renders, and the scan put back as uploaded when the two land
+// within a hair of the identity (ApplyRefinedSimilarity).
 void RefineSimilarityLikeTheService(const NgpModel& model, const RegistrationReport& r, double extent,
-                                    const RegistrationOptions& o, const std::vector<View>& truth,
-                                    const std::vector<Eigen::Vector3d>& uploaded, Scene* scan,
+                                    const RegistrationOptions& o, const std::vector<View>& truth, Scene* scan,
                                     nlohmann::json* row) {
   absl::StatusOr<SimilarityRefinement> s =
       RefineSimilarityPhotometric(ModelPlaceMap(model, RenderOptions()), *scan, extent, o.similarity_options);
@@ -182,9 +181,7 @@ void RefineSimilarityLikeTheService(const NgpModel& model, const RegistrationRep
     std::printf("  photometric similarity failed: %s\n", std::string(s.status().message()).c_str());
     return;
   }
-  if (s->accepted) ApplySimilarity(s->correction, scan);
-  const bool snapped = s->accepted && RefinedToIdentity(r, s->correction, uploaded, o);
-  if (snapped) ApplySimilarity(s->correction.Compose(r.transform).Inverse(), scan);
+  const bool snapped = s->accepted && ApplyRefinedSimilarity(r, s->correction, o, scan);
   (*row)["similarity_refined_to_identity"] = snapped;
   const PoseErrors e = FrameErrors(scan->train, truth, extent);
   (*row)["similarity_refined"] = s->accepted;
@@ -195,8 +192,8 @@ void RefineSimilarityLikeTheService(const NgpModel& model, const RegistrationRep
   (*row)["similarity_refined_rotation_error_deg_median"] = e.rotation_median;
   std::printf("  similarity %s photometrically (turned %.3f deg, %d frames, %.1f s%s%s); poses %.2f%% / %.2f deg "
               "from the known\n",
-              snapped ? "refined to the identity" : s->accepted ? "refined" : "kept", s->rotation_deg, s->frames, s->seconds, s->accepted ? "" : ": ",
-              s->why.c_str(), e.centre_median, e.rotation_median);
+              snapped ? "refined to the identity" : s->accepted ? "refined" : "kept", s->rotation_deg, s->frames,
+              s->seconds, s->accepted ? "" : ": ", s->why.c_str(), e.centre_median, e.rotation_median);
 }
 
 // What every case shares: the two visits, the held-out views of each time,
@@ -317,7 +314,6 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   (*row)["registered"] = r.status.ok();
   (*row)["identity"] = r.identity;
   (*row)["status"] = r.status.ToString();
-  const std::vector<Eigen::Vector3d> uploaded = TrainCentres(cs->scan);
   if (r.status.ok()) ApplySimilarity(r.transform, &cs->scan);
   const PoseErrors e = FrameErrors(cs->scan.train, cs->posed_truth, c.extent);
   std::vector<View> pnp, pnp_truth;  // Each placed frame's own PnP pose against the place's renders.
@@ -345,7 +341,7 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   if ((which == "place" || which == "own" || which == "own-frames") && r.status.ok() && !r.identity &&
       c.args->registration.photometric_similarity) {
     RefineSimilarityLikeTheService(*c.place_state->model, r, c.extent, c.args->registration, cs->posed_truth,
-                                   uploaded, &cs->scan, row);
+                                   &cs->scan, row);
   }
   if (which == "own-frames" && r.status.ok()) {  // Then each frame on its own, as for a scan the service posed.
     absl::StatusOr<ScanPhotometricReport> pr = RefineScanPhotometric(

@@ -233,16 +233,22 @@ bool WithinIdentityHair(const Similarity& t, const std::vector<Eigen::Vector3d>&
          moved <= k * o.identity_centre * place_extent;
 }
 
-std::vector<Eigen::Vector3d> TrainCentres(const Scene& scene) {
-  std::vector<Eigen::Vector3d> out;
-  for (const View& v : scene.train) out.push_back(v.camera.position().cast<double>());
-  return out;
-}
-
 bool RefinedToIdentity(const RegistrationReport& report, const Similarity& correction,
                        const std::vector<Eigen::Vector3d>& uploaded, const RegistrationOptions& o) {
   return !report.identity &&
          WithinIdentityHair(correction.Compose(report.transform), uploaded, report.place_extent, o);
+}
+
+bool ApplyRefinedSimilarity(const RegistrationReport& report, const Similarity& correction,
+                            const RegistrationOptions& o, Scene* scene) {
+  const Similarity back = report.transform.Inverse();
+  std::vector<Eigen::Vector3d> uploaded;
+  for (const View& v : scene->train) {
+    uploaded.push_back(back.Apply(Eigen::Vector3d(v.camera.position().cast<double>())));
+  }
+  const bool identity = RefinedToIdentity(report, correction, uploaded, o);
+  ApplySimilarity(identity ? back : correction, scene);
+  return identity;
 }
 
 }  // namespace clnerf

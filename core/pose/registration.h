@@ -162,17 +162,22 @@ void ApplySimilarity(const Similarity& s, Scene* scene);
 bool WithinIdentityHair(const Similarity& t, const std::vector<Eigen::Vector3d>& centres, double place_extent,
                         const RegistrationOptions& o, double k = 1.0);
 
-// The train views' camera centres (in whatever frame the scene is in).
-std::vector<Eigen::Vector3d> TrainCentres(const Scene& scene);
-
 // After RefineSimilarityPhotometric accepted `correction` for a scan that
 // `report` placed off the identity: true when the two together are within
 // the hair of the identity for the scan's uploaded camera centres
-// `uploaded`. The scan was in the place's frame all along and PnP's noise
-// had moved it (beer_2 in the place's frame: placed 0.66 deg off, refined to
-// 0.13 deg); the caller then keeps it as uploaded.
+// `uploaded`.
 bool RefinedToIdentity(const RegistrationReport& report, const Similarity& correction,
                        const std::vector<Eigen::Vector3d>& uploaded, const RegistrationOptions& o);
+
+// After ApplySimilarity(report.transform, scene) and a photometric
+// refinement that accepted `correction`: applies the correction, unless the
+// two together land within the identity's hair (RefinedToIdentity, for the
+// uploaded centres, which report.transform gives back); then the scan was in
+// the place's frame all along and PnP's noise had moved it (beer_2 in the
+// place's frame: placed 0.66 deg off, refined to 0.13 deg), and it is put
+// back as uploaded. Returns true in that case.
+bool ApplyRefinedSimilarity(const RegistrationReport& report, const Similarity& correction,
+                            const RegistrationOptions& o, Scene* scene);
 
 }  // namespace clnerf
 

@@ -168,6 +168,29 @@ TEST(RegistrationTest, ARefinementBackToTheIdentityKeepsTheScanAsUploaded) {
   RegistrationReport own = noisy;  // A scan in its own frame.
   own.transform = RandomSimilarity(3);
   EXPECT_FALSE(RefinedToIdentity(own, turn(0.1), centres, o));
+  // ApplyRefinedSimilarity on a scan registration moved: put back as
+  // uploaded, or the correction applied.
+  Scene uploaded;
+  for (const Eigen::Vector3d& c : centres) {
+    View v;
+    v.camera.c2w = Pose::Identity();
+    v.camera.c2w.col(3) = c.cast<float>();
+    uploaded.train.push_back(v);
+  }
+  Scene placed = uploaded;
+  ApplySimilarity(noisy.transform, &placed);
+  Scene refined = placed;
+  EXPECT_TRUE(ApplyRefinedSimilarity(noisy, back, o, &refined));
+  for (size_t i = 0; i < centres.size(); ++i) {
+    EXPECT_LT((refined.train[i].camera.c2w - uploaded.train[i].camera.c2w).norm(), 1e-5) << "frame " << i;
+  }
+  const Similarity far = turn(0.34).Compose(noisy.transform.Inverse());
+  refined = placed;
+  EXPECT_FALSE(ApplyRefinedSimilarity(noisy, far, o, &refined));
+  for (size_t i = 0; i < centres.size(); ++i) {
+    EXPECT_LT((refined.train[i].camera.c2w - far.ApplyToPose(placed.train[i].camera.c2w)).norm(), 1e-5)
+        << "frame " << i;
+  }
   noisy.identity = true;  // Already snapped by registration: nothing to put back.
   EXPECT_FALSE(RefinedToIdentity(noisy, back, centres, o));
 }

@@ -327,8 +327,7 @@ bool UpdateWorker::AlignToPlace(const std::string& job_id, const std::string& sc
 // (cancelled); a render error or a refused refinement keeps the placement.
 bool UpdateWorker::AlignSimilarityToPlace(const std::string& job_id, const std::string& scan_id,
                                           const PlaceMap& map, double extent, const RegistrationReport& reg,
-                                          const std::vector<Eigen::Vector3d>& uploaded, Scene* scene,
-                                          std::map<std::string, double>* metrics) {
+                                          Scene* scene, std::map<std::string, double>* metrics) {
   absl::StatusOr<SimilarityRefinement> r = RefineSimilarityPhotometric(
       map, *scene, extent, options_.registration.similarity_options, StepProgress(job_id), &cancel_);
   if (absl::IsCancelled(r.status())) {
@@ -346,9 +345,7 @@ bool UpdateWorker::AlignSimilarityToPlace(const std::string& job_id, const std::
     spdlog::info("job {}: similarity kept as registered ({}) after {:.1f} s", job_id, r->why, r->seconds);
     return true;
   }
-  ApplySimilarity(r->correction, scene);
-  if (RefinedToIdentity(reg, r->correction, uploaded, options_.registration)) {
-    ApplySimilarity(r->correction.Compose(reg.transform).Inverse(), scene);
+  if (ApplyRefinedSimilarity(reg, r->correction, options_.registration, scene)) {
     (*metrics)["registration_identity"] = 1;
     (*metrics)["registration_refined_to_identity"] = 1;
     spdlog::info("job {}: the refined similarity is within a hair of the identity (turned {:.3f} deg): the scan was "
@@ -384,7 +381,6 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
   }
   r.AddMetrics(metrics);
   if (r.status.ok()) {
-    const std::vector<Eigen::Vector3d> uploaded = TrainCentres(*scene);
     ApplySimilarity(r.transform, scene);
     if (metrics->count("posing_frames") > 0) {
       // Posed here by SfM over this scan alone: its self-calibrated camera
@@ -402,7 +398,7 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
         return false;
       }
     } else if (!r.identity && options_.registration.photometric_similarity &&
-               !AlignSimilarityToPlace(job_id, scan_id, map, extent, r, uploaded, scene, metrics)) {
+               !AlignSimilarityToPlace(job_id, scan_id, map, extent, r, scene, metrics)) {
       return false;
     }
     spdlog::info("job {}: registered into the place's frame: {}", job_id, r.Summary());

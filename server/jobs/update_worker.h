@@ -151,14 +151,12 @@ class UpdateWorker {
   bool AlignToPlace(const std::string& job_id, const std::string& scan_id, const PlaceMap& map, double extent,
                     Scene* scene, std::map<std::string, double>* metrics);
   // After RegisterIntoPlace placed a scan it did not pose by `reg` (not as
-  // the identity; `uploaded`: its camera centres as uploaded): its whole
-  // similarity refined photometrically against `map`
-  // (RefineSimilarityPhotometric) and applied when accepted, or the scan put
-  // back as uploaded when the two land within a hair of the identity
-  // (RefinedToIdentity). False when the job ended (cancelled).
+  // the identity): its whole similarity refined photometrically against
+  // `map` (RefineSimilarityPhotometric) and applied when accepted, or the
+  // scan put back as uploaded when the two land within a hair of the
+  // identity (ApplyRefinedSimilarity). False when the job ended (cancelled).
   bool AlignSimilarityToPlace(const std::string& job_id, const std::string& scan_id, const PlaceMap& map,
-                              double extent, const RegistrationReport& reg,
-                              const std::vector<Eigen::Vector3d>& uploaded, Scene* scene,
+                              double extent, const RegistrationReport& reg, Scene* scene,
                               std::map<std::string, double>* metrics);
   // Ends a job whose step saw its cancel flag: kept for a restart (or gone
   // with its place) when the server stops, "cancelled by request" otherwise.
