@@ -162,6 +162,9 @@ struct BenchRescanArgs {
   // procedural capture, visit A with its known poses scores 23.8-28.5 dB
   // over four seeds).
   int first_seeds = 3;
+  // Visit B's update is trained with this many seeds (train seed, +1, ...)
+  // after one registration; the rows report their mean PSNRs.
+  int update_seeds = 1;
   std::string save_renders;  // When set: visit A's held-out renders and photos are written here.
   int threads = 0;
   std::string json;
