@@ -40,6 +40,10 @@
 #include "client/visit_split.h"
 #include "core/data/image.h"
 #include "core/data/stopwatch.h"
+#include "core/io/checkpoint.h"
+#include "core/io/durable_file.h"
+#include "core/train/optimizer_state.h"
+#include "core/pose/frame_check.h"
 #include "core/pose/photometric_refine.h"
 #include "core/pose/photometric_similarity.h"
 #include "core/pose/place_map.h"
@@ -51,6 +55,59 @@ namespace clnerf {
 
 namespace {
 
+// COLMAP's answer for `photos`, or read back from `cache` (a JSON file
+// written here after a run when absent): COLMAP is not deterministic, so
+// comparing what registration does with one answer needs it kept.
+absl::StatusOr<SfmResult> RunOrLoadSfm(const std::vector<std::string>& photos, const SfmOptions& o,
+                                       const std::string& cache) {
+  if (!cache.empty() && std::filesystem::exists(cache)) {
+    absl::StatusOr<std::string> text = ReadFileToString(cache, "posing cache");
+    if (!text.ok()) return text.status();
+    const nlohmann::json j = nlohmann::json::parse(*text, nullptr, false);
+    if (j.is_discarded() || j.value("photos", size_t(0)) != photos.size()) {
+      return absl::FailedPreconditionError(absl::StrCat("--posing-cache ", cache, " is not for these ",
+                                                        photos.size(), " photos"));
+    }
+    SfmResult r;
+    for (const nlohmann::json& c : j["cameras"]) {
+      if (c.is_null()) {
+        r.cameras.emplace_back();
+        continue;
+      }
+      Camera cam;
+      const std::vector<float> in = c["in"].get<std::vector<float>>(), m = c["c2w"].get<std::vector<float>>();
+      cam.intrinsics = {int(in[0]), int(in[1]), in[2], in[3], in[4], in[5], in[6], in[7], in[8], in[9]};
+      for (int k = 0; k < 12; ++k) cam.c2w(k / 4, k % 4) = m[size_t(k)];
+      r.cameras.push_back(cam);
+    }
+    for (const auto& p : j["points"]) r.points.emplace_back(p[0].get<float>(), p[1].get<float>(), p[2].get<float>());
+    r.registered = j["registered"].get<int>();
+    r.mean_reprojection_px = j["reprojection_px"].get<double>();
+    std::fprintf(stderr, "bench rescan: COLMAP's poses read from %s\n", cache.c_str());
+    return r;
+  }
+  absl::StatusOr<SfmResult> r = ColmapSfm().Run(photos, o);
+  if (!r.ok() || cache.empty()) return r;
+  nlohmann::json j = {{"photos", photos.size()}, {"registered", r->registered},
+                      {"reprojection_px", r->mean_reprojection_px}, {"cameras", nlohmann::json::array()},
+                      {"points", nlohmann::json::array()}};
+  for (const std::optional<Camera>& c : r->cameras) {
+    if (!c) {
+      j["cameras"].push_back(nullptr);
+      continue;
+    }
+    const Intrinsics& in = c->intrinsics;
+    std::vector<float> m;
+    for (int k = 0; k < 12; ++k) m.push_back(c->c2w(k / 4, k % 4));
+    j["cameras"].push_back({{"in", {float(in.width), float(in.height), in.fx, in.fy, in.cx, in.cy, in.k1, in.k2,
+                                    in.p1, in.p2}},
+                            {"c2w", m}});
+  }
+  for (const Eigen::Vector3f& p : r->points) j["points"].push_back({p.x(), p.y(), p.z()});
+  if (absl::Status s = WriteJson(cache, j); !s.ok()) return s;
+  return r;
+}
+
 // Visit `scan` posed by COLMAP: the frames it posed keep their images and
 // get its cameras (time step kept); `posed` lists their indices in `scan`.
 // `held_out` (optional) is posed in the same run, as the service poses an
@@ -58,7 +115,8 @@ namespace {
 // kept, with its cameras, the others dropped.
 absl::StatusOr<SfmResult> PoseWithColmap(Scene* scan, std::vector<int>* posed, int threads,
                                          std::vector<View>* held_out = nullptr,
-                                         std::optional<Intrinsics> initial_camera = std::nullopt) {
+                                         std::optional<Intrinsics> initial_camera = std::nullopt,
+                                         const std::string& cache = "") {
   char tmpl[] = "/tmp/clnerf-bench-rescan-XXXXXX";
   if (mkdtemp(tmpl) == nullptr) return absl::InternalError("cannot create a scratch folder");
   const std::string dir = tmpl;
@@ -79,7 +137,7 @@ absl::StatusOr<SfmResult> PoseWithColmap(Scene* scan, std::vector<int>* posed, i
     const Intrinsics& in = scan->train[0].camera.intrinsics;
     o.initial_camera = initial_camera->Scaled(in.width, in.height);
   }
-  absl::StatusOr<SfmResult> r = ColmapSfm().Run(photos, o);
+  absl::StatusOr<SfmResult> r = RunOrLoadSfm(photos, o, cache);
   std::error_code ec;
   std::filesystem::remove_all(dir, ec);
   if (!r.ok()) return r.status();
@@ -134,10 +192,11 @@ struct CaseRow {
 // poses refined against the place's points, then each frame aligned
 // photometrically to the place's renders ("unposed-nophoto" skips that).
 void RefineLikeTheService(const NgpModel& model, const RegistrationReport& r, double extent, const std::string& which,
-                          const std::vector<View>& truth, Scene* scan, nlohmann::json* row) {
-  double rms = 0;
+                          const std::vector<View>& truth, bool frame_check, const SharedCameraOptions& camera,
+                          Scene* scan, nlohmann::json* row) {
+  SharedCameraReport cam;
   Intrinsics in;
-  absl::Status rs = RefineAgainstPlace(r, scan, &rms, &in);
+  absl::Status rs = RefineAgainstPlace(r, scan, &cam, &in, camera);
   if (!rs.ok()) {
     std::printf("  %s: refinement failed: %s\n", which.c_str(), std::string(rs.message()).c_str());
     return;
@@ -145,11 +204,16 @@ void RefineLikeTheService(const NgpModel& model, const RegistrationReport& r, do
   const PoseErrors re = FrameErrors(scan->train, truth, extent);
   (*row)["refined_fx"] = in.fx;
   (*row)["refined_k1"] = in.k1;
-  (*row)["refine_rms_px"] = rms;
+  (*row)["refine_rms_px"] = cam.rms_px;
+  (*row)["refine_rms_guess_px"] = cam.rms_guess_px;
+  (*row)["refine_rms_refined_px"] = cam.rms_refined_px;
+  (*row)["camera_refined"] = cam.camera_taken;
   (*row)["refined_centre_error_pct_median"] = re.centre_median;
   (*row)["refined_rotation_error_deg_median"] = re.rotation_median;
-  std::printf("  %s: refined camera fx %.2f k1 %.4f (rms %.2f px); poses %.2f%% / %.2f deg from the known\n",
-              which.c_str(), in.fx, in.k1, rms, re.centre_median, re.rotation_median);
+  std::printf("  %s: camera %s: fx %.2f k1 %.4f (rms %.2f px at the start, %.2f refined); poses %.2f%% / %.2f deg "
+              "from the known\n",
+              which.c_str(), cam.camera_taken ? "refined" : "kept", in.fx, in.k1, cam.rms_guess_px,
+              cam.rms_refined_px, re.centre_median, re.rotation_median);
   if (which == "unposed-nophoto") return;
   absl::StatusOr<ScanPhotometricReport> pr =
       RefineScanPhotometric(ModelPlaceMap(model, RenderOptions()), scan, extent, PhotometricRefineOptions());
@@ -166,6 +230,31 @@ void RefineLikeTheService(const NgpModel& model, const RegistrationReport& r, do
               "%.2f%% / %.2f deg from the known\n",
               which.c_str(), pr->accepted, pr->frames, pr->median_rotation_deg, pr->seconds, pe.centre_median,
               pe.rotation_median);
+  if (const std::string off = pe.Outliers(); !off.empty()) {
+    std::printf("  %s: frames far off after the alignment: %s\n", which.c_str(), off.c_str());
+  }
+  for (size_t i = 0; i < pr->why.size(); ++i) {
+    if (!pr->why[i].empty()) std::printf("    frame %zu kept: %s\n", i, pr->why[i].c_str());
+  }
+  if (!frame_check) return;
+  const std::vector<bool> verified = VerifiedFrames(r, *scan, RegistrationOptions());
+  absl::StatusOr<FrameCheckReport> fc =
+      CheckScanFrames(ModelPlaceMap(model, RenderOptions()), *scan, verified, FrameCheckOptions());
+  if (!fc.ok()) {
+    std::printf("  %s: frame check failed: %s\n", which.c_str(), std::string(fc.status().message()).c_str());
+    return;
+  }
+  const PoseErrors fe = FrameErrors(scan->train, truth, extent);
+  for (size_t i = 0; i < fc->agreement.size(); ++i) {
+    std::printf("    frame %zu: agreement %.3f%s, %.1f %% / %.1f deg from the known\n", i, fc->agreement[i],
+                verified[i] ? " (verified)" : "", fe.centre[i], fe.rotation[i]);
+  }
+  std::printf("  %s: frame check: reference %.3f, %zu frames dropped%s (%.1f s)\n", which.c_str(), fc->reference,
+              fc->dropped.size(), fc->capped ? " (capped: none)" : "", fc->seconds);
+  (*row)["frame_check_dropped"] = fc->dropped.size();
+  (*row)["frame_check_reference"] = fc->reference;
+  (*row)["frame_check_seconds"] = fc->seconds;
+  DropCheckedFrames(*fc, scan);
 }
 
 // As the update worker does for a scan it did not pose, once placed off
@@ -228,7 +317,8 @@ bool PoseCase(const RescanContext& c, const std::string& which, CaseScan* cs, nl
                                              : std::nullopt;
   const auto t0 = std::chrono::steady_clock::now();
   absl::StatusOr<SfmResult> sfm =
-      PoseWithColmap(&cs->scan, &cs->posed, c.args->threads, first_scan ? &cs->scored : nullptr, seed);
+      PoseWithColmap(&cs->scan, &cs->posed, c.args->threads, first_scan ? &cs->scored : nullptr, seed,
+                     first_scan ? "" : c.args->posing_cache);
   cs->posing_seconds = SecondsSince(t0);
   (*row)["posing_seconds"] = cs->posing_seconds;
   if (!sfm.ok()) {
@@ -330,11 +420,28 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   std::printf("  %s: registered poses %.2f%% / %.2f deg from the known; per-frame PnP poses %.2f%% / %.2f deg "
               "(%zu frames)\n",
               which.c_str(), e.centre_median, e.rotation_median, pe.centre_median, pe.rotation_median, pnp.size());
+  if (const std::string off = e.Outliers(); !off.empty()) {
+    std::printf("  %s: frames far off after registration: %s\n", which.c_str(), off.c_str());
+    (*row)["registered_outliers"] = off;
+    for (size_t k = 0; k < r.tried.size(); ++k) {  // What PnP said of each frame.
+      const size_t i = size_t(r.tried[k]);
+      const FrameLocalization& l = r.localized[k];
+      std::printf("    frame %zu: %s, %d inliers%s\n", i, l.placed ? "placed" : "not placed", l.inliers,
+                  l.placed ? absl::StrFormat(", PnP %.1f deg from the known, %.1f deg from registered",
+                                             RotationAngleDegrees(l.c2w.leftCols<3>().cast<double>(),
+                                                                  cs->posed_truth[i].camera.c2w.leftCols<3>().cast<double>()),
+                                             RotationAngleDegrees(l.c2w.leftCols<3>().cast<double>(),
+                                                                  cs->scan.train[i].camera.c2w.leftCols<3>().cast<double>()))
+                                .c_str()
+                           : "");
+    }
+  }
   // As the service: a scan it posed has its camera refined against the
   // place after registration ("unposed-unrefined": without, to compare).
   const bool refine = which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto";
   if (refine && r.status.ok()) {
-    RefineLikeTheService(*c.place_state->model, r, c.extent, which, cs->posed_truth, &cs->scan, row);
+    RefineLikeTheService(*c.place_state->model, r, c.extent, which, cs->posed_truth, c.args->frame_check,
+                         c.args->camera, &cs->scan, row);
   }
   // A scan posed by its uploader (in the place's frame or its own): its
   // similarity refined photometrically ("own-nophoto" skips it).
@@ -543,6 +650,63 @@ absl::Status CheckCases(const std::vector<std::string>& cases) {
   return absl::OkStatus();
 }
 
+// What identifies visit A's training in a --place-cache file.
+std::string PlaceCacheKey(const BenchRescanArgs& a) {
+  const TrainOptions& t = a.update.train;
+  return absl::StrCat("data=", a.data, " first_iterations=", a.first_iterations, " seed=", t.seed,
+                      " grid_decay=", t.grid_decay, " coarse_to_fine=", t.coarse_to_fine, " distortion=",
+                      t.distortion_reg, " learning_rate=", t.learning_rate, " oversample=",
+                      a.update.capacity.oversample);
+}
+
+// Visit A trained as the place's first scan, or read back from
+// --place-cache (written there after training when the file is absent):
+// iterating on registration then skips minutes of training. The cache holds
+// the model, replay memory and optimiser state exactly (float32), and the
+// key it was trained under; a different key is an error, not a retrain.
+absl::StatusOr<ContinualState> PlaceState(const RescanContext& c, double* train_seconds) {
+  const BenchRescanArgs& a = *c.args;
+  constexpr char kMemory[] = "replay_memory", kOptimizer[] = "optimizer";
+  if (!a.place_cache.empty() && std::filesystem::exists(a.place_cache)) {
+    absl::StatusOr<LoadedCheckpoint> ck = LoadCheckpoint(a.place_cache);
+    if (!ck.ok()) return ck.status();
+    const auto key = ck->extras.metadata.find("bench_rescan_key");
+    if (key == ck->extras.metadata.end() || key->second != PlaceCacheKey(a)) {
+      return absl::FailedPreconditionError(absl::StrCat("--place-cache ", a.place_cache, " was trained for '",
+                                                        key == ck->extras.metadata.end() ? "?" : key->second,
+                                                        "', not '", PlaceCacheKey(a), "'"));
+    }
+    const std::string* mem = ck->extras.FindSection(kMemory);
+    const std::string* opt = ck->extras.FindSection(kOptimizer);
+    if (mem == nullptr) return absl::DataLossError("--place-cache has no replay memory");
+    absl::StatusOr<ReplayMemory> memory = ReplayMemory::Deserialize(*mem);
+    if (!memory.ok()) return memory.status();
+    ContinualState s;
+    s.model = std::make_shared<const NgpModel>(std::move(ck->model));
+    s.memory = *std::move(memory);
+    if (opt != nullptr) {
+      absl::StatusOr<OptimizerState> o = OptimizerState::Deserialize(*opt);
+      if (!o.ok()) return o.status();
+      s.optimizer = std::make_shared<const OptimizerState>(*std::move(o));
+    }
+    *train_seconds = std::stod(ck->extras.metadata["train_seconds"]);
+    std::fprintf(stderr, "bench rescan: visit A read from %s\n", a.place_cache.c_str());
+    return s;
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  absl::StatusOr<ContinualState> s = ContinualUpdate(c.visit_a, nullptr, c.first, {}, nullptr, nullptr);
+  if (!s.ok()) return s.status();
+  *train_seconds = SecondsSince(t0);
+  if (a.place_cache.empty()) return s;
+  CheckpointExtras extras;
+  extras.metadata["bench_rescan_key"] = PlaceCacheKey(a);
+  extras.metadata["train_seconds"] = absl::StrCat(*train_seconds);
+  extras.sections.emplace_back(kMemory, s->memory.Serialize());
+  if (s->optimizer != nullptr) extras.sections.emplace_back(kOptimizer, s->optimizer->Serialize());
+  if (absl::StatusOr<size_t> w = SaveCheckpoint(*s->model, a.place_cache, extras); !w.ok()) return w.status();
+  return s;
+}
+
 }  // namespace
 
 CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
@@ -581,6 +745,22 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--max-finest", a->update.capacity.max_finest_resolution,
                 "Upper bound on the derived finest hash-grid resolution (0 = 2048 per unit of bound)")
       ->capture_default_str();
+  c->add_option("--place-cache", a->place_cache,
+                "Visit A's trained place: read from this file when it exists (trained with the same --data, "
+                "--first-iters and --train-seed), else trained and written there");
+  c->add_option("--posing-cache", a->posing_cache,
+                "COLMAP's poses of visit B (unposed cases): read from this JSON file when it exists, else "
+                "written there (COLMAP is not deterministic; this keeps one answer to compare against)");
+  c->add_option("--camera-min-rms-gain", a->camera.min_rms_gain,
+                "Unposed cases: the camera refined against the place is taken only when it cuts the reprojection "
+                "error by this fraction (-1 and --camera-max-change 1: always, as before session 56)")
+      ->capture_default_str();
+  c->add_option("--camera-max-change", a->camera.max_focal_change,
+                "... and moves the focal length by at most this fraction (k1 by at most this much)")
+      ->capture_default_str()
+      ->each([a](const std::string&) { a->camera.max_k1_change = a->camera.max_focal_change; });
+  c->add_flag("--frame-check", a->frame_check,
+             "Check each frame of a scan it posed against the place's renders and drop those that disagree");
   c->add_option("--save-renders", a->save_renders, "Write visit A's held-out renders (and the photos) here");
   c->add_option("--first-seeds", a->first_seeds,
                 "unposed-first: training seeds compared (each with its own COLMAP run and posed baseline)")
@@ -615,11 +795,10 @@ int RunBenchRescan(const BenchRescanArgs& a) {
                a.update.train.iterations, c.test.size());
   c.first = a.update;
   c.first.train.iterations = a.first_iterations;
-  const auto t0 = std::chrono::steady_clock::now();
-  absl::StatusOr<ContinualState> state_a = ContinualUpdate(c.visit_a, nullptr, c.first, {}, nullptr, nullptr);
+  double train_a = 0;
+  absl::StatusOr<ContinualState> state_a = PlaceState(c, &train_a);
   if (!state_a.ok()) return Fail(state_a.status());
   c.place_state = &*state_a;
-  const double train_a = SecondsSince(t0);
   const EvalResult scores_a = HeldOutScores(*state_a->model, c.test, 0, a.eval_views, a.save_renders);
   if (!a.save_renders.empty()) {  // The photos beside the renders, for looking at them.
     for (size_t i = 0; i < c.test.size(); ++i) {

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <random>
 
+#include "absl/strings/str_format.h"
 #include "core/data/dataset.h"
 #include "core/data/procedural_scene.h"
 #include "Eigen/Geometry"
@@ -98,7 +99,18 @@ PoseErrors FrameErrors(const std::vector<View>& placed, const std::vector<View>&
   e.rotation_median = Median(r);
   if (!c.empty()) e.centre_max = *std::max_element(c.begin(), c.end());
   if (!r.empty()) e.rotation_max = *std::max_element(r.begin(), r.end());
+  e.centre = std::move(c);
+  e.rotation = std::move(r);
   return e;
+}
+
+std::string PoseErrors::Outliers() const {
+  std::string out;
+  for (size_t i = 0; i < centre.size(); ++i) {
+    if (centre[i] <= 10 && rotation[i] <= 5) continue;
+    absl::StrAppendFormat(&out, "%s%zu (%.1f %%, %.1f deg)", out.empty() ? "" : ", ", i, centre[i], rotation[i]);
+  }
+  return out;
 }
 
 }  // namespace clnerf

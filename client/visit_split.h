@@ -38,6 +38,9 @@ Similarity OwnFrame(double rotation_deg, double scale, uint64_t seed, double ext
 struct PoseErrors {
   double centre_median = 0, centre_max = 0;  // % of the extent.
   double rotation_median = 0, rotation_max = 0;  // Degrees.
+  std::vector<double> centre, rotation;          // Per frame.
+  // Frames off by more than 10 % of the extent or 5 degrees: "i (c %, r deg)".
+  std::string Outliers() const;
 };
 // Frame i of `placed` against frame i of `truth`.
 PoseErrors FrameErrors(const std::vector<View>& placed, const std::vector<View>& truth, double extent);

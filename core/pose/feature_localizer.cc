@@ -239,8 +239,50 @@ FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& c
   return out;
 }
 
+namespace {
+
+// Each frame's pose by Levenberg-Marquardt from `poses`, under camera (k,
+// dist) (calibrateCamera's own per-view poses can flip); a pose is taken
+// into `out` only if it stays within max_turn_deg of where it started.
+// Returns the RMS reprojection error (pixels) over every correspondence at
+// the poses LM found.
+double PosesUnderCamera(const std::vector<std::vector<cv::Point3f>>& object,
+                        const std::vector<std::vector<cv::Point2f>>& image, const std::vector<size_t>& which,
+                        const cv::Mat& k, const cv::Mat& dist, const std::vector<Pose>& poses, double max_turn_deg,
+                        std::vector<Pose>* out) {
+  double sq = 0;
+  size_t n = 0;
+  for (size_t v = 0; v < which.size(); ++v) {
+    const Pose& start = poses[which[v]];
+    const Eigen::Matrix3d r0 = start.leftCols<3>().cast<double>().transpose();  // World -> camera.
+    const Eigen::Vector3d t0 = -r0 * start.col(3).cast<double>();
+    cv::Mat rm0(3, 3, CV_64F), rvec, tvec(3, 1, CV_64F);
+    for (int i = 0; i < 3; ++i) {
+      tvec.at<double>(i) = t0(i);
+      for (int j = 0; j < 3; ++j) rm0.at<double>(i, j) = r0(i, j);
+    }
+    cv::Rodrigues(rm0, rvec);
+    cv::solvePnPRefineLM(object[v], image[v], k, dist, rvec, tvec);
+    std::vector<cv::Point2f> proj;
+    cv::projectPoints(object[v], rvec, tvec, k, dist, proj);
+    for (size_t i = 0; i < proj.size(); ++i) {
+      const cv::Point2f e = proj[i] - image[v][i];
+      sq += double(e.x) * e.x + double(e.y) * e.y;
+      ++n;
+    }
+    const Pose c2w = CameraToWorld(rvec, tvec);
+    const Eigen::Matrix3d r = c2w.leftCols<3>().cast<double>().transpose();
+    const double turn = Eigen::AngleAxisd(r * r0.transpose()).angle() * 180 / M_PI;
+    if (c2w.allFinite() && turn < max_turn_deg) (*out)[which[v]] = c2w;
+  }
+  return n > 0 ? std::sqrt(sq / double(n)) : 0.0;
+}
+
+}  // namespace
+
 absl::StatusOr<Intrinsics> RefineSharedCamera(const std::vector<FrameLocalization>& frames, const Intrinsics& guess,
-                                             std::vector<Pose>* poses, double* rms_px, double max_turn_deg) {
+                                             std::vector<Pose>* poses, SharedCameraReport* report,
+                                             const SharedCameraOptions& options) {
   std::vector<std::vector<cv::Point3f>> object;
   std::vector<std::vector<cv::Point2f>> image;
   std::vector<size_t> which;
@@ -258,14 +300,14 @@ absl::StatusOr<Intrinsics> RefineSharedCamera(const std::vector<FrameLocalizatio
     which.push_back(f);
   }
   if (which.size() < 3) return absl::InvalidArgumentError("refining a shared camera needs 3 placed frames");
-  cv::Mat k = (cv::Mat_<double>(3, 3) << guess.fx, 0, guess.cx - 0.5, 0, guess.fy, guess.cy - 0.5, 0, 0, 1);
-  cv::Mat dist = (cv::Mat_<double>(1, 5) << guess.k1, guess.k2, guess.p1, guess.p2, 0);
+  const cv::Mat k0 = (cv::Mat_<double>(3, 3) << guess.fx, 0, guess.cx - 0.5, 0, guess.fy, guess.cy - 0.5, 0, 0, 1);
+  const cv::Mat dist0 = (cv::Mat_<double>(1, 5) << guess.k1, guess.k2, guess.p1, guess.p2, 0);
+  cv::Mat k = k0.clone(), dist = dist0.clone();
   std::vector<cv::Mat> rvecs, tvecs;
   const int flags = cv::CALIB_USE_INTRINSIC_GUESS | cv::CALIB_FIX_ASPECT_RATIO | cv::CALIB_FIX_PRINCIPAL_POINT |
                     cv::CALIB_ZERO_TANGENT_DIST | cv::CALIB_FIX_K2 | cv::CALIB_FIX_K3;
-  double rms = 0;
   try {
-    rms = cv::calibrateCamera(object, image, cv::Size(guess.width, guess.height), k, dist, rvecs, tvecs, flags);
+    cv::calibrateCamera(object, image, cv::Size(guess.width, guess.height), k, dist, rvecs, tvecs, flags);
   } catch (const cv::Exception& e) {
     return absl::FailedPreconditionError(absl::StrCat("shared camera refinement failed: ", e.what()));
   }
@@ -273,31 +315,24 @@ absl::StatusOr<Intrinsics> RefineSharedCamera(const std::vector<FrameLocalizatio
   out.fx = float(k.at<double>(0, 0));
   out.fy = float(k.at<double>(1, 1));
   out.k1 = float(dist.at<double>(0));
-  if (!std::isfinite(rms) || !std::isfinite(out.fx) || !std::isfinite(out.k1) ||
-      std::abs(out.fx / guess.fx - 1) > 0.2) {
+  if (!std::isfinite(out.fx) || !std::isfinite(out.k1) || std::abs(out.fx / guess.fx - 1) > 0.2) {
     return absl::FailedPreconditionError("shared camera refinement diverged");
   }
-  // Each frame's pose: Levenberg-Marquardt from the pose it came with, under
-  // the refined camera (calibrateCamera's own per-view poses can flip); kept
-  // only if it stays near it.
-  for (size_t v = 0; v < which.size(); ++v) {
-    const Pose& start = (*poses)[which[v]];
-    const Eigen::Matrix3d r0 = start.leftCols<3>().cast<double>().transpose();  // World -> camera.
-    const Eigen::Vector3d t0 = -r0 * start.col(3).cast<double>();
-    cv::Mat rm0(3, 3, CV_64F), rvec, tvec(3, 1, CV_64F);
-    for (int i = 0; i < 3; ++i) {
-      tvec.at<double>(i) = t0(i);
-      for (int j = 0; j < 3; ++j) rm0.at<double>(i, j) = r0(i, j);
-    }
-    cv::Rodrigues(rm0, rvec);
-    cv::solvePnPRefineLM(object[v], image[v], k, dist, rvec, tvec);
-    const Pose c2w = CameraToWorld(rvec, tvec);
-    const Eigen::Matrix3d r = c2w.leftCols<3>().cast<double>().transpose();  // World -> camera.
-    const double turn = Eigen::AngleAxisd(r * r0.transpose()).angle() * 180 / M_PI;
-    if (c2w.allFinite() && turn < max_turn_deg) (*poses)[which[v]] = c2w;
-  }
-  if (rms_px != nullptr) *rms_px = rms;
-  return out;
+  // The refined camera against the one it started from, each with every
+  // frame's pose fitted under it: taken only if the place's points clearly
+  // prefer it and it stays near (points lifted from a hazy map pull the
+  // camera as much as a wrong focal length does).
+  std::vector<Pose> at_guess = *poses, at_refined = *poses;
+  SharedCameraReport rep;
+  rep.rms_guess_px = PosesUnderCamera(object, image, which, k0, dist0, *poses, options.max_turn_deg, &at_guess);
+  rep.rms_refined_px = PosesUnderCamera(object, image, which, k, dist, *poses, options.max_turn_deg, &at_refined);
+  rep.camera_taken = rep.rms_refined_px <= (1 - options.min_rms_gain) * rep.rms_guess_px &&
+                     std::abs(out.fx / guess.fx - 1) <= options.max_focal_change &&
+                     std::abs(out.k1 - guess.k1) <= options.max_k1_change;
+  *poses = rep.camera_taken ? at_refined : at_guess;
+  rep.rms_px = rep.camera_taken ? rep.rms_refined_px : rep.rms_guess_px;
+  if (report != nullptr) *report = rep;
+  return rep.camera_taken ? out : guess;
 }
 
 }  // namespace clnerf

@@ -71,6 +71,24 @@ struct FrameLocalization {
   std::vector<Eigen::Vector2f> inlier_pixels;
 };
 
+struct SharedCameraOptions {
+  // A frame's refined pose is taken only within this turn of its start.
+  double max_turn_deg = 3.0;
+  // The refined camera is taken only when, with every frame's pose fitted
+  // under each, its RMS reprojection error is at least min_rms_gain below
+  // the starting camera's, its focal length within max_focal_change
+  // (relative) and its k1 within max_k1_change of the start.
+  double min_rms_gain = 0.05;
+  double max_focal_change = 0.05;
+  double max_k1_change = 0.05;
+};
+
+struct SharedCameraReport {
+  double rms_guess_px = 0, rms_refined_px = 0;  // Poses fitted under each camera.
+  double rms_px = 0;                            // Of the camera returned.
+  bool camera_taken = false;                    // False: the guess was kept.
+};
+
 // Refines one camera shared by many localised frames of a scan (focal
 // length and radial k1; principal point, aspect and the rest fixed) and
 // then each frame's pose, by least squares over all their inlier
@@ -78,14 +96,16 @@ struct FrameLocalization {
 // calibrateCamera started from `guess` for the camera; Levenberg-Marquardt
 // per frame from its pose in `poses`): the self-calibration of a
 // structure-from-motion run over a few frames is corrected against the
-// place. `poses` holds one starting pose per frame (the frames' registered
-// poses); a placed frame's is replaced by its refined pose when that turns
-// less than max_turn_deg away. INVALID_ARGUMENT with fewer than 3 placed
-// frames; FAILED_PRECONDITION when the refinement diverges (focal moved by
-// more than 20 %, or non-finite).
+// place. The refined camera is kept only when the points clearly prefer it
+// (SharedCameraOptions); otherwise `guess` is returned, with the poses
+// fitted under it. `poses` holds one starting pose per frame (the frames'
+// registered poses); a placed frame's is replaced by its refined pose when
+// that turns less than max_turn_deg away. INVALID_ARGUMENT with fewer than
+// 3 placed frames; FAILED_PRECONDITION when the refinement diverges (focal
+// moved by more than 20 %, or non-finite).
 absl::StatusOr<Intrinsics> RefineSharedCamera(const std::vector<FrameLocalization>& frames, const Intrinsics& guess,
-                                             std::vector<Pose>* poses, double* rms_px = nullptr,
-                                             double max_turn_deg = 3.0);
+                                             std::vector<Pose>* poses, SharedCameraReport* report = nullptr,
+                                             const SharedCameraOptions& options = {});
 
 class FeatureLocalizer {
  public:

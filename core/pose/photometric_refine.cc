@@ -189,6 +189,7 @@ absl::StatusOr<ScanPhotometricReport> RefineScanPhotometric(const PlaceMap& map,
     View& v = scene->train[i];
     absl::StatusOr<PhotometricRefinement> r = RefinePosePhotometric(map, v.image, v.camera, extent, options);
     if (!r.ok()) return r.status();
+    report.why.push_back(r->accepted ? "" : r->why);
     if (r->accepted) {
       v.camera.c2w = r->c2w;
       ++report.accepted;

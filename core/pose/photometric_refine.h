@@ -25,6 +25,7 @@
 #include <atomic>
 #include <functional>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -87,6 +88,7 @@ struct ScanPhotometricReport {
   double median_rotation_deg = 0;  // Of the accepted moves.
   double median_centre = 0;        // Fraction of extent.
   double seconds = 0;
+  std::vector<std::string> why;    // Per frame: why its pose was kept ("" when moved).
 };
 
 // (done, total) frames refined so far.

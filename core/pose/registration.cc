@@ -192,15 +192,15 @@ RegistrationReport RegisterScan(const Scene& scan, const PlaceMap& map, const st
   return r;
 }
 
-absl::Status RefineAgainstPlace(const RegistrationReport& report, Scene* scene, double* rms_px,
-                                Intrinsics* refined) {
+absl::Status RefineAgainstPlace(const RegistrationReport& report, Scene* scene, SharedCameraReport* camera,
+                                Intrinsics* refined, const SharedCameraOptions& options) {
   if (scene->train.empty()) return absl::InvalidArgumentError("the scan has no frames");
   std::vector<Pose> poses(report.localized.size(), Pose::Zero());
   for (size_t k = 0; k < report.tried.size() && k < poses.size(); ++k) {
     poses[k] = scene->train[size_t(report.tried[k])].camera.c2w;
   }
   absl::StatusOr<Intrinsics> in = RefineSharedCamera(report.localized, scene->train[0].camera.intrinsics, &poses,
-                                                     rms_px);
+                                                     camera, options);
   if (!in.ok()) return in.status();
   for (std::vector<View>* views : {&scene->train, &scene->val, &scene->test}) {
     for (View& v : *views) v.camera.intrinsics = in->Scaled(v.camera.intrinsics.width, v.camera.intrinsics.height);
@@ -212,6 +212,21 @@ absl::Status RefineAgainstPlace(const RegistrationReport& report, Scene* scene, 
   }
   if (refined != nullptr) *refined = *in;
   return absl::OkStatus();
+}
+
+std::vector<bool> VerifiedFrames(const RegistrationReport& report, const Scene& scene,
+                                 const RegistrationOptions& options) {
+  std::vector<bool> out(scene.train.size(), false);
+  for (size_t k = 0; k < report.tried.size() && k < report.localized.size(); ++k) {
+    const size_t i = size_t(report.tried[k]);
+    const FrameLocalization& l = report.localized[k];
+    if (!l.placed || i >= out.size()) continue;
+    const Pose& now = scene.train[i].camera.c2w;
+    const double moved = (l.c2w.col(3) - now.col(3)).norm();
+    const double turn = RotationAngleDegrees(l.c2w.leftCols<3>().cast<double>(), now.leftCols<3>().cast<double>());
+    out[i] = moved <= options.fit.centre_tolerance * report.place_extent && turn <= options.fit.rotation_tolerance_deg;
+  }
+  return out;
 }
 
 void ApplySimilarity(const Similarity& s, Scene* scene) {

@@ -141,14 +141,22 @@ absl::StatusOr<std::vector<MapView>> RenderPlaceReferences(const PlaceMap& map, 
 
 // After ApplySimilarity(report.transform, scene): refines the scan's one
 // shared camera (focal, k1) and the poses of the frames the report placed,
-// against the place's points (RefineSharedCamera), and writes them into
-// `scene` (every view gets the refined camera; unplaced frames keep their
+// against the place's points (RefineSharedCamera: the camera is kept as it
+// came unless the points clearly prefer the refined one), and writes them
+// into `scene` (every view gets the camera; unplaced frames keep their
 // moved poses). For scans whose camera was self-calibrated by structure from
 // motion over few frames: on fox_8's second visit posed by COLMAP it lifted
 // the held-out PSNR from 27.85 to 28.94 dB (29.07 with the known poses).
 // Errors as RefineSharedCamera's; `scene` is unchanged on error.
-absl::Status RefineAgainstPlace(const RegistrationReport& report, Scene* scene, double* rms_px = nullptr,
-                                Intrinsics* refined = nullptr);
+absl::Status RefineAgainstPlace(const RegistrationReport& report, Scene* scene, SharedCameraReport* camera = nullptr,
+                                Intrinsics* refined = nullptr, const SharedCameraOptions& options = {});
+
+// Which train views of `scene` (placed by `report`'s similarity, possibly
+// refined since) registration confirmed: PnP placed the frame within the
+// fit's tolerances (options.fit: centre as a fraction of
+// report.place_extent, rotation) of where it is now.
+std::vector<bool> VerifiedFrames(const RegistrationReport& report, const Scene& scene,
+                                 const RegistrationOptions& options);
 
 // Moves every view (train, val, test), sparse and content point and depth
 // target of `scene` by `s` (scan frame -> place frame).

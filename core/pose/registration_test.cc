@@ -94,13 +94,15 @@ TEST(RegistrationTest, SelfCalibratedCameraIsRefinedAgainstThePlace) {
   RegistrationReport r = RegisterScan(scan, map, p.cameras, p.extent, RegistrationOptions());
   ASSERT_TRUE(r.status.ok()) << r.status;
   ApplySimilarity(r.transform, &scan);
-  double rms = 0;
+  SharedCameraReport cam;
   Intrinsics refined;
-  ASSERT_TRUE(RefineAgainstPlace(r, &scan, &rms, &refined).ok());
+  ASSERT_TRUE(RefineAgainstPlace(r, &scan, &cam, &refined).ok());
   std::cout << "refined fx " << refined.fx << " (true " << true_fx << ", started " << 1.04f * true_fx << "), rms "
-            << rms << " px\n";
+            << cam.rms_guess_px << " -> " << cam.rms_refined_px << " px\n";
+  EXPECT_TRUE(cam.camera_taken);
   EXPECT_NEAR(refined.fx, true_fx, 0.01f * true_fx);
-  EXPECT_LT(rms, RegistrationOptions().localizer.reprojection_px);  // Inliers stay inliers.
+  EXPECT_LT(cam.rms_refined_px, 0.95 * cam.rms_guess_px);
+  EXPECT_LT(cam.rms_px, RegistrationOptions().localizer.reprojection_px);  // Inliers stay inliers.
   for (const View& v : scan.train) EXPECT_EQ(v.camera.intrinsics.fx, refined.fx);
   // Each placed frame now has its own PnP pose under the refined camera: a
   // single frame's pose is noisier than the fit over all (about 1 degree),
@@ -119,6 +121,27 @@ TEST(RegistrationTest, SelfCalibratedCameraIsRefinedAgainstThePlace) {
   std::sort(rotation.begin(), rotation.end());
   EXPECT_LT(centre[centre.size() / 2], 0.01);
   EXPECT_LT(rotation[rotation.size() / 2], 0.5);
+}
+
+// A scan whose camera is already the place's (COLMAP held it) keeps it:
+// the points do not clearly prefer another, so nothing drifts.
+TEST(RegistrationTest, RightCameraIsKept) {
+  Place p = MakePlace(8, /*textured=*/true);
+  ProceduralPlaceMap map(ProceduralWorldAt(p.options, 0));
+  Scene scan = p.scan;
+  const Intrinsics truth = scan.train[0].camera.intrinsics;
+  ApplySimilarity(RandomSimilarity(31), &scan);
+  RegistrationReport r = RegisterScan(scan, map, p.cameras, p.extent, RegistrationOptions());
+  ASSERT_TRUE(r.status.ok()) << r.status;
+  ApplySimilarity(r.transform, &scan);
+  SharedCameraReport cam;
+  Intrinsics kept;
+  ASSERT_TRUE(RefineAgainstPlace(r, &scan, &cam, &kept).ok());
+  std::cout << "rms " << cam.rms_guess_px << " -> " << cam.rms_refined_px << " px\n";
+  EXPECT_FALSE(cam.camera_taken);
+  EXPECT_EQ(kept.fx, truth.fx);
+  EXPECT_EQ(kept.k1, truth.k1);
+  EXPECT_EQ(cam.rms_px, cam.rms_guess_px);
 }
 
 TEST(RegistrationTest, ApplySimilarityMovesEverySplitAndPoint) {

@@ -385,12 +385,13 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
     if (metrics->count("posing_frames") > 0) {
       // Posed here by SfM over this scan alone: its self-calibrated camera
       // and its poses refined against the place (registration.h).
-      double rms = 0;
+      SharedCameraReport cam;
       Intrinsics in;
-      if (absl::Status s = RefineAgainstPlace(r, scene, &rms, &in); s.ok()) {
+      if (absl::Status s = RefineAgainstPlace(r, scene, &cam, &in); s.ok()) {
         (*metrics)["registration_refined_fx"] = in.fx;
         (*metrics)["registration_refined_k1"] = in.k1;
-        (*metrics)["registration_refine_rms_px"] = rms;
+        (*metrics)["registration_refine_rms_px"] = cam.rms_px;
+        (*metrics)["registration_camera_refined"] = cam.camera_taken ? 1 : 0;
       } else {
         spdlog::warn("job {}: camera refinement skipped: {}", job_id, s.ToString());
       }
