@@ -168,8 +168,6 @@ struct BenchRescanArgs {
   std::string save_renders;  // When set: visit A's held-out renders and photos are written here.
   std::string place_cache;   // Visit A's trained state: read when the file exists, else written.
   std::string posing_cache;  // COLMAP's poses of visit B: read when the file exists, else written.
-  bool frame_check = false;
-  SharedCameraOptions camera;  // Unposed cases: when the camera refined against the place is taken.  // Unposed cases: drop frames that disagree with the place (frame_check.h).
   int threads = 0;
   std::string json;
 };

@@ -43,7 +43,6 @@
 #include "core/io/checkpoint.h"
 #include "core/io/durable_file.h"
 #include "core/train/optimizer_state.h"
-#include "core/pose/frame_check.h"
 #include "core/pose/photometric_refine.h"
 #include "core/pose/photometric_similarity.h"
 #include "core/pose/place_map.h"
@@ -192,16 +191,26 @@ struct CaseRow {
 // poses refined against the place's points, then each frame aligned
 // photometrically to the place's renders ("unposed-nophoto" skips that).
 void RefineLikeTheService(const NgpModel& model, const RegistrationReport& r, double extent, const std::string& which,
-                          const std::vector<View>& truth, bool frame_check, const SharedCameraOptions& camera,
-                          Scene* scan, nlohmann::json* row) {
+                          const std::vector<View>& truth, const SharedCameraOptions& camera, Scene* scan,
+                          nlohmann::json* row) {
   SharedCameraReport cam;
   Intrinsics in;
+  const Scene before_scan = *scan;
   absl::Status rs = RefineAgainstPlace(r, scan, &cam, &in, camera);
   if (!rs.ok()) {
     std::printf("  %s: refinement failed: %s\n", which.c_str(), std::string(rs.message()).c_str());
     return;
   }
   const PoseErrors re = FrameErrors(scan->train, truth, extent);
+  {
+    const PoseErrors before = FrameErrors(before_scan.train, truth, extent);
+    for (size_t q = 0; q < cam.frames.size(); ++q) {
+      const size_t i = size_t(r.tried[size_t(cam.frames[q])]);
+      std::printf("    refine frame %zu: rms %.2f -> %.2f px (%.2f), rotation error %.2f -> %.2f deg\n", i,
+                  cam.frame_rms[q].first, cam.frame_rms[q].second, cam.frame_rms[q].second / cam.frame_rms[q].first,
+                  before.rotation[i], re.rotation[i]);
+    }
+  }
   (*row)["refined_fx"] = in.fx;
   (*row)["refined_k1"] = in.k1;
   (*row)["refine_rms_px"] = cam.rms_px;
@@ -236,25 +245,6 @@ void RefineLikeTheService(const NgpModel& model, const RegistrationReport& r, do
   for (size_t i = 0; i < pr->why.size(); ++i) {
     if (!pr->why[i].empty()) std::printf("    frame %zu kept: %s\n", i, pr->why[i].c_str());
   }
-  if (!frame_check) return;
-  const std::vector<bool> verified = VerifiedFrames(r, *scan, RegistrationOptions());
-  absl::StatusOr<FrameCheckReport> fc =
-      CheckScanFrames(ModelPlaceMap(model, RenderOptions()), *scan, verified, FrameCheckOptions());
-  if (!fc.ok()) {
-    std::printf("  %s: frame check failed: %s\n", which.c_str(), std::string(fc.status().message()).c_str());
-    return;
-  }
-  const PoseErrors fe = FrameErrors(scan->train, truth, extent);
-  for (size_t i = 0; i < fc->agreement.size(); ++i) {
-    std::printf("    frame %zu: agreement %.3f%s, %.1f %% / %.1f deg from the known\n", i, fc->agreement[i],
-                verified[i] ? " (verified)" : "", fe.centre[i], fe.rotation[i]);
-  }
-  std::printf("  %s: frame check: reference %.3f, %zu frames dropped%s (%.1f s)\n", which.c_str(), fc->reference,
-              fc->dropped.size(), fc->capped ? " (capped: none)" : "", fc->seconds);
-  (*row)["frame_check_dropped"] = fc->dropped.size();
-  (*row)["frame_check_reference"] = fc->reference;
-  (*row)["frame_check_seconds"] = fc->seconds;
-  DropCheckedFrames(*fc, scan);
 }
 
 // As the update worker does for a scan it did not pose, once placed off
@@ -440,8 +430,8 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   // place after registration ("unposed-unrefined": without, to compare).
   const bool refine = which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto";
   if (refine && r.status.ok()) {
-    RefineLikeTheService(*c.place_state->model, r, c.extent, which, cs->posed_truth, c.args->frame_check,
-                         c.args->camera, &cs->scan, row);
+    RefineLikeTheService(*c.place_state->model, r, c.extent, which, cs->posed_truth, c.args->registration.camera,
+                         &cs->scan, row);
   }
   // A scan posed by its uploader (in the place's frame or its own): its
   // similarity refined photometrically ("own-nophoto" skips it).
@@ -751,16 +741,16 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--posing-cache", a->posing_cache,
                 "COLMAP's poses of visit B (unposed cases): read from this JSON file when it exists, else "
                 "written there (COLMAP is not deterministic; this keeps one answer to compare against)");
-  c->add_option("--camera-min-rms-gain", a->camera.min_rms_gain,
+  c->add_option("--camera-min-rms-gain", a->registration.camera.min_rms_gain,
                 "Unposed cases: the camera refined against the place is taken only when it cuts the reprojection "
                 "error by this fraction (-1 and --camera-max-change 1: always, as before session 56)")
       ->capture_default_str();
-  c->add_option("--camera-max-change", a->camera.max_focal_change,
+  c->add_option("--camera-max-change", a->registration.camera.max_focal_change,
                 "... and moves the focal length by at most this fraction (k1 by at most this much)")
       ->capture_default_str()
-      ->each([a](const std::string&) { a->camera.max_k1_change = a->camera.max_focal_change; });
-  c->add_flag("--frame-check", a->frame_check,
-             "Check each frame of a scan it posed against the place's renders and drop those that disagree");
+      ->each([a](const std::string&) {
+        a->registration.camera.max_k1_change = a->registration.camera.max_focal_change;
+      });
   c->add_option("--save-renders", a->save_renders, "Write visit A's held-out renders (and the photos) here");
   c->add_option("--first-seeds", a->first_seeds,
                 "unposed-first: training seeds compared (each with its own COLMAP run and posed baseline)")

@@ -178,6 +178,11 @@ absl::Status ApplyRegistration(const nlohmann::json& g, RegistrationOptions* o) 
     else if (k == "min_inliers") s = Get(*it, "registration.min_inliers", &o->localizer.min_inliers);
     else if (k == "min_frames") s = Get(*it, "registration.min_frames", &o->min_frames);
     else if (k == "photometric") s = Get(*it, "registration.photometric", &o->photometric);
+    else if (k == "camera_min_rms_gain") s = Get(*it, "registration.camera_min_rms_gain", &o->camera.min_rms_gain);
+    else if (k == "camera_max_change") {
+      s = Get(*it, "registration.camera_max_change", &o->camera.max_focal_change);
+      o->camera.max_k1_change = o->camera.max_focal_change;
+    }
     else if (k == "photometric_similarity") {
       s = Get(*it, "registration.photometric_similarity", &o->photometric_similarity);
     }

@@ -35,7 +35,17 @@ TEST(ServerOptionsTest, DefaultsAreValidAndConfigOverrides) {
   EXPECT_EQ(o.registration.identity_chi_square, 0.0);
   EXPECT_FALSE(o.registration.photometric_similarity);
   EXPECT_TRUE(o.Validate().ok());
-  ASSERT_TRUE(ApplyConfigJson(R"({"registration": {"min_side": 999}})", &o).ok());
+  // A scan the service posed keeps COLMAP's camera unless the place's
+  // points cut the reprojection error by 5 %.
+  EXPECT_EQ(o.registration.camera.min_rms_gain, 0.05);
+  ASSERT_TRUE(ApplyConfigJson(R"({"registration": {"camera_min_rms_gain": 0.1, "camera_max_change": 0.02}})", &o).ok());
+  EXPECT_EQ(o.registration.camera.min_rms_gain, 0.1);
+  EXPECT_EQ(o.registration.camera.max_focal_change, 0.02);
+  EXPECT_EQ(o.registration.camera.max_k1_change, 0.02);
+  EXPECT_TRUE(o.Validate().ok());
+  ASSERT_TRUE(ApplyConfigJson(R"({"registration": {"camera_max_change": -1}})", &o).ok());
+  EXPECT_FALSE(o.Validate().ok());
+  ASSERT_TRUE(ApplyConfigJson(R"({"registration": {"camera_max_change": 0.05, "min_side": 999}})", &o).ok());
   EXPECT_FALSE(o.Validate().ok());  // Above max_side (480).
 }
 

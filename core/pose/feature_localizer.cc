@@ -249,9 +249,20 @@ namespace {
 double PosesUnderCamera(const std::vector<std::vector<cv::Point3f>>& object,
                         const std::vector<std::vector<cv::Point2f>>& image, const std::vector<size_t>& which,
                         const cv::Mat& k, const cv::Mat& dist, const std::vector<Pose>& poses, double max_turn_deg,
-                        std::vector<Pose>* out) {
+                        std::vector<Pose>* out, std::vector<std::pair<double, double>>* frame_rms = nullptr) {
   double sq = 0;
   size_t n = 0;
+  auto rms_of = [&](size_t v, const cv::Mat& rv, const cv::Mat& tv) {
+    std::vector<cv::Point2f> proj;
+    cv::projectPoints(object[v], rv, tv, k, dist, proj);
+    double e2 = 0;
+    for (size_t i = 0; i < proj.size(); ++i) {
+      const cv::Point2f e = proj[i] - image[v][i];
+      e2 += double(e.x) * e.x + double(e.y) * e.y;
+    }
+    return std::sqrt(e2 / double(std::max<size_t>(1, proj.size())));
+  };
+  if (frame_rms != nullptr) frame_rms->clear();
   for (size_t v = 0; v < which.size(); ++v) {
     const Pose& start = poses[which[v]];
     const Eigen::Matrix3d r0 = start.leftCols<3>().cast<double>().transpose();  // World -> camera.
@@ -262,7 +273,9 @@ double PosesUnderCamera(const std::vector<std::vector<cv::Point3f>>& object,
       for (int j = 0; j < 3; ++j) rm0.at<double>(i, j) = r0(i, j);
     }
     cv::Rodrigues(rm0, rvec);
+    const double rms_start = rms_of(v, rvec, tvec);
     cv::solvePnPRefineLM(object[v], image[v], k, dist, rvec, tvec);
+    if (frame_rms != nullptr) frame_rms->emplace_back(rms_start, rms_of(v, rvec, tvec));
     std::vector<cv::Point2f> proj;
     cv::projectPoints(object[v], rvec, tvec, k, dist, proj);
     for (size_t i = 0; i < proj.size(); ++i) {
@@ -324,7 +337,9 @@ absl::StatusOr<Intrinsics> RefineSharedCamera(const std::vector<FrameLocalizatio
   // camera as much as a wrong focal length does).
   std::vector<Pose> at_guess = *poses, at_refined = *poses;
   SharedCameraReport rep;
-  rep.rms_guess_px = PosesUnderCamera(object, image, which, k0, dist0, *poses, options.max_turn_deg, &at_guess);
+  rep.rms_guess_px =
+      PosesUnderCamera(object, image, which, k0, dist0, *poses, options.max_turn_deg, &at_guess, &rep.frame_rms);
+  for (size_t f : which) rep.frames.push_back(int(f));
   rep.rms_refined_px = PosesUnderCamera(object, image, which, k, dist, *poses, options.max_turn_deg, &at_refined);
   rep.camera_taken = rep.rms_refined_px <= (1 - options.min_rms_gain) * rep.rms_guess_px &&
                      std::abs(out.fx / guess.fx - 1) <= options.max_focal_change &&

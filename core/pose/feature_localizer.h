@@ -87,6 +87,10 @@ struct SharedCameraReport {
   double rms_guess_px = 0, rms_refined_px = 0;  // Poses fitted under each camera.
   double rms_px = 0;                            // Of the camera returned.
   bool camera_taken = false;                    // False: the guess was kept.
+  // Under the guess, per refined frame (index into the frames): RMS at its
+  // starting pose and at its fitted one.
+  std::vector<int> frames;
+  std::vector<std::pair<double, double>> frame_rms;
 };
 
 // Refines one camera shared by many localised frames of a scan (focal

@@ -106,6 +106,11 @@ absl::Status RegistrationOptions::Validate() const {
   if (identity_scale < 0 || identity_rotation_deg < 0 || identity_centre < 0) {
     return absl::InvalidArgumentError("identity tolerances must be >= 0");
   }
+  if (!(camera.max_turn_deg > 0) || !(camera.min_rms_gain < 1) || !(camera.max_focal_change >= 0) ||
+      !(camera.max_k1_change >= 0)) {
+    return absl::InvalidArgumentError(
+        "registration camera: max_turn_deg must be > 0, min_rms_gain < 1, max_focal_change and max_k1_change >= 0");
+  }
   return absl::OkStatus();
 }
 
@@ -212,21 +217,6 @@ absl::Status RefineAgainstPlace(const RegistrationReport& report, Scene* scene, 
   }
   if (refined != nullptr) *refined = *in;
   return absl::OkStatus();
-}
-
-std::vector<bool> VerifiedFrames(const RegistrationReport& report, const Scene& scene,
-                                 const RegistrationOptions& options) {
-  std::vector<bool> out(scene.train.size(), false);
-  for (size_t k = 0; k < report.tried.size() && k < report.localized.size(); ++k) {
-    const size_t i = size_t(report.tried[k]);
-    const FrameLocalization& l = report.localized[k];
-    if (!l.placed || i >= out.size()) continue;
-    const Pose& now = scene.train[i].camera.c2w;
-    const double moved = (l.c2w.col(3) - now.col(3)).norm();
-    const double turn = RotationAngleDegrees(l.c2w.leftCols<3>().cast<double>(), now.leftCols<3>().cast<double>());
-    out[i] = moved <= options.fit.centre_tolerance * report.place_extent && turn <= options.fit.rotation_tolerance_deg;
-  }
-  return out;
 }
 
 void ApplySimilarity(const Similarity& s, Scene* scene) {

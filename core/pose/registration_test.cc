@@ -226,6 +226,12 @@ TEST(RegistrationTest, OptionsAreValidated) {
   o = RegistrationOptions();
   o.localizer.ratio = 0;
   EXPECT_FALSE(o.Validate().ok());
+  o = RegistrationOptions();
+  o.camera.min_rms_gain = 1;  // No camera could ever be taken.
+  EXPECT_FALSE(o.Validate().ok());
+  o = RegistrationOptions();
+  o.camera.max_focal_change = -0.1;
+  EXPECT_FALSE(o.Validate().ok());
 }
 
 }  // namespace

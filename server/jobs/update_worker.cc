@@ -387,7 +387,7 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
       // and its poses refined against the place (registration.h).
       SharedCameraReport cam;
       Intrinsics in;
-      if (absl::Status s = RefineAgainstPlace(r, scene, &cam, &in); s.ok()) {
+      if (absl::Status s = RefineAgainstPlace(r, scene, &cam, &in, options_.registration.camera); s.ok()) {
         (*metrics)["registration_refined_fx"] = in.fx;
         (*metrics)["registration_refined_k1"] = in.k1;
         (*metrics)["registration_refine_rms_px"] = cam.rms_px;
