@@ -195,21 +195,18 @@ void RefineLikeTheService(const NgpModel& model, const RegistrationReport& r, do
                           nlohmann::json* row) {
   SharedCameraReport cam;
   Intrinsics in;
-  const Scene before_scan = *scan;
+  const PoseErrors before = FrameErrors(scan->train, truth, extent);
   absl::Status rs = RefineAgainstPlace(r, scan, &cam, &in, camera);
   if (!rs.ok()) {
     std::printf("  %s: refinement failed: %s\n", which.c_str(), std::string(rs.message()).c_str());
     return;
   }
   const PoseErrors re = FrameErrors(scan->train, truth, extent);
-  {
-    const PoseErrors before = FrameErrors(before_scan.train, truth, extent);
-    for (size_t q = 0; q < cam.frames.size(); ++q) {
-      const size_t i = size_t(r.tried[size_t(cam.frames[q])]);
-      std::printf("    refine frame %zu: rms %.2f -> %.2f px (%.2f), rotation error %.2f -> %.2f deg\n", i,
-                  cam.frame_rms[q].first, cam.frame_rms[q].second, cam.frame_rms[q].second / cam.frame_rms[q].first,
-                  before.rotation[i], re.rotation[i]);
-    }
+  for (size_t q = 0; q < cam.frames.size(); ++q) {
+    const size_t i = size_t(r.tried[size_t(cam.frames[q])]);
+    std::printf("    refine frame %zu: rms %.2f -> %.2f px (%.2f), rotation error %.2f -> %.2f deg\n", i,
+                cam.frame_rms[q].first, cam.frame_rms[q].second, cam.frame_rms[q].second / cam.frame_rms[q].first,
+                before.rotation[i], re.rotation[i]);
   }
   (*row)["refined_fx"] = in.fx;
   (*row)["refined_k1"] = in.k1;
@@ -413,17 +410,18 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   if (const std::string off = e.Outliers(); !off.empty()) {
     std::printf("  %s: frames far off after registration: %s\n", which.c_str(), off.c_str());
     (*row)["registered_outliers"] = off;
+    auto turn = [](const Pose& a, const Pose& b) {
+      return RotationAngleDegrees(a.leftCols<3>().cast<double>(), b.leftCols<3>().cast<double>());
+    };
     for (size_t k = 0; k < r.tried.size(); ++k) {  // What PnP said of each frame.
       const size_t i = size_t(r.tried[k]);
       const FrameLocalization& l = r.localized[k];
-      std::printf("    frame %zu: %s, %d inliers%s\n", i, l.placed ? "placed" : "not placed", l.inliers,
-                  l.placed ? absl::StrFormat(", PnP %.1f deg from the known, %.1f deg from registered",
-                                             RotationAngleDegrees(l.c2w.leftCols<3>().cast<double>(),
-                                                                  cs->posed_truth[i].camera.c2w.leftCols<3>().cast<double>()),
-                                             RotationAngleDegrees(l.c2w.leftCols<3>().cast<double>(),
-                                                                  cs->scan.train[i].camera.c2w.leftCols<3>().cast<double>()))
-                                .c_str()
-                           : "");
+      std::string pnp;
+      if (l.placed) {
+        pnp = absl::StrFormat(", PnP %.1f deg from the known, %.1f deg from registered",
+                              turn(l.c2w, cs->posed_truth[i].camera.c2w), turn(l.c2w, cs->scan.train[i].camera.c2w));
+      }
+      std::printf("    frame %zu: %s, %d inliers%s\n", i, l.placed ? "placed" : "not placed", l.inliers, pnp.c_str());
     }
   }
   // As the service: a scan it posed has its camera refined against the

@@ -149,6 +149,20 @@ Pose CameraToWorld(const cv::Mat& rvec, const cv::Mat& tvec) {
   return c2w;
 }
 
+// Sum of squared reprojection errors of `object` against `image` at pose
+// (rvec, tvec) under camera (k, dist), in the units of `image`.
+double SquaredReprojection(const std::vector<cv::Point3f>& object, const std::vector<cv::Point2f>& image,
+                           const cv::Mat& rvec, const cv::Mat& tvec, cv::InputArray k, cv::InputArray dist) {
+  std::vector<cv::Point2f> proj;
+  cv::projectPoints(object, rvec, tvec, k, dist, proj);
+  double sq = 0;
+  for (size_t i = 0; i < proj.size(); ++i) {
+    const cv::Point2f e = proj[i] - image[i];
+    sq += double(e.x) * e.x + double(e.y) * e.y;
+  }
+  return sq;
+}
+
 }  // namespace
 
 FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& camera) const {
@@ -219,16 +233,10 @@ FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& c
     img_in.push_back(normalised[i]);
   }
   cv::solvePnPRefineLM(obj_in, img_in, k, cv::noArray(), rvec, tvec);
-  std::vector<cv::Point2f> proj;
-  cv::projectPoints(obj_in, rvec, tvec, k, cv::noArray(), proj);
-  double sq = 0;
-  for (size_t i = 0; i < proj.size(); ++i) {
-    const cv::Point2f e = proj[i] - img_in[i];
-    sq += double(e.x) * e.x + double(e.y) * e.y;
-  }
+  const double sq = SquaredReprojection(obj_in, img_in, rvec, tvec, k, cv::noArray());
   out.c2w = CameraToWorld(rvec, tvec);
   out.inliers = int(inliers.size());
-  out.reprojection_px = std::sqrt(sq / std::max<size_t>(1, proj.size())) * f;
+  out.reprojection_px = std::sqrt(sq / double(std::max<size_t>(1, img_in.size()))) * f;
   const float sx = float(camera.intrinsics.width) / cam.intrinsics.width;
   const float sy = float(camera.intrinsics.height) / cam.intrinsics.height;
   for (int i : inliers) {
@@ -252,16 +260,7 @@ double PosesUnderCamera(const std::vector<std::vector<cv::Point3f>>& object,
                         std::vector<Pose>* out, std::vector<std::pair<double, double>>* frame_rms = nullptr) {
   double sq = 0;
   size_t n = 0;
-  auto rms_of = [&](size_t v, const cv::Mat& rv, const cv::Mat& tv) {
-    std::vector<cv::Point2f> proj;
-    cv::projectPoints(object[v], rv, tv, k, dist, proj);
-    double e2 = 0;
-    for (size_t i = 0; i < proj.size(); ++i) {
-      const cv::Point2f e = proj[i] - image[v][i];
-      e2 += double(e.x) * e.x + double(e.y) * e.y;
-    }
-    return std::sqrt(e2 / double(std::max<size_t>(1, proj.size())));
-  };
+  auto rms = [](double squared, size_t count) { return std::sqrt(squared / double(std::max<size_t>(1, count))); };
   if (frame_rms != nullptr) frame_rms->clear();
   for (size_t v = 0; v < which.size(); ++v) {
     const Pose& start = poses[which[v]];
@@ -273,22 +272,20 @@ double PosesUnderCamera(const std::vector<std::vector<cv::Point3f>>& object,
       for (int j = 0; j < 3; ++j) rm0.at<double>(i, j) = r0(i, j);
     }
     cv::Rodrigues(rm0, rvec);
-    const double rms_start = rms_of(v, rvec, tvec);
+    const size_t count = image[v].size();
+    const double start_sq =
+        frame_rms != nullptr ? SquaredReprojection(object[v], image[v], rvec, tvec, k, dist) : 0.0;
     cv::solvePnPRefineLM(object[v], image[v], k, dist, rvec, tvec);
-    if (frame_rms != nullptr) frame_rms->emplace_back(rms_start, rms_of(v, rvec, tvec));
-    std::vector<cv::Point2f> proj;
-    cv::projectPoints(object[v], rvec, tvec, k, dist, proj);
-    for (size_t i = 0; i < proj.size(); ++i) {
-      const cv::Point2f e = proj[i] - image[v][i];
-      sq += double(e.x) * e.x + double(e.y) * e.y;
-      ++n;
-    }
+    const double fitted_sq = SquaredReprojection(object[v], image[v], rvec, tvec, k, dist);
+    if (frame_rms != nullptr) frame_rms->emplace_back(rms(start_sq, count), rms(fitted_sq, count));
+    sq += fitted_sq;
+    n += count;
     const Pose c2w = CameraToWorld(rvec, tvec);
     const Eigen::Matrix3d r = c2w.leftCols<3>().cast<double>().transpose();
     const double turn = Eigen::AngleAxisd(r * r0.transpose()).angle() * 180 / M_PI;
     if (c2w.allFinite() && turn < max_turn_deg) (*out)[which[v]] = c2w;
   }
-  return n > 0 ? std::sqrt(sq / double(n)) : 0.0;
+  return rms(sq, n);
 }
 
 }  // namespace

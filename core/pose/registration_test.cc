@@ -81,19 +81,34 @@ TEST(RegistrationTest, ScanOfAnotherPlaceIsRefused) {
   EXPECT_LT(r.frames_agreeing, 3) << r.Summary();
 }
 
-TEST(RegistrationTest, SelfCalibratedCameraIsRefinedAgainstThePlace) {
-  Place p = MakePlace(8, /*textured=*/true);
-  ProceduralPlaceMap map(ProceduralWorldAt(p.options, 0));
-  Scene scan = p.scan;
-  const float true_fx = scan.train[0].camera.intrinsics.fx;
-  for (View& v : scan.train) {  // A structure-from-motion run's focal, 4 % off.
-    v.camera.intrinsics.fx *= 1.04f;
-    v.camera.intrinsics.fy *= 1.04f;
+// Place 8's changed scan with its focal length scaled by `focal_scale` (a
+// structure-from-motion run's camera), moved into a frame of its own and
+// registered back into the place's: ready for RefineAgainstPlace.
+struct RegisteredScan {
+  Place place = MakePlace(8, /*textured=*/true);
+  Scene scan = place.scan;
+  RegistrationReport report;
+};
+
+void RegisterWithFocal(float focal_scale, RegisteredScan* out) {
+  for (View& v : out->scan.train) {
+    v.camera.intrinsics.fx *= focal_scale;
+    v.camera.intrinsics.fy *= focal_scale;
   }
-  ApplySimilarity(RandomSimilarity(31), &scan);
-  RegistrationReport r = RegisterScan(scan, map, p.cameras, p.extent, RegistrationOptions());
-  ASSERT_TRUE(r.status.ok()) << r.status;
-  ApplySimilarity(r.transform, &scan);
+  ApplySimilarity(RandomSimilarity(31), &out->scan);
+  ProceduralPlaceMap map(ProceduralWorldAt(out->place.options, 0));
+  out->report = RegisterScan(out->scan, map, out->place.cameras, out->place.extent, RegistrationOptions());
+  ASSERT_TRUE(out->report.status.ok()) << out->report.status;
+  ApplySimilarity(out->report.transform, &out->scan);
+}
+
+TEST(RegistrationTest, SelfCalibratedCameraIsRefinedAgainstThePlace) {
+  RegisteredScan rs;
+  const float true_fx = rs.scan.train[0].camera.intrinsics.fx;
+  ASSERT_NO_FATAL_FAILURE(RegisterWithFocal(1.04f, &rs));  // A structure-from-motion run's focal, 4 % off.
+  const Place& p = rs.place;
+  const RegistrationReport& r = rs.report;
+  Scene& scan = rs.scan;
   SharedCameraReport cam;
   Intrinsics refined;
   ASSERT_TRUE(RefineAgainstPlace(r, &scan, &cam, &refined).ok());
@@ -126,17 +141,12 @@ TEST(RegistrationTest, SelfCalibratedCameraIsRefinedAgainstThePlace) {
 // A scan whose camera is already the place's (COLMAP held it) keeps it:
 // the points do not clearly prefer another, so nothing drifts.
 TEST(RegistrationTest, RightCameraIsKept) {
-  Place p = MakePlace(8, /*textured=*/true);
-  ProceduralPlaceMap map(ProceduralWorldAt(p.options, 0));
-  Scene scan = p.scan;
-  const Intrinsics truth = scan.train[0].camera.intrinsics;
-  ApplySimilarity(RandomSimilarity(31), &scan);
-  RegistrationReport r = RegisterScan(scan, map, p.cameras, p.extent, RegistrationOptions());
-  ASSERT_TRUE(r.status.ok()) << r.status;
-  ApplySimilarity(r.transform, &scan);
+  RegisteredScan rs;
+  const Intrinsics truth = rs.scan.train[0].camera.intrinsics;
+  ASSERT_NO_FATAL_FAILURE(RegisterWithFocal(1.0f, &rs));
   SharedCameraReport cam;
   Intrinsics kept;
-  ASSERT_TRUE(RefineAgainstPlace(r, &scan, &cam, &kept).ok());
+  ASSERT_TRUE(RefineAgainstPlace(rs.report, &rs.scan, &cam, &kept).ok());
   std::cout << "rms " << cam.rms_guess_px << " -> " << cam.rms_refined_px << " px\n";
   EXPECT_FALSE(cam.camera_taken);
   EXPECT_EQ(kept.fx, truth.fx);
