@@ -7,6 +7,7 @@
 #define CLNERF_CLIENT_COMMANDS_H_
 
 #include <cstdint>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -19,6 +20,7 @@
 #include "core/continual/stability.h"
 #include "core/data/dataset_options.h"
 #include "core/data/procedural_scene.h"
+#include "core/pose/pose_check.h"
 #include "core/pose/registration.h"
 #include "core/render/evaluate.h"
 #include "core/train/fit.h"
@@ -36,6 +38,11 @@ struct TrainArgs {
   std::string json;
   bool eval_after = true;  // Evaluate on the test split when done.
   bool fp16 = false;       // Save the parameters as binary16.
+  // The capture's poses against its photos before training
+  // (core/pose/pose_check.h): "warn" reports disputed frames, "drop" also
+  // trains without them, "off" skips the check.
+  std::string pose_check = "warn";
+  PoseCheckOptions check;
   DatasetOptions dataset;
   FitOptions fit;
 };
@@ -193,6 +200,27 @@ struct BakeArgs {
   BakeOptions bake;
   DatasetOptions dataset;
 };
+
+// `check-poses`: a capture's poses against its own photos
+// (core/pose/pose_check.h).
+struct CheckPosesArgs {
+  std::string data;
+  std::string split = "all";
+  std::string json;
+  int threads = 0;
+  PoseCheckOptions check;
+  DatasetOptions dataset;
+};
+CLI::App* BindCheckPoses(CLI::App* parent, CheckPosesArgs* args);
+int RunCheckPoses(const CheckPosesArgs& args);
+// The report as JSON, frames named by `views` (those it was made over).
+nlohmann::json PoseCheckJson(const PoseCheckReport& report, const std::vector<View>& views);
+// `clnerf train`'s pose check over `scene`'s capture (args.pose_check): warns
+// about disputed frames and, with "drop", trains without the disputed
+// training views. Returns the report as JSON (null when off or without
+// images) and the names of disputed test views.
+absl::StatusOr<nlohmann::json> CheckTrainingPoses(const TrainArgs& args, Scene* scene,
+                                                  std::set<std::string>* disputed_test);
 
 // FitScene with a progress bar on stderr, labelled `label` (`clnerf train`
 // and the verbs that train like it).

@@ -118,4 +118,19 @@ void BindSquareSizeFlag(CLI::App* c, ProceduralSceneOptions* scene) {
       ->default_str(std::to_string(scene->width));
 }
 
+void BindPoseCheckFlags(CLI::App* c, PoseCheckOptions* o) {
+  c->add_option("--check-max-side", o->max_side, "Pose check: photos matched at most this many pixels on their long side")
+      ->capture_default_str();
+  c->add_option("--check-features", o->max_features, "Pose check: SIFT keypoints per photo")->capture_default_str();
+  c->add_option("--check-ratio", o->ratio, "Pose check: Lowe's ratio test")->capture_default_str();
+  c->add_option("--check-sequence-neighbours", o->sequence_neighbours,
+                "Pose check: each frame is checked against the next N frames in the capture's order")
+      ->capture_default_str();
+  c->add_option("--check-min-inliers", o->min_inliers, "Pose check: essential-matrix inliers a pair needs to count")
+      ->capture_default_str();
+  c->add_option("--check-max-disagreement", o->max_disagreement_deg,
+                "Pose check: degrees between the photos' and the poses' rotation above which a pair disagrees")
+      ->capture_default_str();
+}
+
 }  // namespace clnerf

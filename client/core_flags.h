@@ -8,6 +8,7 @@
 #include "CLI/CLI.hpp"
 #include "core/data/dataset_options.h"
 #include "core/data/procedural_scene.h"
+#include "core/pose/pose_check.h"
 #include "core/train/fit.h"
 
 namespace clnerf {
@@ -23,6 +24,9 @@ void BindFitFlags(CLI::App* command, FitOptions* fit);
 // The dataset loader's options: downscale, image folder, test split,
 // per-split cap, bounded instant-ngp scenes.
 void BindDatasetFlags(CLI::App* command, DatasetOptions* dataset);
+
+// The pose check's pairs and thresholds (core/pose/pose_check.h).
+void BindPoseCheckFlags(CLI::App* command, PoseCheckOptions* check);
 
 // --size N: square images of a procedural scene (width and height).
 void BindSquareSizeFlag(CLI::App* command, ProceduralSceneOptions* scene);

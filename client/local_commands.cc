@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <optional>
+#include <set>
 #include <sstream>
 
 #include "absl/strings/str_format.h"
@@ -38,6 +39,26 @@ const std::vector<View>* Split(const Scene& scene, const std::string& name) {
   return nullptr;
 }
 
+
+// Test views whose poses the pose check disputes cannot be rendered right
+// by any model: also report the means over the others.
+void AddUndisputedScores(const EvalResult& ev, const std::set<std::string>& disputed, nlohmann::json* j) {
+  double psnr = 0, ssim = 0;
+  int n = 0;
+  for (const ViewScore& v : ev.views) {
+    if (disputed.count(v.name)) continue;
+    psnr += v.psnr;
+    ssim += v.ssim;
+    ++n;
+  }
+  (*j)["test_views_disputed"] = disputed.size();
+  if (n > 0) {
+    (*j)["psnr_undisputed"] = psnr / n;
+    (*j)["ssim_undisputed"] = ssim / n;
+    std::printf("test views whose poses the pose check disputes: %zu of %zu; PSNR over the other %d: %.2f dB\n",
+                disputed.size(), ev.views.size(), n, psnr / n);
+  }
+}
 
 }  // namespace
 
@@ -95,6 +116,12 @@ CLI::App* BindTrain(CLI::App* parent, TrainArgs* a) {
   c->add_option("--json", a->json, "Write results as JSON to this file ('-' = stdout)");
   c->add_flag("!--no-eval", a->eval_after, "Skip the final test-split evaluation");
   c->add_flag("--fp16", a->fp16, "Save the parameters as fp16 (about half the file; relative error <= 2^-11)");
+  c->add_option("--pose-check", a->pose_check,
+                "Check the capture's poses against its photos first: warn about frames turned against the rest, "
+                "drop them from training too, or off")
+      ->check(CLI::IsMember({"warn", "drop", "off"}))
+      ->capture_default_str();
+  BindPoseCheckFlags(c, &a->check);
   BindFitFlags(c, &a->fit);
   BindDatasetFlags(c, &a->dataset);
   return c;
@@ -108,6 +135,9 @@ int RunTrain(const TrainArgs& a) {
   spdlog::info("loaded '{}' ({} loader): {} train, {} val, {} test views, {} time step(s)", scene->name,
                format.ok() ? DatasetFormatName(*format) : "?", scene->train.size(), scene->val.size(),
                scene->test.size(), scene->num_time_steps());
+  std::set<std::string> disputed_test;
+  absl::StatusOr<nlohmann::json> check = CheckTrainingPoses(a, &*scene, &disputed_test);
+  if (!check.ok()) return Fail(check.status());
   absl::StatusOr<FitResult> fit = TrainWithProgress(*scene, a.fit);
   if (!fit.ok()) return Fail(fit.status());
   CheckpointOptions save_options;
@@ -135,6 +165,7 @@ int RunTrain(const TrainArgs& a) {
     curve.push_back({{"iteration", c.iteration}, {"train_seconds", c.train_seconds}, {"psnr", c.psnr}, {"ssim", c.ssim}});
   }
   j["curve"] = curve;
+  if (!check->is_null()) j["pose_check"] = *check;
   if (a.eval_after && !scene->test.empty()) {
     EvalOptions eo;
     absl::StatusOr<EvalResult> ev = EvaluateViews(*fit->model, scene->test, eo);
@@ -146,6 +177,7 @@ int RunTrain(const TrainArgs& a) {
     j["blur"] = ev->blur;
     j["num_images"] = ev->views.size();
     j["mean_render_ms"] = ev->mean_render_seconds * 1e3;
+    if (!disputed_test.empty()) AddUndisputedScores(*ev, disputed_test, &j);
     std::printf("test PSNR %.2f dB (colour-corrected %.2f), SSIM %.4f, speckle %.4f, blur %.4f over %zu images | "
                 "train %.1fs, %.0f samples/s | model %zu bytes, file %zu bytes\n",
                 ev->psnr, ev->psnr_cc, ev->ssim, ev->speckle, ev->blur, ev->views.size(), fit->train_seconds,

@@ -10,6 +10,7 @@ void RegisterVerbs(VerbSet* verbs) {
   verbs->Add(BindTrain, RunTrain);
   verbs->Add(BindEval, RunEval);
   verbs->Add(BindBake, RunBake);
+  verbs->Add(BindCheckPoses, RunCheckPoses);
   verbs->Add(BindRender, RunRender);  // Remote without --model.
   verbs->Add(BindDemo, RunDemo);
   verbs->Add(BindScans, RunScans);

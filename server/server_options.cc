@@ -84,6 +84,10 @@ absl::Status ServerOptions::Validate() const {
   }
   if (absl::Status s = update.Validate(); !s.ok()) return s;
   if (absl::Status s = registration.Validate(); !s.ok()) return s;
+  if (pose_check_action != "warn" && pose_check_action != "drop" && pose_check_action != "off") {
+    return absl::InvalidArgumentError("pose_check.action must be warn, drop or off");
+  }
+  if (absl::Status s = pose_check.Validate(); !s.ok()) return s;
   SfmOptions sfm = posing;
   if (sfm.workspace.empty()) sfm.workspace = "(per job)";
   if (absl::Status s = sfm.Validate(); !s.ok()) return s;
@@ -160,6 +164,25 @@ absl::Status ApplyPosing(const nlohmann::json& g, ServerOptions* o) {
     } else {
       return absl::InvalidArgumentError(absl::StrCat("unknown config key 'posing.", k, "'"));
     }
+    if (!s.ok()) return s;
+  }
+  return absl::OkStatus();
+}
+
+absl::Status ApplyPoseCheck(const nlohmann::json& g, ServerOptions* o) {
+  if (!g.is_object()) return absl::InvalidArgumentError("config key 'pose_check' must be an object");
+  for (auto it = g.begin(); it != g.end(); ++it) {
+    const std::string& k = it.key();
+    absl::Status s;
+    if (k == "action") s = Get(*it, "pose_check.action", &o->pose_check_action);
+    else if (k == "min_inliers") s = Get(*it, "pose_check.min_inliers", &o->pose_check.min_inliers);
+    else if (k == "max_disagreement_deg") {
+      s = Get(*it, "pose_check.max_disagreement_deg", &o->pose_check.max_disagreement_deg);
+    }
+    else if (k == "sequence_neighbours") {
+      s = Get(*it, "pose_check.sequence_neighbours", &o->pose_check.sequence_neighbours);
+    }
+    else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'pose_check.", k, "'"));
     if (!s.ok()) return s;
   }
   return absl::OkStatus();
@@ -293,6 +316,8 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
       s = ApplyRegistration(*it, &o->registration);
     } else if (k == "posing") {
       s = ApplyPosing(*it, o);
+    } else if (k == "pose_check") {
+      s = ApplyPoseCheck(*it, o);
     } else if (k == "bake") {
       s = ApplyBake(*it, o);
     } else {

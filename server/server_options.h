@@ -23,6 +23,7 @@
 #include "core/continual/continual_update.h"
 #include "core/bake/baker.h"
 #include "core/continual/deployment_gate.h"
+#include "core/pose/pose_check.h"
 #include "core/pose/registration.h"
 #include "core/pose/sfm.h"
 #include "server/store/scan_assembler.h"
@@ -127,6 +128,14 @@ struct ServerOptions {
   // empty here.
   SfmOptions posing;
   std::string colmap_binary = "colmap";  // Looked up on PATH.
+  // Every scan's poses (uploaded, or COLMAP's) are checked against its own
+  // photos before it registers or trains (core/pose/pose_check.h): frames
+  // turned against the rest are logged and recorded with the version
+  // (metrics pose_check_*). "drop" also trains and gates without them;
+  // "off" skips the check. Config object "pose_check": action,
+  // min_inliers, max_disagreement_deg, sequence_neighbours.
+  std::string pose_check_action = "warn";
+  PoseCheckOptions pose_check;
   // Baking (issue 41; core/bake/baker.h, docs/baking.md): each new
   // version's latest time step is baked into the asset the browser renders
   // itself, after the gate and before the publish (job phase BAKING), so a

@@ -49,6 +49,23 @@ TEST(ServerOptionsTest, DefaultsAreValidAndConfigOverrides) {
   EXPECT_FALSE(o.Validate().ok());  // Above max_side (480).
 }
 
+TEST(ServerOptionsTest, PoseCheckIsConfigured) {
+  ServerOptions o;
+  EXPECT_EQ(o.pose_check_action, "warn");  // Every scan is checked; nothing is dropped unasked.
+  ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "drop", "min_inliers": 30, "max_disagreement_deg": 60,
+                                                   "sequence_neighbours": 2}})", &o).ok());
+  EXPECT_EQ(o.pose_check_action, "drop");
+  EXPECT_EQ(o.pose_check.min_inliers, 30);
+  EXPECT_EQ(o.pose_check.max_disagreement_deg, 60.0f);
+  EXPECT_EQ(o.pose_check.sequence_neighbours, 2);
+  EXPECT_TRUE(o.Validate().ok());
+  ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "fix"}})", &o).ok());
+  EXPECT_FALSE(o.Validate().ok());
+  ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "off", "sequence_neighbours": 9}})", &o).ok());
+  EXPECT_FALSE(o.Validate().ok());
+  EXPECT_FALSE(ApplyConfigJson(R"({"pose_check": {"ratio": 0.5}})", &o).ok());
+}
+
 TEST(ServerOptionsTest, BadConfigIsRejectedWithTheKey) {
   ServerOptions o;
   absl::Status s = ApplyConfigJson(R"({"max_queu": 3})", &o);

@@ -6,6 +6,7 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/data/image.h"
+#include "core/pose/sift_features.h"
 #include "Eigen/Geometry"
 #include "opencv2/calib3d.hpp"
 #include "opencv2/core.hpp"
@@ -15,30 +16,6 @@
 namespace clnerf {
 
 namespace {
-
-cv::Mat ToGray(const Image& image) {
-  cv::Mat gray(image.height, image.width, CV_8UC1);
-  for (int y = 0; y < image.height; ++y) {
-    uint8_t* row = gray.ptr<uint8_t>(y);
-    for (int x = 0; x < image.width; ++x) {
-      const float l = Luma(image.pixel(x, y));
-      row[x] = uint8_t(std::clamp(std::lround(l * 255.0f), 0l, 255l));
-    }
-  }
-  return gray;
-}
-
-struct Features {
-  std::vector<cv::KeyPoint> keypoints;
-  cv::Mat descriptors;
-};
-
-Features Detect(const cv::Mat& gray, int max_features) {
-  Features f;
-  cv::Ptr<cv::SIFT> sift = cv::SIFT::create(max_features);
-  sift->detectAndCompute(gray, cv::noArray(), f.keypoints, f.descriptors);
-  return f;
-}
 
 // The render's distance at keypoint `p` (OpenCV pixel coordinates: pixel i's
 // centre at i), interpolated bilinearly, if the surface around it is solid
@@ -169,28 +146,12 @@ FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& c
   const LocalizerOptions& o = impl_->options;
   FrameLocalization out;
   const Camera cam = CameraWithSideIn(camera, o.min_side, o.max_side);
-  cv::Mat gray = ToGray(image);
-  if (gray.cols != cam.intrinsics.width || gray.rows != cam.intrinsics.height) {
-    cv::Mat resized;
-    const bool up = cam.intrinsics.width > gray.cols;
-    cv::resize(gray, resized, cv::Size(cam.intrinsics.width, cam.intrinsics.height), 0, 0,
-               up ? cv::INTER_CUBIC : cv::INTER_AREA);
-    gray = resized;
-  }
+  const cv::Mat gray = ResizedGray(ToGray(image), cam.intrinsics.width, cam.intrinsics.height);
   const Features q = Detect(gray, o.max_features);
   if (q.descriptors.empty()) return out;
   // Ratio-test matches against every render; keep the best renders'.
-  cv::BFMatcher matcher(cv::NORM_L2);
   std::vector<std::vector<cv::DMatch>> good(impl_->refs.size());
-  for (size_t r = 0; r < impl_->refs.size(); ++r) {
-    const auto& ref = impl_->refs[r];
-    if (ref.descriptors.rows < 2) continue;
-    std::vector<std::vector<cv::DMatch>> knn;
-    matcher.knnMatch(q.descriptors, ref.descriptors, knn, 2);
-    for (const auto& m : knn) {
-      if (m.size() == 2 && m[0].distance < o.ratio * m[1].distance) good[r].push_back(m[0]);
-    }
-  }
+  for (size_t r = 0; r < impl_->refs.size(); ++r) good[r] = RatioMatches(q.descriptors, impl_->refs[r].descriptors, o.ratio);
   std::vector<int> order(impl_->refs.size());
   for (size_t i = 0; i < order.size(); ++i) order[i] = int(i);
   std::sort(order.begin(), order.end(), [&](int a, int b) { return good[a].size() > good[b].size(); });

@@ -2,15 +2,18 @@
 
 #include <omp.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <optional>
+#include <set>
 
 #include "absl/strings/str_cat.h"
 #include "core/continual/continual_update.h"
 #include "core/continual/deployment_gate.h"
 #include "core/data/image.h"
 #include "core/pose/place_map.h"
+#include "core/pose/pose_check.h"
 #include "core/pose/registration.h"
 #include "core/pose/sfm.h"
 #include "core/data/stopwatch.h"
@@ -502,6 +505,35 @@ bool UpdateWorker::LoadDeployed(const std::string& job_id, const std::string& sc
   return true;
 }
 
+void UpdateWorker::CheckScanPoses(const std::string& job_id, Scene* scene, std::map<std::string, double>* metrics) {
+  if (options_.pose_check_action == "off" || scene->train.empty()) return;
+  const std::vector<View> views = CaptureInOrder(*scene);
+  absl::StatusOr<PoseCheckReport> r = CheckPoses(views, options_.pose_check, options_.train_threads);
+  if (!r.ok()) {
+    spdlog::warn("job {}: pose check skipped: {}", job_id, r.status().ToString());
+    return;
+  }
+  std::vector<std::string> names;
+  for (const View& v : views) names.push_back(v.name);
+  (*metrics)["pose_check_pairs"] = double(r->pairs.size());
+  (*metrics)["pose_check_disputed"] = double(r->disputed.size());
+  (*metrics)["pose_check_seconds"] = r->seconds;
+  if (r->disputed.empty()) {
+    spdlog::info("job {}: pose check: {}", job_id, r->Summary(names));
+    return;
+  }
+  spdlog::warn("job {}: pose check: {}{}", job_id, r->Summary(names),
+               options_.pose_check_action == "drop" ? "; training without them" : "");
+  if (options_.pose_check_action != "drop") return;
+  std::set<std::string> disputed;
+  for (int i : r->disputed) disputed.insert(views[i].name);
+  const auto is_disputed = [&](const View& v) { return disputed.count(v.name) > 0; };
+  const size_t before = scene->train.size();
+  scene->train.erase(std::remove_if(scene->train.begin(), scene->train.end(), is_disputed), scene->train.end());
+  scene->test.erase(std::remove_if(scene->test.begin(), scene->test.end(), is_disputed), scene->test.end());
+  (*metrics)["pose_check_dropped"] = double(before - scene->train.size());
+}
+
 std::optional<Scene> UpdateWorker::PrepareScan(const std::string& job_id, const std::string& scan_id,
                                                const Servable* prev, std::map<std::string, double>* metrics) {
   const int t = prev ? prev->model().num_time_steps() : 0;
@@ -518,6 +550,7 @@ std::optional<Scene> UpdateWorker::PrepareScan(const std::string& job_id, const 
     return std::nullopt;
   }
   if (prev) scene->kind = prev->model().kind();
+  CheckScanPoses(job_id, &*scene, metrics);
   if (prev && !RegisterIntoPlace(job_id, scan_id, *prev, &*scene, metrics)) return std::nullopt;
   return *std::move(scene);
 }

@@ -144,6 +144,10 @@ class UpdateWorker {
                 std::map<std::string, double>* metrics);
   bool RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,
                          Scene* scene, std::map<std::string, double>* metrics);
+  // The scan's poses against its photos (ServerOptions::pose_check_action):
+  // disputed frames logged, pose_check_* metrics added, and with "drop" the
+  // disputed views removed from `scene` (train and held out).
+  void CheckScanPoses(const std::string& job_id, Scene* scene, std::map<std::string, double>* metrics);
   // After RegisterIntoPlace placed a scan the service posed: each frame
   // aligned photometrically to `map` (RefineScanPhotometric). False when the
   // job ended (cancelled).

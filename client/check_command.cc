@@ -1,0 +1,106 @@
+// `check-poses`: are a capture's poses right? Each frame's pose against its
+// own photos (core/pose/pose_check.h), before anything trains on them.
+#include <algorithm>
+#include <cstdio>
+#include <set>
+
+#include "client/commands.h"
+#include "client/core_flags.h"
+#include "core/data/dataset.h"
+#include "core/pose/pose_check.h"
+#include "nlohmann/json.hpp"
+#include "spdlog/spdlog.h"
+
+namespace clnerf {
+
+nlohmann::json PoseCheckJson(const PoseCheckReport& r, const std::vector<View>& views) {
+  nlohmann::json pairs = nlohmann::json::array();
+  for (const PairCheck& p : r.pairs) {
+    pairs.push_back({{"a", views[p.a].name}, {"b", views[p.b].name}, {"inliers", p.inliers},
+                     {"disagreement_deg", p.disagreement_deg}});
+  }
+  nlohmann::json disputed = nlohmann::json::array();
+  for (int i : r.disputed) disputed.push_back(views[i].name);
+  return {{"frames", r.frames},
+          {"pairs_tried", r.pairs_tried},
+          {"pairs_matched", r.pairs.size()},
+          {"disagreeing_pairs", r.disagreeing_pairs},
+          {"conflicts", r.conflicts},
+          {"continuity_links", r.continuity_links},
+          {"inconclusive", r.inconclusive},
+          {"median_agreeing_deg", r.median_agreeing_deg},
+          {"disputed", disputed},
+          {"unchecked", r.unchecked.size()},
+          {"seconds", r.seconds},
+          {"pairs", pairs}};
+}
+
+namespace {
+
+std::vector<std::string> ViewNames(const std::vector<View>& views) {
+  std::vector<std::string> names;
+  for (const View& v : views) names.push_back(v.name);
+  return names;
+}
+
+}  // namespace
+
+CLI::App* BindCheckPoses(CLI::App* parent, CheckPosesArgs* a) {
+  CLI::App* c = parent->add_subcommand(
+      "check-poses", "Check a capture's poses against its own photos (frames posed turned against the rest)");
+  c->add_option("--data", a->data, "Dataset directory")->required();
+  c->add_option("--split", a->split, "all (train and test together, in name order), train or test")
+      ->check(CLI::IsMember({"train", "test", "all"}))
+      ->capture_default_str();
+  c->add_option("--json", a->json, "Write the report as JSON to this file ('-' = stdout)");
+  BindPoseCheckFlags(c, &a->check);
+  BindThreadsFlag(c, &a->threads);
+  BindDatasetFlags(c, &a->dataset);
+  return c;
+}
+
+int RunCheckPoses(const CheckPosesArgs& a) {
+  SetThreads(a.threads);
+  absl::StatusOr<Scene> scene = LoadScene(a.data, a.dataset);
+  if (!scene.ok()) return Fail(scene.status());
+  const std::vector<View> views = a.split == "all" ? CaptureInOrder(*scene) : a.split == "train" ? scene->train : scene->test;
+  absl::StatusOr<PoseCheckReport> r = CheckPoses(views, a.check, a.threads);
+  if (!r.ok()) return Fail(r.status());
+  std::printf("%s (%.1f s)\n", r->Summary(ViewNames(views)).c_str(), r->seconds);
+  if (absl::Status s = WriteJson(a.json, PoseCheckJson(*r, views)); !s.ok()) return Fail(s);
+  return 0;
+}
+
+absl::StatusOr<nlohmann::json> CheckTrainingPoses(const TrainArgs& a, Scene* scene,
+                                                  std::set<std::string>* disputed_test) {
+  if (a.pose_check == "off" || scene->train.empty() || scene->train[0].image.width == 0) return nlohmann::json();
+  const std::vector<View> views = CaptureInOrder(*scene);
+  absl::StatusOr<PoseCheckReport> r = CheckPoses(views, a.check, a.fit.train.threads);
+  if (!r.ok()) return r.status();
+  const std::string summary = r->Summary(ViewNames(views));
+  nlohmann::json j = PoseCheckJson(*r, views);
+  j["action"] = a.pose_check;
+  std::set<std::string> disputed;
+  for (int i : r->disputed) disputed.insert(views[i].name);
+  for (const View& v : scene->test) {
+    if (disputed.count(v.name)) disputed_test->insert(v.name);
+  }
+  if (disputed.empty()) {
+    spdlog::info("pose check: {} ({:.1f} s)", summary, r->seconds);
+    return j;
+  }
+  spdlog::warn("pose check: {} ({:.1f} s). These frames' poses disagree with their photos and with the rest of the "
+               "capture (often a run that structure from motion turned about a scene that looks alike from opposite "
+               "sides); {}", summary, r->seconds,
+               a.pose_check == "drop" ? "training without them" : "training with them anyway (--pose-check drop leaves them out)");
+  if (a.pose_check == "drop") {
+    const size_t before = scene->train.size();
+    scene->train.erase(std::remove_if(scene->train.begin(), scene->train.end(),
+                                      [&](const View& v) { return disputed.count(v.name) > 0; }),
+                       scene->train.end());
+    j["dropped_train_views"] = before - scene->train.size();
+  }
+  return j;
+}
+
+}  // namespace clnerf
