@@ -8,6 +8,7 @@
 #include "client/core_flags.h"
 #include "core/data/dataset.h"
 #include "core/pose/pose_check.h"
+#include "core/pose/run_repair.h"
 #include "nlohmann/json.hpp"
 #include "spdlog/spdlog.h"
 
@@ -71,8 +72,50 @@ int RunCheckPoses(const CheckPosesArgs& a) {
   return 0;
 }
 
+namespace {
+
+// `--pose-check repair`: the disputed frames moved into the others' frame
+// (core/pose/run_repair.h), then the capture checked again; kept only when
+// that check disputes nothing. False (and nothing moved) otherwise.
+bool RepairDisputed(const TrainArgs& a, const PoseCheckReport& r, const std::vector<View>& views,
+                    const std::set<std::string>& disputed, Scene* scene, nlohmann::json* j) {
+  absl::StatusOr<RunRepair> repair = SolveRunRepair(r, views);
+  if (!repair.ok()) {
+    spdlog::warn("pose check: cannot repair the disputed frames ({}); training with them as they came",
+                 std::string(repair.status().message()));
+    (*j)["repair"] = {{"repaired", false}, {"why", std::string(repair.status().message())}};
+    return false;
+  }
+  ApplyRunRepair(*repair, disputed, scene);
+  // Kept only if the capture then checks clean.
+  absl::StatusOr<PoseCheckReport> again = CheckPoses(CaptureInOrder(*scene), a.check, a.fit.train.threads);
+  const std::string after = again.ok() ? again->Summary() : std::string(again.status().message());
+  const bool clean = again.ok() && again->disputed.empty() && !again->inconclusive;
+  if (!clean) {
+    RunRepair back = *repair;
+    back.transform = repair->transform.Inverse();
+    ApplyRunRepair(back, disputed, scene);
+  }
+  spdlog::warn("pose check: the {} disputed frames moved into the others' frame: {}; checked again: {}; {}",
+               disputed.size(), repair->Summary(), after,
+               clean ? "repair kept" : "repair undone, training with them as they came");
+  (*j)["repair"] = {{"repaired", clean},
+                    {"turn_deg", repair->turn_deg},
+                    {"scale", repair->transform.scale},
+                    {"pairs_used", repair->pairs_used},
+                    {"crossing_pairs", repair->crossing_pairs},
+                    {"rotation_spread_deg", repair->rotation_spread_deg},
+                    {"centre_residual", repair->centre_residual},
+                    {"check_after", after},
+                    {"disputed_after", again.ok() ? int(again->disputed.size()) : -1}};
+  return clean;
+}
+
+}  // namespace
+
 absl::StatusOr<nlohmann::json> CheckTrainingPoses(const TrainArgs& a, Scene* scene,
-                                                  std::set<std::string>* disputed_test) {
+                                                  std::set<std::string>* disputed_test,
+                                                  std::vector<View>* given_test) {
   if (a.pose_check == "off" || scene->train.empty() || scene->train[0].image.width == 0) return nlohmann::json();
   const std::vector<View> views = CaptureInOrder(*scene);
   absl::StatusOr<PoseCheckReport> r = CheckPoses(views, a.check, a.fit.train.threads);
@@ -92,7 +135,16 @@ absl::StatusOr<nlohmann::json> CheckTrainingPoses(const TrainArgs& a, Scene* sce
   spdlog::warn("pose check: {} ({:.1f} s). These frames' poses disagree with their photos and with the rest of the "
                "capture (often a run that structure from motion turned about a scene that looks alike from opposite "
                "sides); {}", summary, r->seconds,
-               a.pose_check == "drop" ? "training without them" : "training with them anyway (--pose-check drop leaves them out)");
+               a.pose_check == "drop"     ? "training without them"
+               : a.pose_check == "repair" ? "moving them into the others' frame"
+                                          : "training with them anyway (--pose-check repair or drop)");
+  if (a.pose_check == "repair" && !r->inconclusive) {
+    const std::vector<View> test = scene->test;
+    if (RepairDisputed(a, *r, views, disputed, scene, &j)) {
+      *given_test = test;
+      disputed_test->clear();
+    }
+  }
   if (a.pose_check == "drop") {
     const size_t before = scene->train.size();
     scene->train.erase(std::remove_if(scene->train.begin(), scene->train.end(),

@@ -40,7 +40,8 @@ struct TrainArgs {
   bool fp16 = false;       // Save the parameters as binary16.
   // The capture's poses against its photos before training
   // (core/pose/pose_check.h): "warn" reports disputed frames, "drop" also
-  // trains without them, "off" skips the check.
+  // trains without them, "repair" moves them into the others' frame
+  // (core/pose/run_repair.h), "off" skips the check.
   std::string pose_check = "warn";
   PoseCheckOptions check;
   DatasetOptions dataset;
@@ -218,9 +219,11 @@ nlohmann::json PoseCheckJson(const PoseCheckReport& report, const std::vector<Vi
 // `clnerf train`'s pose check over `scene`'s capture (args.pose_check): warns
 // about disputed frames and, with "drop", trains without the disputed
 // training views. Returns the report as JSON (null when off or without
-// images) and the names of disputed test views.
+// images) and the names of disputed test views; after a repair,
+// `given_test` holds the test views at the poses they came with.
 absl::StatusOr<nlohmann::json> CheckTrainingPoses(const TrainArgs& args, Scene* scene,
-                                                  std::set<std::string>* disputed_test);
+                                                  std::set<std::string>* disputed_test,
+                                                  std::vector<View>* given_test);
 
 // FitScene with a progress bar on stderr, labelled `label` (`clnerf train`
 // and the verbs that train like it).

@@ -118,8 +118,8 @@ CLI::App* BindTrain(CLI::App* parent, TrainArgs* a) {
   c->add_flag("--fp16", a->fp16, "Save the parameters as fp16 (about half the file; relative error <= 2^-11)");
   c->add_option("--pose-check", a->pose_check,
                 "Check the capture's poses against its photos first: warn about frames turned against the rest, "
-                "drop them from training too, or off")
-      ->check(CLI::IsMember({"warn", "drop", "off"}))
+                "drop them from training, repair them (moved into the others' frame), or off")
+      ->check(CLI::IsMember({"warn", "drop", "repair", "off"}))
       ->capture_default_str();
   BindPoseCheckFlags(c, &a->check);
   BindFitFlags(c, &a->fit);
@@ -136,7 +136,8 @@ int RunTrain(const TrainArgs& a) {
                format.ok() ? DatasetFormatName(*format) : "?", scene->train.size(), scene->val.size(),
                scene->test.size(), scene->num_time_steps());
   std::set<std::string> disputed_test;
-  absl::StatusOr<nlohmann::json> check = CheckTrainingPoses(a, &*scene, &disputed_test);
+  std::vector<View> given_test;
+  absl::StatusOr<nlohmann::json> check = CheckTrainingPoses(a, &*scene, &disputed_test, &given_test);
   if (!check.ok()) return Fail(check.status());
   absl::StatusOr<FitResult> fit = TrainWithProgress(*scene, a.fit);
   if (!fit.ok()) return Fail(fit.status());
@@ -178,6 +179,12 @@ int RunTrain(const TrainArgs& a) {
     j["num_images"] = ev->views.size();
     j["mean_render_ms"] = ev->mean_render_seconds * 1e3;
     if (!disputed_test.empty()) AddUndisputedScores(*ev, disputed_test, &j);
+    if (!given_test.empty()) {  // Repaired test poses: also scored at the poses they came with.
+      absl::StatusOr<EvalResult> given = EvaluateViews(*fit->model, given_test, eo);
+      if (!given.ok()) return Fail(given.status());
+      j["psnr_given_test_poses"] = given->psnr;
+      std::printf("test PSNR at the test views' poses as they came (before the repair): %.2f dB\n", given->psnr);
+    }
     std::printf("test PSNR %.2f dB (colour-corrected %.2f), SSIM %.4f, speckle %.4f, blur %.4f over %zu images | "
                 "train %.1fs, %.0f samples/s | model %zu bytes, file %zu bytes\n",
                 ev->psnr, ev->psnr_cc, ev->ssim, ev->speckle, ev->blur, ev->views.size(), fit->train_seconds,

@@ -100,8 +100,8 @@ PairCheck CheckPair(int a, int b, const FrameFeatures& fa, const FrameFeatures& 
   cv::Mat mask;
   const cv::Mat e = cv::findEssentialMat(pa, pb, cv::Mat::eye(3, 3, CV_64F), cv::RANSAC, 0.999, threshold, mask);
   if (e.rows != 3 || e.cols != 3) return p;  // None, or several solutions: too weak a pair.
-  cv::Mat unused_r, unused_t;
-  const int inliers = cv::recoverPose(e, pa, pb, cv::Mat::eye(3, 3, CV_64F), unused_r, unused_t, mask);
+  cv::Mat r, t;
+  const int inliers = cv::recoverPose(e, pa, pb, cv::Mat::eye(3, 3, CV_64F), r, t, mask);
   if (inliers < o.min_inliers) return p;
   // An essential matrix holds two rotations (the second turned 180 degrees
   // about the baseline: the "twisted pair"), and few or repetitive matches
@@ -112,6 +112,8 @@ PairCheck CheckPair(int a, int b, const FrameFeatures& fa, const FrameFeatures& 
   const Eigen::Matrix3d ra = ca.c2w.leftCols<3>().cast<double>(), rb = cb.c2w.leftCols<3>().cast<double>();
   const Eigen::Matrix3d poses = rb.transpose() * ra;  // Camera a's coordinates to camera b's, from the poses.
   p.inliers = inliers;
+  p.rotation = ToEigen(r);
+  p.baseline = Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)).normalized();
   p.disagreement_deg =
       float(std::min(AngleDeg(poses.transpose() * ToEigen(r1)), AngleDeg(poses.transpose() * ToEigen(r2))));
   p.disagrees = p.disagreement_deg > o.max_disagreement_deg;

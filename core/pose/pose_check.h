@@ -73,6 +73,10 @@ struct PairCheck {
   int inliers = 0;              // Essential-matrix inliers.
   float disagreement_deg = 0;   // Photos' rotation against the poses'.
   bool disagrees = false;       // disagreement_deg > max_disagreement_deg.
+  // The photos' relative pose: x_b = rotation * x_a + baseline * (unknown
+  // length), camera coordinates (OpenCV); baseline has unit length.
+  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d baseline = Eigen::Vector3d::Zero();
 };
 
 struct PoseCheckReport {

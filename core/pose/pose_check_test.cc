@@ -12,38 +12,9 @@
 namespace clnerf {
 namespace {
 
-// A textured procedural place filmed like a phone video: `n` frames on one
-// turn around it, 20 degrees up, in order.
-std::vector<View> Render(uint64_t seed, int n) {
-  ProceduralSceneOptions o = testing_util::ChangingScene(seed);
-  o.textured = true;
-  o.num_train_views = 1;
-  o.num_test_views = 0;
-  o.width = 320;
-  o.height = 240;
-  absl::StatusOr<Scene> scene = GenerateProceduralScene(o);
-  EXPECT_TRUE(scene.ok()) << scene.status();
-  const ProceduralWorld world = ProceduralWorldAt(o, 0);
-  std::vector<View> views;
-  for (int i = 0; i < n; ++i) {
-    const float az = 2 * float(M_PI) * float(i) / float(n), el = 20 * float(M_PI) / 180;
-    const Eigen::Vector3f pos =
-        o.camera_radius * Eigen::Vector3f(std::cos(el) * std::cos(az), std::cos(el) * std::sin(az), std::sin(el));
-    const Eigen::Vector3f forward = (-pos).normalized();
-    const Eigen::Vector3f right = forward.cross(Eigen::Vector3f::UnitZ()).normalized();
-    View v;
-    v.name = "frame_" + std::to_string(i);
-    v.camera = scene->train[0].camera;
-    v.camera.c2w << right, forward.cross(right), forward, pos;  // OpenCV: x right, y down, z forward.
-    v.image = RenderProceduralView(world, v.camera, 1, seed).image;
-    views.push_back(std::move(v));
-  }
-  return views;
-}
-
 // The capture the tests share (rendered once).
 const std::vector<View>& Capture() {
-  static const std::vector<View>* views = new std::vector<View>(Render(5, 36));
+  static const std::vector<View>* views = new std::vector<View>(testing_util::RenderedOrbit(5, 36));
   return *views;
 }
 
@@ -52,24 +23,6 @@ PoseCheckOptions Options() {
   PoseCheckOptions o;
   o.max_features = 1500;
   return o;
-}
-
-// Turns views [first, last] by `deg` about the capture's up axis through the
-// centre of its cameras: what SfM does to a run of frames of a scene that
-// looks alike from opposite sides.
-void TurnAboutTheScene(std::vector<View>* views, int first, int last, double deg) {
-  Eigen::Vector3f centre = Eigen::Vector3f::Zero(), up = Eigen::Vector3f::Zero();
-  for (const View& v : *views) {
-    centre += v.camera.position();
-    up -= v.camera.c2w.col(1);  // OpenCV: y points down.
-  }
-  centre /= float(views->size());  // One full turn: the place's centre.
-  const Eigen::Matrix3f s = Eigen::AngleAxisf(float(deg * M_PI / 180), up.normalized()).toRotationMatrix();
-  for (int i = first; i <= last; ++i) {
-    Pose& c2w = (*views)[i].camera.c2w;
-    c2w.leftCols<3>() = s * c2w.leftCols<3>();
-    c2w.col(3) = s * (c2w.col(3) - centre) + centre;
-  }
 }
 
 TEST(PoseCheckTest, CorrectPosesAgree) {
@@ -88,7 +41,7 @@ TEST(PoseCheckTest, CorrectPosesAgree) {
 
 TEST(PoseCheckTest, RunTurnedAboutTheSceneIsDisputed) {
   std::vector<View> views = Capture();
-  TurnAboutTheScene(&views, 9, 16, 175);
+  testing_util::TurnAboutTheScene(&views, 9, 16, 175);
   absl::StatusOr<PoseCheckReport> r = CheckPoses(views, Options(), 2);
   ASSERT_TRUE(r.ok()) << r.status();
   std::cout << r->Summary() << "\n";

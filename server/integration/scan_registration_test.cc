@@ -87,6 +87,10 @@ TEST_F(ServerFixture, LaterScansAreRegisteredIntoThePlacesFrame) {
   j = Watch(ack.job_id());
   ASSERT_EQ(j.phase(), v1::JOB_PHASE_DONE) << j.error();
   ASSERT_TRUE(j.metrics().count("registration_scale"));
+  // Its poses were checked against its photos first (a similarity moves no
+  // frame against another: nothing disputed).
+  ASSERT_TRUE(j.metrics().count("pose_check_pairs"));
+  EXPECT_EQ(j.metrics().at("pose_check_disputed"), 0.0);
   // The registration found (roughly) the inverse of `moved`.
   EXPECT_NEAR(j.metrics().at("registration_scale"), 1.0 / moved.scale, 0.1 / moved.scale);
   EXPECT_NEAR(j.metrics().at("registration_rotation_deg"), moved.RotationDegrees(), 3.0);

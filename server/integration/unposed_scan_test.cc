@@ -93,6 +93,10 @@ TEST_F(UnposedScanTest, VideoOverHttpIsPosedTrainedAndItsCamerasMatchTheTruth) {
   ASSERT_EQ(j.phase(), v1::JOB_PHASE_DONE) << j.error() << "; job metrics:" << metrics;
   EXPECT_EQ(j.metrics().at("posing_frames"), 24.0);
   EXPECT_LT(j.metrics().at("posing_reprojection_px"), 2.0);
+  // COLMAP's poses were checked against the photos (neighbours in the
+  // video's order) before training.
+  ASSERT_TRUE(j.metrics().count("pose_check_pairs"));
+  EXPECT_GT(j.metrics().at("pose_check_pairs"), 0.0);
 
   // The cameras the service trained on: the true ones up to one similarity.
   r = http_->Get("/api/cameras?time_step=0");

@@ -1,0 +1,53 @@
+#include "core/pose/run_repair.h"
+
+#include <iostream>
+#include <set>
+
+#include "core/pose/pose_test_util.h"
+#include "gtest/gtest.h"
+
+namespace clnerf {
+namespace {
+
+double RotationDeg(const Pose& a, const Pose& b) {
+  const Eigen::Matrix3d r = a.leftCols<3>().cast<double>().transpose() * b.leftCols<3>().cast<double>();
+  return std::acos(std::clamp((r.trace() - 1.0) / 2.0, -1.0, 1.0)) * 180.0 / M_PI;
+}
+
+TEST(RunRepairTest, TurnedRunIsPutBack) {
+  const std::vector<View> truth = testing_util::RenderedOrbit(5, 36);
+  std::vector<View> views = truth;
+  testing_util::TurnAboutTheScene(&views, 9, 16, 175);
+  PoseCheckOptions po;
+  po.max_features = 1500;
+  absl::StatusOr<PoseCheckReport> check = CheckPoses(views, po, 2);
+  ASSERT_TRUE(check.ok()) << check.status();
+  ASSERT_EQ(check->disputed.size(), 8u) << check->Summary();
+  absl::StatusOr<RunRepair> repair = SolveRunRepair(*check, views);
+  ASSERT_TRUE(repair.ok()) << repair.status();
+  std::cout << repair->Summary() << "\n";
+  EXPECT_NEAR(repair->turn_deg, 175.0, 2.0);
+  Scene scene;
+  scene.train = views;
+  std::set<std::string> names;
+  for (int i : check->disputed) names.insert(views[i].name);
+  ApplyRunRepair(*repair, names, &scene);
+  // The run is back where it was filmed: within 2 degrees, and 3 % of the
+  // orbit's diameter (8 units), from two-view poses of 320 x 240 renders.
+  for (int i = 9; i <= 16; ++i) {
+    EXPECT_LT(RotationDeg(scene.train[i].camera.c2w, truth[i].camera.c2w), 2.0) << i;
+    EXPECT_LT((scene.train[i].camera.position() - truth[i].camera.position()).norm(), 0.24) << i;
+  }
+  for (int i : {0, 8, 17, 35}) EXPECT_EQ(scene.train[i].camera.c2w, views[i].camera.c2w) << "kept frame moved";
+}
+
+TEST(RunRepairTest, NothingDisputedIsRefused) {
+  PoseCheckReport report;
+  EXPECT_TRUE(absl::IsFailedPrecondition(SolveRunRepair(report, {}).status()));
+  RunRepairOptions o;
+  o.min_pairs = 1;
+  EXPECT_TRUE(absl::IsInvalidArgument(o.Validate()));
+}
+
+}  // namespace
+}  // namespace clnerf
