@@ -1,6 +1,5 @@
 // `check-poses`: are a capture's poses right? Each frame's pose against its
 // own photos (core/pose/pose_check.h), before anything trains on them.
-#include <algorithm>
 #include <cstdio>
 #include <set>
 
@@ -36,16 +35,6 @@ nlohmann::json PoseCheckJson(const PoseCheckReport& r, const std::vector<View>& 
           {"pairs", pairs}};
 }
 
-namespace {
-
-std::vector<std::string> ViewNames(const std::vector<View>& views) {
-  std::vector<std::string> names;
-  for (const View& v : views) names.push_back(v.name);
-  return names;
-}
-
-}  // namespace
-
 CLI::App* BindCheckPoses(CLI::App* parent, CheckPosesArgs* a) {
   CLI::App* c = parent->add_subcommand(
       "check-poses", "Check a capture's poses against its own photos (frames posed turned against the rest)");
@@ -67,7 +56,7 @@ int RunCheckPoses(const CheckPosesArgs& a) {
   const std::vector<View> views = a.split == "all" ? CaptureInOrder(*scene) : a.split == "train" ? scene->train : scene->test;
   absl::StatusOr<PoseCheckReport> r = CheckPoses(views, a.check, a.threads);
   if (!r.ok()) return Fail(r.status());
-  std::printf("%s (%.1f s)\n", r->Summary(ViewNames(views)).c_str(), r->seconds);
+  std::printf("%s (%.1f s)\n", r->Summary(views).c_str(), r->seconds);
   if (absl::Status s = WriteJson(a.json, PoseCheckJson(*r, views)); !s.ok()) return Fail(s);
   return 0;
 }
@@ -120,11 +109,10 @@ absl::StatusOr<nlohmann::json> CheckTrainingPoses(const TrainArgs& a, Scene* sce
   const std::vector<View> views = CaptureInOrder(*scene);
   absl::StatusOr<PoseCheckReport> r = CheckPoses(views, a.check, a.fit.train.threads);
   if (!r.ok()) return r.status();
-  const std::string summary = r->Summary(ViewNames(views));
+  const std::string summary = r->Summary(views);
   nlohmann::json j = PoseCheckJson(*r, views);
   j["action"] = a.pose_check;
-  std::set<std::string> disputed;
-  for (int i : r->disputed) disputed.insert(views[i].name);
+  const std::set<std::string> disputed = DisputedNames(*r, views);
   for (const View& v : scene->test) {
     if (disputed.count(v.name)) disputed_test->insert(v.name);
   }
@@ -145,13 +133,7 @@ absl::StatusOr<nlohmann::json> CheckTrainingPoses(const TrainArgs& a, Scene* sce
       disputed_test->clear();
     }
   }
-  if (a.pose_check == "drop") {
-    const size_t before = scene->train.size();
-    scene->train.erase(std::remove_if(scene->train.begin(), scene->train.end(),
-                                      [&](const View& v) { return disputed.count(v.name) > 0; }),
-                       scene->train.end());
-    j["dropped_train_views"] = before - scene->train.size();
-  }
+  if (a.pose_check == "drop") j["dropped_train_views"] = DropViewsNamed(disputed, &scene->train);
   return j;
 }
 

@@ -13,6 +13,7 @@
 #include "absl/strings/str_join.h"
 #include "core/pose/place_map.h"
 #include "core/pose/sift_features.h"
+#include "core/pose/similarity.h"
 #include "Eigen/Geometry"
 #include "opencv2/calib3d.hpp"
 
@@ -69,10 +70,6 @@ Eigen::Matrix3d ToEigen(const cv::Mat& m) {
   return r;
 }
 
-double AngleDeg(const Eigen::Matrix3d& r) {
-  return std::acos(std::clamp((r.trace() - 1.0) / 2.0, -1.0, 1.0)) * 180.0 / M_PI;
-}
-
 // The pairs to check: each frame with the next few in order.
 std::vector<std::pair<int, int>> CandidatePairs(int n, const PoseCheckOptions& o) {
   std::vector<std::pair<int, int>> pairs;
@@ -115,7 +112,7 @@ PairCheck CheckPair(int a, int b, const FrameFeatures& fa, const FrameFeatures& 
   p.rotation = ToEigen(r);
   p.baseline = Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)).normalized();
   p.disagreement_deg =
-      float(std::min(AngleDeg(poses.transpose() * ToEigen(r1)), AngleDeg(poses.transpose() * ToEigen(r2))));
+      float(std::min(RotationAngleDegrees(poses, ToEigen(r1)), RotationAngleDegrees(poses, ToEigen(r2))));
   p.disagrees = p.disagreement_deg > o.max_disagreement_deg;
   return p;
 }
@@ -232,7 +229,7 @@ absl::StatusOr<PoseCheckReport> CheckPoses(const std::vector<View>& views, const
   for (size_t i = 0; i + 1 < views.size(); ++i) {
     const Eigen::Matrix3d a = views[i].camera.c2w.leftCols<3>().cast<double>();
     const Eigen::Matrix3d b = views[i + 1].camera.c2w.leftCols<3>().cast<double>();
-    continuous[i] = AngleDeg(a.transpose() * b) < options.max_disagreement_deg;
+    continuous[i] = RotationAngleDegrees(a, b) < options.max_disagreement_deg;
   }
   Group(options, continuous, &r);
   r.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -246,30 +243,27 @@ std::vector<View> CaptureInOrder(const Scene& scene) {
   return views;
 }
 
-std::vector<std::string> DropDisputed(const PoseCheckReport& report, std::vector<View>* views) {
-  std::vector<std::string> names;
-  std::vector<View> kept;
-  size_t next = 0;
-  for (int i = 0; i < int(views->size()); ++i) {
-    if (next < report.disputed.size() && report.disputed[next] == i) {
-      names.push_back((*views)[i].name);
-      ++next;
-    } else {
-      kept.push_back(std::move((*views)[i]));
-    }
-  }
-  *views = std::move(kept);
+std::set<std::string> DisputedNames(const PoseCheckReport& report, const std::vector<View>& views) {
+  std::set<std::string> names;
+  for (int i : report.disputed) names.insert(views[i].name);
   return names;
 }
 
-std::string PoseCheckReport::Summary(const std::vector<std::string>& names) const {
+size_t DropViewsNamed(const std::set<std::string>& names, std::vector<View>* views) {
+  const size_t before = views->size();
+  views->erase(std::remove_if(views->begin(), views->end(), [&](const View& v) { return names.count(v.name) > 0; }),
+               views->end());
+  return before - views->size();
+}
+
+std::string PoseCheckReport::Summary(const std::vector<View>& views) const {
   std::string s =
       absl::StrFormat("%d of %d frame pairs matched; %d disagree with the poses by > %.0f deg (agreeing: median %.1f deg)",
                       int(pairs.size()), pairs_tried, disagreeing_pairs, threshold_deg, median_agreeing_deg);
   if (inconclusive) return absl::StrCat(s, "; inconclusive (", conflicts, " pairs contradict the grouping)");
   if (disputed.empty()) return absl::StrCat(s, "; every checked frame agrees");
   std::vector<std::string> which;
-  for (int i : disputed) which.push_back(i < int(names.size()) ? names[i] : absl::StrCat(i));
+  for (int i : disputed) which.push_back(i < int(views.size()) ? views[i].name : absl::StrCat(i));
   return absl::StrCat(s, "; ", disputed.size(), " of ", frames, " frames disputed: ", absl::StrJoin(which, " "));
 }
 

@@ -26,6 +26,7 @@
 #ifndef CLNERF_CORE_POSE_POSE_CHECK_H_
 #define CLNERF_CORE_POSE_POSE_CHECK_H_
 
+#include <set>
 #include <string>
 #include <vector>
 
@@ -92,8 +93,9 @@ struct PoseCheckReport {
   std::vector<int> unchecked;        // Frames in no counted pair.
   double median_agreeing_deg = 0;    // Median disagreement of agreeing pairs.
   double seconds = 0;
-  // One line: pairs, disagreements, disputed frames (by `names` when given).
-  std::string Summary(const std::vector<std::string>& names = {}) const;
+  // One line: pairs, disagreements, disputed frames (named after `views`,
+  // those the report was made over, when given; else by index).
+  std::string Summary(const std::vector<View>& views = {}) const;
 };
 
 // Checks the poses of `views` (each with its image) against their photos.
@@ -105,9 +107,12 @@ absl::StatusOr<PoseCheckReport> CheckPoses(const std::vector<View>& views, const
 // frames, a phone's photos): how the check reads a capture.
 std::vector<View> CaptureInOrder(const Scene& scene);
 
-// Removes the disputed views of `report` (made over `views`) from `views`,
-// keeping the others in order; returns their names.
-std::vector<std::string> DropDisputed(const PoseCheckReport& report, std::vector<View>* views);
+// The names of `report`'s disputed frames of `views` (those it was made over).
+std::set<std::string> DisputedNames(const PoseCheckReport& report, const std::vector<View>& views);
+
+// Removes the views named in `names` from `views`, keeping the others in
+// order; returns how many it removed.
+size_t DropViewsNamed(const std::set<std::string>& names, std::vector<View>* views);
 
 }  // namespace clnerf
 

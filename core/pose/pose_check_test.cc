@@ -47,8 +47,7 @@ TEST(PoseCheckTest, RunTurnedAboutTheSceneIsDisputed) {
   std::cout << r->Summary() << "\n";
   EXPECT_FALSE(r->inconclusive);
   EXPECT_EQ(r->disputed, (std::vector<int>{9, 10, 11, 12, 13, 14, 15, 16}));
-  const std::vector<std::string> dropped = DropDisputed(*r, &views);
-  EXPECT_EQ(dropped.size(), 8u);
+  EXPECT_EQ(DropViewsNamed(DisputedNames(*r, views), &views), 8u);
   EXPECT_EQ(views.size(), 28u);
 }
 

@@ -27,10 +27,6 @@ struct Crossing {
   Eigen::Vector3d partner_centre, direction, given_centre;
 };
 
-double AngleDeg(const Eigen::Matrix3d& r) {
-  return std::acos(std::clamp((r.trace() - 1.0) / 2.0, -1.0, 1.0)) * 180.0 / M_PI;
-}
-
 std::vector<Crossing> Crossings(const PoseCheckReport& report, const std::vector<View>& views) {
   std::vector<bool> disputed(views.size(), false);
   for (int i : report.disputed) disputed[i] = true;
@@ -62,7 +58,7 @@ std::vector<int> Consensus(const std::vector<Crossing>& cs, double spread) {
   for (size_t k = 0; k < cs.size(); ++k) {
     std::vector<int> near;
     for (size_t m = 0; m < cs.size(); ++m) {
-      if (AngleDeg(cs[k].turn.transpose() * cs[m].turn) <= spread) near.push_back(int(m));
+      if (RotationAngleDegrees(cs[k].turn, cs[m].turn) <= spread) near.push_back(int(m));
     }
     if (near.size() > best.size()) best = near;
   }
@@ -99,7 +95,7 @@ absl::StatusOr<RunRepair> SolveRunRepair(const PoseCheckReport& report, const st
   for (int k : used) turns.push_back(cs[k].turn);
   r.transform.rotation = MeanRotation(turns);
   std::vector<double> spread;
-  for (const Eigen::Matrix3d& t : turns) spread.push_back(AngleDeg(r.transform.rotation.transpose() * t));
+  for (const Eigen::Matrix3d& t : turns) spread.push_back(RotationAngleDegrees(r.transform.rotation, t));
   std::nth_element(spread.begin(), spread.begin() + spread.size() / 2, spread.end());
   r.rotation_spread_deg = spread[spread.size() / 2];
   // scale * R c_given + t - mu_k d_k = c_partner, for (scale,) t and each
@@ -119,7 +115,7 @@ absl::StatusOr<RunRepair> SolveRunRepair(const PoseCheckReport& report, const st
   r.transform.scale = o.rigid ? 1.0 : x(0);
   r.transform.translation = x.segment<3>(s0);
   r.centre_residual = std::sqrt((a * x - b).squaredNorm() / double(n));
-  r.turn_deg = AngleDeg(r.transform.rotation);
+  r.turn_deg = r.transform.RotationDegrees();
   if (!(r.transform.scale > 0) || !std::isfinite(r.centre_residual)) {
     return absl::FailedPreconditionError(
         absl::StrFormat("run repair: degenerate solution (scale %.3f)", r.transform.scale));

@@ -2,7 +2,6 @@
 
 #include <omp.h>
 
-#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <optional>
@@ -513,25 +512,19 @@ void UpdateWorker::CheckScanPoses(const std::string& job_id, Scene* scene, std::
     spdlog::warn("job {}: pose check skipped: {}", job_id, r.status().ToString());
     return;
   }
-  std::vector<std::string> names;
-  for (const View& v : views) names.push_back(v.name);
   (*metrics)["pose_check_pairs"] = double(r->pairs.size());
   (*metrics)["pose_check_disputed"] = double(r->disputed.size());
   (*metrics)["pose_check_seconds"] = r->seconds;
   if (r->disputed.empty()) {
-    spdlog::info("job {}: pose check: {}", job_id, r->Summary(names));
+    spdlog::info("job {}: pose check: {}", job_id, r->Summary(views));
     return;
   }
-  spdlog::warn("job {}: pose check: {}{}", job_id, r->Summary(names),
+  spdlog::warn("job {}: pose check: {}{}", job_id, r->Summary(views),
                options_.pose_check_action == "drop" ? "; training without them" : "");
   if (options_.pose_check_action != "drop") return;
-  std::set<std::string> disputed;
-  for (int i : r->disputed) disputed.insert(views[i].name);
-  const auto is_disputed = [&](const View& v) { return disputed.count(v.name) > 0; };
-  const size_t before = scene->train.size();
-  scene->train.erase(std::remove_if(scene->train.begin(), scene->train.end(), is_disputed), scene->train.end());
-  scene->test.erase(std::remove_if(scene->test.begin(), scene->test.end(), is_disputed), scene->test.end());
-  (*metrics)["pose_check_dropped"] = double(before - scene->train.size());
+  const std::set<std::string> disputed = DisputedNames(*r, views);
+  (*metrics)["pose_check_dropped"] = double(DropViewsNamed(disputed, &scene->train));
+  DropViewsNamed(disputed, &scene->test);
 }
 
 std::optional<Scene> UpdateWorker::PrepareScan(const std::string& job_id, const std::string& scan_id,
