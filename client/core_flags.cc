@@ -52,6 +52,9 @@ void BindFitFlags(CLI::App* c, FitOptions* fo) {
   c->add_option("--near", o.near, "Near plane in model units (default: derived)");
   c->add_option("--occupancy-threshold", o.occupancy_threshold,
                 "Occupancy density threshold (default: derived from the minimum step)");
+  c->add_option("--occupancy-decay", fo->model.occupancy.decay,
+                 "Occupancy grid: each refreshed cell's density EMA keeps max(decay * old, new) (docs/render_cost.md)")
+      ->capture_default_str();
   BindRegulariserFlags(c, &t);
   BindEnumFlag(c, "--sampler", &fo->model.sampler, {SamplerKind::kAuto, SamplerKind::kOccupancy, SamplerKind::kProposal},
                SamplerKindName,

@@ -31,6 +31,7 @@
 #include <optional>
 #include <set>
 
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
@@ -325,6 +326,41 @@ bool PoseCase(const RescanContext& c, const std::string& which, CaseScan* cs, nl
   return true;
 }
 
+// The update worker's pose check (core/pose/pose_check.h) on the scan as
+// posed, before registration: its disputed frames are reported and, with
+// --pose-check drop (auto: for a scan COLMAP posed), left out (with their
+// entries in `posed`).
+void CheckCasePoses(const RescanContext& c, const std::string& which, CaseScan* cs, nlohmann::json* row) {
+  const BenchRescanArgs& a = *c.args;
+  const bool posed_here = absl::StartsWith(which, "unposed");
+  const bool drop = a.pose_check == "drop" || (a.pose_check == "auto" && posed_here);
+  if (a.pose_check == "off" || cs->scan.train.empty()) return;
+  Scene photos;  // The scan's own frames only (a first scan's held-out views are in another frame).
+  photos.train = cs->scan.train;
+  const std::vector<View> views = CaptureInOrder(photos);
+  absl::StatusOr<PoseCheckReport> r = CheckPoses(views, a.check, a.threads);
+  if (!r.ok()) {
+    std::printf("  %s: pose check skipped: %s\n", which.c_str(), std::string(r.status().message()).c_str());
+    return;
+  }
+  (*row)["pose_check_pairs"] = r->pairs.size();
+  (*row)["pose_check_disputed"] = r->disputed.size();
+  (*row)["pose_check_seconds"] = r->seconds;
+  std::printf("  %s: pose check: %s\n", which.c_str(), r->Summary(views).c_str());
+  if (!drop || r->disputed.empty()) return;
+  const std::set<std::string> disputed = DisputedNames(*r, views);
+  std::vector<View> kept;
+  std::vector<int> posed;
+  for (size_t k = 0; k < cs->scan.train.size(); ++k) {
+    if (disputed.count(cs->scan.train[k].name)) continue;
+    kept.push_back(std::move(cs->scan.train[k]));
+    posed.push_back(cs->posed[k]);
+  }
+  (*row)["pose_check_dropped"] = cs->scan.train.size() - kept.size();
+  cs->scan.train = std::move(kept);
+  cs->posed = std::move(posed);
+}
+
 // `held` (the views to score) aligned to `model` from where they are; the
 // extent is that of `frame`'s cameras (the frame the model was trained in).
 // nullopt when the alignment failed.
@@ -536,6 +572,7 @@ absl::StatusOr<nlohmann::json> RunCase(const RescanContext& c, const std::string
   } else {
     for (size_t i = 0; i < cs.scan.train.size(); ++i) cs.posed.push_back(int(i));
   }
+  CheckCasePoses(c, which, &cs, &row);
   for (int i : cs.posed) cs.posed_truth.push_back(cs.truth[size_t(i)]);
   if (!known && !RegisterCase(c, which, &cs, &row)) return row;
   row["register_seconds"] = cs.register_seconds;
@@ -756,6 +793,13 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
       ->check(CLI::Range(1, 100));
   BindDatasetFlags(c, &a->dataset);
   BindThreadsFlag(c, &a->threads);
+  c->add_option("--pose-check", a->pose_check,
+                "Visit B's poses checked against its photos before registration, as the service does: auto (drop "
+                "the disputed frames of a scan COLMAP posed, warn otherwise), warn, drop (train without the disputed "
+                "frames) or off")
+      ->check(CLI::IsMember({"auto", "warn", "drop", "off"}))
+      ->capture_default_str();
+  BindPoseCheckFlags(c, &a->check);
   c->add_option("--json", a->json, "Write JSON here ('-' = stdout)");
   return c;
 }

@@ -84,8 +84,9 @@ absl::Status ServerOptions::Validate() const {
   }
   if (absl::Status s = update.Validate(); !s.ok()) return s;
   if (absl::Status s = registration.Validate(); !s.ok()) return s;
-  if (pose_check_action != "warn" && pose_check_action != "drop" && pose_check_action != "off") {
-    return absl::InvalidArgumentError("pose_check.action must be warn, drop or off");
+  if (pose_check_action != "auto" && pose_check_action != "warn" && pose_check_action != "drop" &&
+      pose_check_action != "off") {
+    return absl::InvalidArgumentError("pose_check.action must be auto, warn, drop or off");
   }
   if (absl::Status s = pose_check.Validate(); !s.ok()) return s;
   SfmOptions sfm = posing;

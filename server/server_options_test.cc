@@ -51,7 +51,10 @@ TEST(ServerOptionsTest, DefaultsAreValidAndConfigOverrides) {
 
 TEST(ServerOptionsTest, PoseCheckIsConfigured) {
   ServerOptions o;
-  EXPECT_EQ(o.pose_check_action, "warn");  // Every scan is checked; nothing is dropped unasked.
+  // Every scan is checked; frames are dropped unasked only from scans the
+  // service posed itself.
+  EXPECT_EQ(o.pose_check_action, "auto");
+  EXPECT_TRUE(o.Validate().ok());
   ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "drop", "min_inliers": 30, "max_disagreement_deg": 60,
                                                    "sequence_neighbours": 2}})", &o).ok());
   EXPECT_EQ(o.pose_check_action, "drop");

@@ -504,8 +504,11 @@ bool UpdateWorker::LoadDeployed(const std::string& job_id, const std::string& sc
   return true;
 }
 
-void UpdateWorker::CheckScanPoses(const std::string& job_id, Scene* scene, std::map<std::string, double>* metrics) {
-  if (options_.pose_check_action == "off" || scene->train.empty()) return;
+void UpdateWorker::CheckScanPoses(const std::string& job_id, bool posed_here, Scene* scene,
+                                  std::map<std::string, double>* metrics) {
+  const std::string& action = options_.pose_check_action;
+  const bool drop = action == "drop" || (action == "auto" && posed_here);
+  if (action == "off" || scene->train.empty()) return;
   const std::vector<View> views = CaptureInOrder(*scene);
   absl::StatusOr<PoseCheckReport> r = CheckPoses(views, options_.pose_check, options_.train_threads);
   if (!r.ok()) {
@@ -519,9 +522,8 @@ void UpdateWorker::CheckScanPoses(const std::string& job_id, Scene* scene, std::
     spdlog::info("job {}: pose check: {}", job_id, r->Summary(views));
     return;
   }
-  spdlog::warn("job {}: pose check: {}{}", job_id, r->Summary(views),
-               options_.pose_check_action == "drop" ? "; training without them" : "");
-  if (options_.pose_check_action != "drop") return;
+  spdlog::warn("job {}: pose check: {}{}", job_id, r->Summary(views), drop ? "; training without them" : "");
+  if (!drop) return;
   const std::set<std::string> disputed = DisputedNames(*r, views);
   (*metrics)["pose_check_dropped"] = double(DropViewsNamed(disputed, &scene->train));
   DropViewsNamed(disputed, &scene->test);
@@ -530,8 +532,10 @@ void UpdateWorker::CheckScanPoses(const std::string& job_id, Scene* scene, std::
 std::optional<Scene> UpdateWorker::PrepareScan(const std::string& job_id, const std::string& scan_id,
                                                const Servable* prev, std::map<std::string, double>* metrics) {
   const int t = prev ? prev->model().num_time_steps() : 0;
+  bool posed_here = false;
   if (absl::StatusOr<ScanRecord> rec = scans_->Record(scan_id); rec.ok() && rec->pose_frame == "unposed") {
     if (!PoseScan(job_id, *rec, prev, metrics)) return std::nullopt;
+    posed_here = true;
   }
   absl::StatusOr<Scene> scene =
       scans_->Load(scan_id, t, prev ? std::optional<Eigen::Vector3f>(prev->model().background()) : std::nullopt);
@@ -543,7 +547,7 @@ std::optional<Scene> UpdateWorker::PrepareScan(const std::string& job_id, const 
     return std::nullopt;
   }
   if (prev) scene->kind = prev->model().kind();
-  CheckScanPoses(job_id, &*scene, metrics);
+  CheckScanPoses(job_id, posed_here, &*scene, metrics);
   if (prev && !RegisterIntoPlace(job_id, scan_id, *prev, &*scene, metrics)) return std::nullopt;
   return *std::move(scene);
 }

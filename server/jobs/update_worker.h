@@ -145,9 +145,11 @@ class UpdateWorker {
   bool RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,
                          Scene* scene, std::map<std::string, double>* metrics);
   // The scan's poses against its photos (ServerOptions::pose_check_action):
-  // disputed frames logged, pose_check_* metrics added, and with "drop" the
-  // disputed views removed from `scene` (train and held out).
-  void CheckScanPoses(const std::string& job_id, Scene* scene, std::map<std::string, double>* metrics);
+  // disputed frames logged, pose_check_* metrics added, and with "drop" (or
+  // "auto" for a scan the service posed: `posed_here`) the disputed views
+  // removed from `scene` (train and held out).
+  void CheckScanPoses(const std::string& job_id, bool posed_here, Scene* scene,
+                      std::map<std::string, double>* metrics);
   // After RegisterIntoPlace placed a scan the service posed: each frame
   // aligned photometrically to `map` (RefineScanPhotometric). False when the
   // job ended (cancelled).
