@@ -131,14 +131,14 @@ struct ServerOptions {
   // Every scan's poses (uploaded, or COLMAP's) are checked against its own
   // photos before it registers or trains (core/pose/pose_check.h): frames
   // turned against the rest are logged and recorded with the version
-  // (metrics pose_check_*). "drop" also trains and gates without them;
-  // "warn" only reports them; "auto" drops them from scans the service
-  // posed itself (COLMAP's mirrored frames: on beer_2's first run an
+  // (metrics pose_check_*). "warn" (default) only reports them; "drop"
+  // also trains and gates without them; "auto" drops them from scans the
+  // service posed itself (COLMAP's mirrored frames: on beer_2's first run an
   // unposed visit went from 2.15 to 0.55 dB under its place-frame upload)
   // and warns on poses a user uploaded; "off" skips the check. Config
   // object "pose_check": action, min_inliers, max_disagreement_deg,
   // sequence_neighbours.
-  std::string pose_check_action = "auto";
+  std::string pose_check_action = "warn";
   PoseCheckOptions pose_check;
   // Baking (issue 41; core/bake/baker.h, docs/baking.md): each new
   // version's latest time step is baked into the asset the browser renders

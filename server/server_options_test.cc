@@ -51,9 +51,9 @@ TEST(ServerOptionsTest, DefaultsAreValidAndConfigOverrides) {
 
 TEST(ServerOptionsTest, PoseCheckIsConfigured) {
   ServerOptions o;
-  // Every scan is checked; frames are dropped unasked only from scans the
-  // service posed itself.
-  EXPECT_EQ(o.pose_check_action, "auto");
+  EXPECT_EQ(o.pose_check_action, "warn");  // Every scan is checked; nothing is dropped unasked.
+  EXPECT_TRUE(o.Validate().ok());
+  ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "auto"}})", &o).ok());
   EXPECT_TRUE(o.Validate().ok());
   ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "drop", "min_inliers": 30, "max_disagreement_deg": 60,
                                                    "sequence_neighbours": 2}})", &o).ok());
