@@ -332,8 +332,7 @@ bool PoseCase(const RescanContext& c, const std::string& which, CaseScan* cs, nl
 // entries in `posed`).
 void CheckCasePoses(const RescanContext& c, const std::string& which, CaseScan* cs, nlohmann::json* row) {
   const BenchRescanArgs& a = *c.args;
-  const bool posed_here = absl::StartsWith(which, "unposed");
-  const bool drop = a.pose_check == "drop" || (a.pose_check == "auto" && posed_here);
+  const bool drop = DropsDisputed(a.pose_check, /*posed_here=*/absl::StartsWith(which, "unposed"));
   if (a.pose_check == "off" || cs->scan.train.empty()) return;
   Scene photos;  // The scan's own frames only (a first scan's held-out views are in another frame).
   photos.train = cs->scan.train;

@@ -249,6 +249,10 @@ std::set<std::string> DisputedNames(const PoseCheckReport& report, const std::ve
   return names;
 }
 
+bool DropsDisputed(const std::string& action, bool posed_here) {
+  return action == "drop" || (action == "auto" && posed_here);
+}
+
 size_t DropViewsNamed(const std::set<std::string>& names, std::vector<View>* views) {
   const size_t before = views->size();
   views->erase(std::remove_if(views->begin(), views->end(), [&](const View& v) { return names.count(v.name) > 0; }),

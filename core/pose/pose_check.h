@@ -110,6 +110,11 @@ std::vector<View> CaptureInOrder(const Scene& scene);
 // The names of `report`'s disputed frames of `views` (those it was made over).
 std::set<std::string> DisputedNames(const PoseCheckReport& report, const std::vector<View>& views);
 
+// Whether a caller's `action` on disputed frames drops them: "drop" always,
+// "auto" only from a scan the caller posed itself (`posed_here`: COLMAP's
+// mirrored frames), "warn" and "off" never.
+bool DropsDisputed(const std::string& action, bool posed_here);
+
 // Removes the views named in `names` from `views`, keeping the others in
 // order; returns how many it removed.
 size_t DropViewsNamed(const std::set<std::string>& names, std::vector<View>* views);

@@ -51,6 +51,15 @@ TEST(PoseCheckTest, RunTurnedAboutTheSceneIsDisputed) {
   EXPECT_EQ(views.size(), 28u);
 }
 
+TEST(PoseCheckTest, DisputedFramesAreDroppedOnlyWhenAsked) {
+  EXPECT_TRUE(DropsDisputed("drop", false));
+  EXPECT_TRUE(DropsDisputed("drop", true));
+  EXPECT_TRUE(DropsDisputed("auto", true));    // A scan the caller posed itself.
+  EXPECT_FALSE(DropsDisputed("auto", false));  // Poses a user uploaded.
+  EXPECT_FALSE(DropsDisputed("warn", true));
+  EXPECT_FALSE(DropsDisputed("off", true));
+}
+
 TEST(PoseCheckTest, SingleBadFrameIsDisputed) {
   std::vector<View> views = Capture();
   Pose& c2w = views[20].camera.c2w;

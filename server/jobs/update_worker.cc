@@ -507,7 +507,7 @@ bool UpdateWorker::LoadDeployed(const std::string& job_id, const std::string& sc
 void UpdateWorker::CheckScanPoses(const std::string& job_id, bool posed_here, Scene* scene,
                                   std::map<std::string, double>* metrics) {
   const std::string& action = options_.pose_check_action;
-  const bool drop = action == "drop" || (action == "auto" && posed_here);
+  const bool drop = DropsDisputed(action, posed_here);
   if (action == "off" || scene->train.empty()) return;
   const std::vector<View> views = CaptureInOrder(*scene);
   absl::StatusOr<PoseCheckReport> r = CheckPoses(views, options_.pose_check, options_.train_threads);
