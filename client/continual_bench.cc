@@ -154,6 +154,9 @@ CLI::App* BindBenchContinual(CLI::App* parent, BenchContinualArgs* a) {
       ->capture_default_str();
   c->add_option("--procedural-size", a->procedural_size, "Image size of the procedural scans")->capture_default_str();
   c->add_option("--seed", u.train.seed, "Random seed")->capture_default_str();
+  c->add_option("--occupancy-decay", u.model.occupancy.decay,
+                "Occupancy grid: each refreshed cell's density EMA keeps max(decay * old, new) (docs/render_cost.md)")
+      ->capture_default_str();
   BindThreadsFlag(c, &u.train.threads);
   c->add_option("--json", a->json, "Write JSON here ('-' = stdout)");
   BindDatasetFlags(c, &a->dataset);
@@ -206,6 +209,7 @@ int RunBenchContinual(const BenchContinualArgs& a) {
                       {"prioritized", uo.prioritized_buffer},
                       {"embeddings", uo.model.network.use_embeddings},
                       {"seed", seed},
+                      {"occupancy_decay", uo.model.occupancy.decay},
                       {"threads", uo.train.threads},
                       {"status", "ok"}};
   if (uo.method == ContinualMethod::kEWC && !ub) j["ewc_lambda"] = uo.ewc_lambda;

@@ -97,10 +97,14 @@ struct BakeReport {
   // The first guess's estimated download at the base resolution (512 for
   // unbounded scenes), which a derived resolution is chosen from.
   long long base_resolution_bytes = 0;
-  // The stored asset's estimated bytes before the view term's dead zone
-  // (0 = not estimated: no view term or no budget), and whether it applied.
+  // The stored asset's estimated bytes before and after the view term's
+  // dead zone (0 = not estimated: no budget), and whether it applied.
   long long estimated_bytes = 0;
+  long long stored_bytes = 0;
   bool view_dead_zone = false;
+  // 1 when the fitted asset was over the budget and stages 4-6 ran again
+  // with fewer blocks.
+  int over_budget_rebakes = 0;
   ColourFitReport fit;
   // candidate_seconds: stage 1; visibility_seconds: stages 2 and 3 (densities
   // are computed as rays reach candidates). With a derived finer grid the

@@ -63,7 +63,7 @@ class ModelCache {
       }
       const std::shared_ptr<Load> load = it->second.load;  // Another caller is loading it: share its result.
       cv_.wait(lock, [&] { return load->done; });
-      if (!load->status.ok()) return load->status;
+      if (load->value == nullptr) return load->Error();
       return load->value;
     }
     const auto load = std::make_shared<Load>();
@@ -74,11 +74,12 @@ class ModelCache {
     it = entries_.find(key);
     load->done = true;
     if (!loaded.ok() || *loaded == nullptr) {
-      load->status = loaded.ok() ? absl::InternalError("loader returned nothing") : loaded.status();
+      load->code = loaded.ok() ? absl::StatusCode::kInternal : loaded.status().code();
+      load->message = loaded.ok() ? "loader returned nothing" : std::string(loaded.status().message());
       entries_.erase(it);
       ++stats_.load_failures;
       cv_.notify_all();
-      return load->status;
+      return load->Error();
     }
     load->value = *loaded;
     Entry& e = it->second;
@@ -141,11 +142,16 @@ class ModelCache {
   }
 
  private:
-  // One load in progress, shared with the callers waiting for it.
+  // One load in progress, shared with the callers waiting for it. A failure
+  // is kept as code and message, and each caller gets its own absl::Status:
+  // copies of one Status share a reference count that Debian's uninstrumented
+  // libabsl releases out of ThreadSanitizer's sight.
   struct Load {
     bool done = false;
-    absl::Status status;
+    absl::StatusCode code = absl::StatusCode::kOk;
+    std::string message;
     std::shared_ptr<const T> value;
+    absl::Status Error() const { return absl::Status(code, message); }
   };
   struct Entry {
     std::shared_ptr<const T> value;
