@@ -29,7 +29,31 @@ OccupancyGrid::OccupancyGrid(const OccupancyGridOptions& options, float bound, f
   density_.assign(num_cells(), 0.0f);
   visible_.assign(num_cells(), 1);
   bits_.assign((num_cells() + 63) / 64, 0);
+  // A block must not straddle a cascade's inner boundary (at res/4 cells
+  // from each face), so blocks need res divisible by 4 * kBlockCells.
+  block_res_ = res_ >= 4 * kBlockCells && res_ % (4 * kBlockCells) == 0 ? res_ / kBlockCells : 0;
+  for (int c = 0; c < cascades_; ++c) {
+    const float inner = c == 0 ? 0.0f : (half_[c] - half_[c - 1]) * cells_per_unit_[c] / kBlockCells;
+    block_ok_.push_back(std::abs(inner - std::round(inner)) < 1e-3f);
+  }
+  block_bits_.assign((size_t(block_res_) * block_res_ * block_res_ * cascades_ + 63) / 64, 0);
   SetAllOccupied();
+}
+
+void OccupancyGrid::RefreshBlocks() {
+  if (block_res_ == 0) return;
+  std::fill(block_bits_.begin(), block_bits_.end(), 0);
+  const size_t per = cells_per_cascade(), blocks_per = size_t(block_res_) * block_res_ * block_res_;
+  for (size_t w = 0; w < bits_.size(); ++w) {
+    for (uint64_t b = bits_[w]; b != 0; b &= b - 1) {
+      const size_t i = w * 64 + size_t(__builtin_ctzll(b));
+      const size_t c = i / per, r = i % per;
+      const size_t x = r % size_t(res_), y = (r / size_t(res_)) % size_t(res_), z = r / (size_t(res_) * res_);
+      const size_t k = c * blocks_per + x / kBlockCells +
+                       size_t(block_res_) * (y / kBlockCells + size_t(block_res_) * (z / kBlockCells));
+      block_bits_[k >> 6] |= uint64_t(1) << (k & 63);
+    }
+  }
 }
 
 bool OccupancyGrid::Occupied(const Eigen::Vector3f& p) const {
@@ -123,6 +147,7 @@ void OccupancyGrid::RefreshBits() {
     }
     bits_[w] = b;
   }
+  RefreshBlocks();
 }
 
 void OccupancyGrid::MarkInvisible(const std::vector<Camera>& cameras, float near) {
@@ -162,12 +187,14 @@ void OccupancyGrid::MarkInvisible(const std::vector<Camera>& cameras, float near
     if (!visible_[i]) bits_[i >> 6] &= ~(uint64_t(1) << (i & 63));
     if (fresh_seen[i]) bits_[i >> 6] |= uint64_t(1) << (i & 63);
   }
+  RefreshBlocks();
 }
 
 void OccupancyGrid::SetAllOccupied() {
   for (size_t i = 0; i < num_cells(); ++i) {
     if (visible_[i]) bits_[i >> 6] |= uint64_t(1) << (i & 63);
   }
+  RefreshBlocks();
 }
 
 size_t OccupancyGrid::num_occupied() const {
@@ -188,6 +215,7 @@ void OccupancyGrid::Restore(std::vector<float> density, std::vector<uint8_t> vis
   visible_ = std::move(visible);
   bits_ = std::move(bits);
   threshold_ = threshold;
+  RefreshBlocks();
 }
 
 }  // namespace clnerf

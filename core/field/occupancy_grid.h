@@ -4,7 +4,9 @@
 // max(1 + ceil(log2(2s)), 1) cascades. Every cell keeps an EMA of density
 // (new = max(decay * old, sigma)); a bitfield marks cells whose density
 // exceeds min(mean density, threshold). Cells that no training camera sees are
-// marked empty permanently.
+// marked empty permanently. A second bitfield marks blocks of 4^3 cells with
+// any cell occupied, so that a bounded scene's march crosses empty space a
+// block at a time (ray_marcher.cc: why unbounded ones do not).
 //
 // The grid does not evaluate the network: the trainer asks for the cells to
 // refresh (CellsToUpdate), evaluates densities at jittered positions, and
@@ -77,6 +79,23 @@ class OccupancyGrid {
   }
   bool Occupied(const Eigen::Vector3f& p) const;
   bool OccupiedCell(uint32_t cell) const { return (bits_[cell >> 6] >> (cell & 63)) & 1; }
+
+  // Blocks of kBlockCells^3 cells, each marked when any of its cells is
+  // occupied, so that a march skips a run of empty cells in one step. A
+  // cascade whose blocks would straddle the next finer cascade's boundary
+  // (a model box that is not a power of two) has none: its blocks all read
+  // occupied, and its cells are skipped one by one.
+  static constexpr int kBlockCells = 4;
+  float BlockSize(int c) const { return kBlockCells / cells_per_unit_[c]; }
+  bool OccupiedBlockAt(const Eigen::Vector3f& p, int c) const {
+    if (block_res_ == 0 || !block_ok_[c]) return true;
+    const float h = half_[c], s = cells_per_unit_[c] / kBlockCells;
+    const int x = std::clamp(int((p.x() + h) * s), 0, block_res_ - 1);
+    const int y = std::clamp(int((p.y() + h) * s), 0, block_res_ - 1);
+    const int z = std::clamp(int((p.z() + h) * s), 0, block_res_ - 1);
+    const size_t b = size_t(c) * block_res_ * block_res_ * block_res_ + x + size_t(block_res_) * (y + size_t(block_res_) * z);
+    return (block_bits_[b >> 6] >> (b & 63)) & 1;
+  }
   // Side length of a cell of cascade c.
   float CellSize(int c) const { return 1.0f / cells_per_unit_[c]; }
 
@@ -101,7 +120,7 @@ class OccupancyGrid {
   // Bytes the grid holds (training state included: densities, visibility).
   size_t resident_bytes() const {
     return density_.capacity() * sizeof(float) + visible_.capacity() + bits_.capacity() * sizeof(uint64_t) +
-           fresh_.capacity() * sizeof(float);
+           block_bits_.capacity() * sizeof(uint64_t) + fresh_.capacity() * sizeof(float);
   }
   const std::vector<float>& density() const { return density_; }
   const std::vector<uint8_t>& visible() const { return visible_; }
@@ -111,6 +130,8 @@ class OccupancyGrid {
 
  private:
   void RefreshBits();
+  // Recomputes block_bits_ from bits_ (after every change to bits_).
+  void RefreshBlocks();
 
   OccupancyGridOptions options_;
   bool contracted_ = false;
@@ -122,6 +143,9 @@ class OccupancyGrid {
   std::vector<float> density_;
   std::vector<uint8_t> visible_;
   std::vector<uint64_t> bits_;
+  int block_res_ = 0;                 // res_ / kBlockCells, or 0 (no blocks).
+  std::vector<uint64_t> block_bits_;  // One bit per block, cascades in order.
+  std::vector<uint8_t> block_ok_;     // Per cascade: its blocks align with the finer cascade.
   std::vector<float> fresh_;
   std::vector<float> half_;           // Half-size of each cascade.
   std::vector<float> cells_per_unit_; // res / (2 * half) per cascade.  // Scratch for ApplyUpdate (-1 = untouched).

@@ -100,6 +100,46 @@ TEST(OccupancyGridTest, CellIndexPositionRoundTrip) {
   EXPECT_EQ(g.CellIndex(Eigen::Vector3f(h, h, h), 0), uint32_t(7 + 8 * (7 + 8 * 7)));
 }
 
+// A block reads occupied exactly when one of its 4^3 cells is, in every
+// cascade, after updates and after a restore; a box that is not a power of
+// two has no blocks in its outer cascade (they would straddle the inner one).
+TEST(OccupancyGridTest, BlocksMarkWhetherAnyOfTheirCellsIsOccupied) {
+  for (float bound : {2.0f, 1.5f}) {
+    SCOPED_TRACE(testing::Message() << "bound " << bound);
+    OccupancyGrid g(Options(32), bound, 0.01f);
+    std::vector<uint32_t> cells(g.num_cells());
+    std::vector<float> sigma(g.num_cells(), 0.0f);
+    std::mt19937_64 rng(5);
+    for (uint32_t i = 0; i < cells.size(); ++i) {
+      cells[i] = i;
+      if (rng() % 400 == 0) sigma[i] = 1e4f;
+    }
+    g.ApplyUpdate(cells, sigma);
+    ASSERT_GT(g.num_occupied(), 50u);
+    OccupancyGrid restored(Options(32), bound, 0.01f);
+    restored.Restore(g.density(), g.visible(), g.bits(), g.threshold());
+    int empty_blocks = 0;
+    for (int c = 0; c < g.num_cascades(); ++c) {
+      const bool has_blocks = bound == 2.0f || c < g.num_cascades() - 1;
+      for (int bz = 0; bz < 8; ++bz)
+        for (int by = 0; by < 8; ++by)
+          for (int bx = 0; bx < 8; ++bx) {
+            bool any = false;
+            for (int k = 0; k < 64; ++k) {
+              const int x = 4 * bx + k % 4, y = 4 * by + (k / 4) % 4, z = 4 * bz + k / 16;
+              any |= g.OccupiedCell(uint32_t(c * g.cells_per_cascade() + x + 32 * (y + 32 * z)));
+            }
+            const float h = g.cascade_half_size(c), cs = g.CellSize(c);
+            const Eigen::Vector3f p(-h + (4 * bx + 1.7f) * cs, -h + (4 * by + 2.2f) * cs, -h + (4 * bz + 0.4f) * cs);
+            ASSERT_EQ(g.OccupiedBlockAt(p, c), any || !has_blocks) << c << " " << bx << " " << by << " " << bz;
+            ASSERT_EQ(restored.OccupiedBlockAt(p, c), any || !has_blocks);
+            empty_blocks += !any;
+          }
+    }
+    EXPECT_GT(empty_blocks, 100);
+  }
+}
+
 TEST(OccupancyGridTest, FreshGridIsFullyOccupiedWithDerivedThreshold) {
   const OccupancyGrid g(Options(8), 0.5f, 0.02f);
   EXPECT_EQ(g.num_occupied(), g.num_cells());
