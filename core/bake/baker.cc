@@ -39,6 +39,11 @@ struct BakeWork {
   std::vector<int32_t> slot;    // Per block: candidate slot, or -1.
   std::vector<int> blocks;      // Candidate slot -> block.
   std::vector<uint8_t> code;    // kLattice density codes per candidate.
+  // Stage 3's results on this grid, which stage 4 starts from (and starts
+  // from again when the fitted asset is over its budget).
+  std::vector<float> max_w;            // Per candidate: the most a training ray weighs it.
+  std::vector<Eigen::Vector3f> dir;    // Per candidate: the rays' mean direction.
+  std::vector<int> visible;            // Candidates the training rays see.
 };
 
 // Field-space position of lattice point i (0..8 per axis) of block b.
@@ -495,6 +500,19 @@ uint64_t ColourWithinBudget(const NgpModel& model, int t, uint64_t budget, const
   return first;
 }
 
+// Stage 4 on the grid stages 1-3 left in `w`: colours of the visible
+// blocks within `budget` (into `kept` and `rgb`), and the blocks'
+// distances. Returns the first guess's estimated download.
+uint64_t ColourGrid(const NgpModel& model, int t, uint64_t budget, BakeWork* w, std::vector<int>* kept,
+                    std::vector<float>* rgb, BakeReport* rep) {
+  const auto t0 = std::chrono::steady_clock::now();
+  *kept = w->visible;
+  const uint64_t bytes = ColourWithinBudget(model, t, budget, w->max_w, w->dir, kept, w, rgb);
+  ComputeBlockDistances(&w->asset);
+  rep->colour_seconds += Since(t0);
+  return bytes;
+}
+
 // Stages 1-4 at `resolution` on a fresh grid: returns the first guess's
 // estimated download before the budget dropped blocks (0 = not estimated).
 uint64_t BakeGrid(const NgpModel& model, int t, const std::vector<Camera>& cameras, const BakeOptions& options,
@@ -512,26 +530,20 @@ uint64_t BakeGrid(const NgpModel& model, int t, const std::vector<Camera>& camer
   FindCandidates(model, w);
   rep->candidate_seconds += Since(t0);
   const auto t1 = std::chrono::steady_clock::now();
-  std::vector<float> max_w;
-  std::vector<Eigen::Vector3f> dir;
   LazyDensity density(model, t, w);
-  Visibility(cameras, options, &density, w, &max_w, &dir, &rep->visibility_rays);
+  Visibility(cameras, options, &density, w, &w->max_w, &w->dir, &rep->visibility_rays);
   rep->evaluated_blocks = density.evaluated();
   rep->visibility_seconds += Since(t1);
   // A ray leaves in a block of a finer grid than the kind's default a
   // share smaller by the ratio of their sizes.
   const float min_weight =
       options.min_block_weight * std::min(1.0f, float(DefaultResolution(a.contracted)) / float(resolution));
-  kept->clear();
+  w->visible.clear();
   for (size_t s = 0; s < w->blocks.size(); ++s) {
-    if (max_w[s] >= min_weight && max_w[s] > 0.0f) kept->push_back(int(s));
+    if (w->max_w[s] >= min_weight && w->max_w[s] > 0.0f) w->visible.push_back(int(s));
   }
-  rep->visible_blocks = int(kept->size());
-  const auto t2 = std::chrono::steady_clock::now();
-  const uint64_t bytes = ColourWithinBudget(model, t, budget, max_w, dir, kept, w, rgb);
-  ComputeBlockDistances(&a);
-  rep->colour_seconds += Since(t2);
-  return bytes;
+  rep->visible_blocks = int(w->visible.size());
+  return ColourGrid(model, t, budget, w, kept, rgb, rep);
 }
 
 // The grid for an unbounded scene at the default resolution: the finest
@@ -616,10 +628,11 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
   if (s.ok() && budget > 0 && rep.stored_bytes > budget) {
     // Stage 4 held the budget on the first guess's colours, and the fitted
     // ones compressed worse (a tight model of the tiny test object: 15 %
-    // over). Once more, stage 4's budget scaled by the overshoot.
+    // over). Once more from stage 4 (the grid and what the cameras see are
+    // the same), its budget scaled by the overshoot.
     rep.over_budget_rebakes = 1;
     const double scale = double(budget) / double(rep.stored_bytes);
-    BakeGrid(model, t, cameras, options, a.resolution, uint64_t(double(budget) * scale), &w, &kept, &rgb, &rep);
+    ColourGrid(model, t, uint64_t(double(budget) * scale), &w, &kept, &rgb, &rep);
     s = FitAndWrite(model, t, cameras, options, budget, &w, &rgb, &rep);
   }
   omp_set_num_threads(saved_threads);

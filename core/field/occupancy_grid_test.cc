@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "Eigen/Dense"
+#include "core/field/occupancy_test_util.h"
 #include "gtest/gtest.h"
 
 namespace clnerf {
@@ -107,14 +108,8 @@ TEST(OccupancyGridTest, BlocksMarkWhetherAnyOfTheirCellsIsOccupied) {
   for (float bound : {2.0f, 1.5f}) {
     SCOPED_TRACE(testing::Message() << "bound " << bound);
     OccupancyGrid g(Options(32), bound, 0.01f);
-    std::vector<uint32_t> cells(g.num_cells());
-    std::vector<float> sigma(g.num_cells(), 0.0f);
     std::mt19937_64 rng(5);
-    for (uint32_t i = 0; i < cells.size(); ++i) {
-      cells[i] = i;
-      if (rng() % 400 == 0) sigma[i] = 1e4f;
-    }
-    g.ApplyUpdate(cells, sigma);
+    SetEveryCell(&g, [&](uint32_t) { return rng() % 400 == 0 ? 1e4f : 0.0f; });
     ASSERT_GT(g.num_occupied(), 50u);
     OccupancyGrid restored(Options(32), bound, 0.01f);
     restored.Restore(g.density(), g.visible(), g.bits(), g.threshold());

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "Eigen/Dense"
+#include "core/field/occupancy_test_util.h"
 #include "gtest/gtest.h"
 
 namespace clnerf {
@@ -181,11 +182,7 @@ TEST(MarchRayTest, ConeStepsGrowWithDistance) {
 // density on the chosen ones, threshold = min(mean, max)).
 OccupancyGrid SparseGrid(float min_step) {
   OccupancyGrid grid(GridOptions(16), 0.5f, min_step);
-  std::vector<uint32_t> cells(grid.num_cells());
-  std::vector<float> sigma(grid.num_cells(), 0.0f);
-  for (uint32_t i = 0; i < cells.size(); ++i) cells[i] = i;
-  for (int x : {3, 11}) sigma[x + 16 * (8 + 16 * 8)] = 100.0f;
-  grid.ApplyUpdate(cells, sigma);
+  SetEveryCell(&grid, [](uint32_t i) { return i == 3 + 16 * (8 + 16 * 8) || i == 11 + 16 * (8 + 16 * 8) ? 100.0f : 0.0f; });
   return grid;
 }
 
@@ -296,14 +293,8 @@ TEST(MarchRayTest, RandomRaysThroughASparseGridVisitEveryOccupiedLatticePoint) {
   const MarchOptions mo = Opts(512);
   OccupancyGrid grid(GridOptions(32), 2.0f, mo.min_step());
   ASSERT_EQ(grid.num_cascades(), 3);
-  std::vector<uint32_t> cells(grid.num_cells());
-  std::vector<float> sigma(grid.num_cells(), 0.0f);
   std::mt19937_64 rng(9);
-  for (uint32_t i = 0; i < cells.size(); ++i) {
-    cells[i] = i;
-    if (rng() % 300 == 0) sigma[i] = 1e4f;
-  }
-  grid.ApplyUpdate(cells, sigma);
+  SetEveryCell(&grid, [&](uint32_t) { return rng() % 300 == 0 ? 1e4f : 0.0f; });
   std::uniform_real_distribution<float> u(-1.0f, 1.0f);
   size_t visited = 0;
   for (int r = 0; r < 200; ++r) {
@@ -324,14 +315,8 @@ TEST(MarchRayTest, RandomRaysThroughASparseGridVisitEveryOccupiedLatticePoint) {
 TEST(MarchRayTest, ARayStartingOnTheFarFaceSkipsOnlyItsEmptyCell) {
   const MarchOptions mo = Opts(512);
   OccupancyGrid grid(GridOptions(128), 0.5f, mo.min_step());
-  std::vector<uint32_t> cells(grid.num_cells());
-  std::vector<float> sigma(grid.num_cells(), 0.0f);
-  for (uint32_t i = 0; i < cells.size(); ++i) {
-    cells[i] = i;
-    const int y = int(i / 128) % 128;
-    if (y < 112) sigma[i] = 1e4f;  // Empty above y = 0.375: 4 blocks, 16 cells.
-  }
-  grid.ApplyUpdate(cells, sigma);
+  // Empty above y = 0.375: 4 blocks, 16 cells.
+  SetEveryCell(&grid, [](uint32_t i) { return int(i / 128) % 128 < 112 ? 1e4f : 0.0f; });
   const Eigen::Vector3f o(-2.7762e-06f, 1.3333f, 0.166897f), d(0.0106744f, -0.999521f, 0.0290475f);
   float t0, t1;
   ASSERT_TRUE(IntersectBox(o, d, 0.5f, &t0, &t1));
