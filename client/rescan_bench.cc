@@ -525,7 +525,9 @@ absl::Status TrainCase(const RescanContext& c, const std::string& which, const C
     absl::StatusOr<ContinualState> next = ContinualUpdate(cs.scan, c.place_state, o, {}, nullptr, nullptr);
     if (!next.ok()) return next.status();
     const double train_seconds = SecondsSince(t0);
-    const double latest = HeldOutPsnr(*next->model, c.test_b, 1, a.eval_views);
+    const std::string renders =
+        a.save_renders.empty() ? "" : absl::StrCat(a.save_renders, "/", which, "_seed", o.train.seed);
+    const double latest = HeldOutScores(*next->model, c.test_b, 1, a.eval_views, renders).psnr;
     const double at_a = HeldOutPsnr(*next->model, cs.scored, 0, a.eval_views);
     latest_seeds.push_back(latest);
     at_a_seeds.push_back(at_a);
@@ -785,7 +787,7 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
       ->each([a](const std::string&) {
         a->registration.camera.max_k1_change = a->registration.camera.max_focal_change;
       });
-  c->add_option("--save-renders", a->save_renders, "Write visit A's held-out renders (and the photos) here");
+  c->add_option("--save-renders", a->save_renders, "Write visit A's held-out renders (and the photos) here, and each case's update's in CASE_seedN/");
   c->add_option("--first-seeds", a->first_seeds,
                 "unposed-first: training seeds compared (each with its own COLMAP run and posed baseline)")
       ->capture_default_str()
