@@ -16,8 +16,14 @@ namespace clnerf {
 nlohmann::json PoseCheckJson(const PoseCheckReport& r, const std::vector<View>& views) {
   nlohmann::json pairs = nlohmann::json::array();
   for (const PairCheck& p : r.pairs) {
-    pairs.push_back({{"a", views[p.a].name}, {"b", views[p.b].name}, {"inliers", p.inliers},
-                     {"disagreement_deg", p.disagreement_deg}});
+    pairs.push_back({{"a", views[p.a].name},
+                     {"b", views[p.b].name},
+                     {"matches", p.matches},
+                     {"inliers", p.inliers},
+                     {"chance", p.chance_inliers},
+                     {"disagreement_deg", p.disagreement_deg},
+                     {"explained", p.explained},
+                     {"disagrees", p.disagrees}});
   }
   nlohmann::json disputed = nlohmann::json::array();
   for (int i : r.disputed) disputed.push_back(views[i].name);
@@ -25,6 +31,8 @@ nlohmann::json PoseCheckJson(const PoseCheckReport& r, const std::vector<View>& 
           {"pairs_tried", r.pairs_tried},
           {"pairs_matched", r.pairs.size()},
           {"disagreeing_pairs", r.disagreeing_pairs},
+          {"explained_pairs", r.explained_pairs},
+          {"pairs_below_chance", r.pairs_below_chance},
           {"conflicts", r.conflicts},
           {"continuity_links", r.continuity_links},
           {"inconclusive", r.inconclusive},

@@ -177,10 +177,10 @@ struct BenchRescanArgs {
   std::string place_cache;   // Visit A's trained state: read when the file exists, else written.
   std::string posing_cache;  // COLMAP's poses of visit B: read when the file exists, else written.
   // Visit B's poses checked against its photos before registration, as the
-  // update worker checks every scan: "warn" (the service's default),
-  // "auto" (drop the disputed frames of a scan COLMAP posed, warn
-  // otherwise), "drop" (train without the disputed frames) or "off".
-  std::string pose_check = "warn";
+  // update worker checks every scan: "auto" (the service's default: drop
+  // the disputed frames of a scan COLMAP posed, warn otherwise), "warn",
+  // "drop" (train without the disputed frames) or "off".
+  std::string pose_check = "auto";
   PoseCheckOptions check;
   int threads = 0;
   std::string json;

@@ -134,6 +134,15 @@ void BindPoseCheckFlags(CLI::App* c, PoseCheckOptions* o) {
   c->add_option("--check-max-disagreement", o->max_disagreement_deg,
                 "Pose check: degrees between the photos' and the poses' rotation above which a pair disagrees")
       ->capture_default_str();
+  c->add_option("--check-chance-ratio", o->min_chance_ratio,
+                "Pose check: a pair counts with this many times the inliers of its matches shuffled (0 = off)")
+      ->capture_default_str();
+  c->add_option("--check-pose-px", o->pose_px,
+                "Pose check: a match is explained by the poses within this many pixels of their epipolar line")
+      ->capture_default_str();
+  c->add_option("--check-explained", o->min_explained_fraction,
+                "Pose check: a turned pair still agrees when the poses explain this fraction of its inliers (0 = off)")
+      ->capture_default_str();
 }
 
 }  // namespace clnerf

@@ -795,8 +795,8 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   BindDatasetFlags(c, &a->dataset);
   BindThreadsFlag(c, &a->threads);
   c->add_option("--pose-check", a->pose_check,
-                "Visit B's poses checked against its photos before registration, as the service does: warn (its "
-                "default), auto (drop the disputed frames of a scan COLMAP posed, warn otherwise), drop (train "
+                "Visit B's poses checked against its photos before registration, as the service does: auto (its "
+                "default: drop the disputed frames of a scan COLMAP posed, warn otherwise), warn, drop (train "
                 "without the disputed frames) or off")
       ->check(CLI::IsMember({"auto", "warn", "drop", "off"}))
       ->capture_default_str();

@@ -8,7 +8,7 @@ bash scripts/build.sh
 cd "${BUILD_DIR:-build}"
 # Longest tests first, also on a fresh build folder: CTest orders by the
 # durations it measured before, so a new folder starts from ours
-# (tests/ctest_costs.txt, measured on a 2-core EPYC; a stale or missing entry
+# (tests/ctest_costs.txt, measured on a 2-core Xeon; a stale or missing entry
 # only changes the order).
 if [ ! -f Testing/Temporary/CTestCostData.txt ]; then
   mkdir -p Testing/Temporary

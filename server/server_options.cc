@@ -183,6 +183,11 @@ absl::Status ApplyPoseCheck(const nlohmann::json& g, ServerOptions* o) {
     else if (k == "sequence_neighbours") {
       s = Get(*it, "pose_check.sequence_neighbours", &o->pose_check.sequence_neighbours);
     }
+    else if (k == "pose_px") s = Get(*it, "pose_check.pose_px", &o->pose_check.pose_px);
+    else if (k == "min_chance_ratio") s = Get(*it, "pose_check.min_chance_ratio", &o->pose_check.min_chance_ratio);
+    else if (k == "min_explained_fraction") {
+      s = Get(*it, "pose_check.min_explained_fraction", &o->pose_check.min_explained_fraction);
+    }
     else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'pose_check.", k, "'"));
     if (!s.ok()) return s;
   }

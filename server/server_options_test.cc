@@ -51,9 +51,11 @@ TEST(ServerOptionsTest, DefaultsAreValidAndConfigOverrides) {
 
 TEST(ServerOptionsTest, PoseCheckIsConfigured) {
   ServerOptions o;
-  EXPECT_EQ(o.pose_check_action, "warn");  // Every scan is checked; nothing is dropped unasked.
+  // Every scan is checked; only frames of a scan the service posed itself
+  // are dropped unasked.
+  EXPECT_EQ(o.pose_check_action, "auto");
   EXPECT_TRUE(o.Validate().ok());
-  ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "auto"}})", &o).ok());
+  ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "warn"}})", &o).ok());
   EXPECT_TRUE(o.Validate().ok());
   ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "drop", "min_inliers": 30, "max_disagreement_deg": 60,
                                                    "sequence_neighbours": 2}})", &o).ok());
@@ -61,6 +63,13 @@ TEST(ServerOptionsTest, PoseCheckIsConfigured) {
   EXPECT_EQ(o.pose_check.min_inliers, 30);
   EXPECT_EQ(o.pose_check.max_disagreement_deg, 60.0f);
   EXPECT_EQ(o.pose_check.sequence_neighbours, 2);
+  EXPECT_TRUE(o.Validate().ok());
+  ASSERT_TRUE(
+      ApplyConfigJson(R"({"pose_check": {"min_chance_ratio": 1.5, "pose_px": 3, "min_explained_fraction": 0.4}})", &o)
+          .ok());
+  EXPECT_EQ(o.pose_check.min_chance_ratio, 1.5f);
+  EXPECT_EQ(o.pose_check.pose_px, 3.0f);
+  EXPECT_EQ(o.pose_check.min_explained_fraction, 0.4f);
   EXPECT_TRUE(o.Validate().ok());
   ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "fix"}})", &o).ok());
   EXPECT_FALSE(o.Validate().ok());

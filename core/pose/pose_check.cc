@@ -7,6 +7,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <random>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -30,6 +31,11 @@ absl::Status PoseCheckOptions::Validate() const {
   if (!(ransac_px > 0)) return absl::InvalidArgumentError("pose check: ransac_px must be > 0");
   if (!(max_disagreement_deg > 0 && max_disagreement_deg < 180)) {
     return absl::InvalidArgumentError("pose check: max_disagreement_deg must be in (0, 180)");
+  }
+  if (!(min_chance_ratio >= 0)) return absl::InvalidArgumentError("pose check: min_chance_ratio must be >= 0");
+  if (!(pose_px > 0)) return absl::InvalidArgumentError("pose check: pose_px must be > 0");
+  if (!(min_explained_fraction >= 0 && min_explained_fraction <= 1)) {
+    return absl::InvalidArgumentError("pose check: min_explained_fraction must be in [0, 1]");
   }
   if (!(max_conflict_fraction >= 0 && max_conflict_fraction <= 1)) {
     return absl::InvalidArgumentError("pose check: max_conflict_fraction must be in [0, 1]");
@@ -79,14 +85,55 @@ std::vector<std::pair<int, int>> CandidatePairs(int n, const PoseCheckOptions& o
   return pairs;
 }
 
+// How many of the matches (normalised coordinates) the poses' epipolar
+// geometry explains: Sampson distance within `tolerance` (normalised units),
+// with E = [t]x R from camera a's coordinates to b's. All of them when the
+// poses put both cameras at one centre (no epipolar geometry to test).
+int ExplainedByPoses(const std::vector<cv::Point2f>& pa, const std::vector<cv::Point2f>& pb, const Camera& ca,
+                     const Camera& cb, double tolerance) {
+  const Eigen::Matrix3d ra = ca.c2w.leftCols<3>().cast<double>(), rb = cb.c2w.leftCols<3>().cast<double>();
+  const Eigen::Vector3d t = rb.transpose() * (ca.c2w.col(3) - cb.c2w.col(3)).cast<double>();
+  if (t.norm() < 1e-9) return int(pa.size());
+  Eigen::Matrix3d tx;
+  tx << 0, -t.z(), t.y(), t.z(), 0, -t.x(), -t.y(), t.x(), 0;
+  const Eigen::Matrix3d e = tx * (rb.transpose() * ra) / t.norm();
+  int explained = 0;
+  for (size_t i = 0; i < pa.size(); ++i) {
+    const Eigen::Vector3d xa(pa[i].x, pa[i].y, 1), xb(pb[i].x, pb[i].y, 1);
+    const Eigen::Vector3d ea = e * xa, eb = e.transpose() * xb;
+    const double r = xb.dot(ea), d = ea.head<2>().squaredNorm() + eb.head<2>().squaredNorm();
+    explained += d > 0 && r * r <= tolerance * tolerance * d;
+  }
+  return explained;
+}
+
+// The most essential-matrix inliers RANSAC finds among the same matches with
+// b's points shuffled (two shuffles, seeded by the pair): what a pair's
+// inlier count is worth when its matches are mostly wrong.
+int ChanceInliers(int a, int b, const std::vector<cv::Point2f>& pa, const std::vector<cv::Point2f>& pb,
+                  double threshold) {
+  std::mt19937 rng(uint32_t(a) * 7919u + uint32_t(b));
+  int most = 0;
+  for (int k = 0; k < 2; ++k) {
+    std::vector<cv::Point2f> shuffled = pb;
+    std::shuffle(shuffled.begin(), shuffled.end(), rng);
+    cv::Mat mask;
+    const cv::Mat e =
+        cv::findEssentialMat(pa, shuffled, cv::Mat::eye(3, 3, CV_64F), cv::RANSAC, 0.999, threshold, mask);
+    if (!e.empty()) most = std::max(most, cv::countNonZero(mask));
+  }
+  return most;
+}
+
 // The photos' rotation from a to b against the poses'; inliers = 0 when the
-// photos do not hold enough matches.
+// photos do not hold enough matches, or no more inliers than chance.
 PairCheck CheckPair(int a, int b, const FrameFeatures& fa, const FrameFeatures& fb, const Camera& ca,
                     const Camera& cb, const PoseCheckOptions& o) {
   PairCheck p;
   p.a = a;
   p.b = b;
   const std::vector<cv::DMatch> matches = RatioMatches(fa.descriptors, fb.descriptors, o.ratio);
+  p.matches = int(matches.size());
   if (int(matches.size()) < o.min_inliers) return p;
   std::vector<cv::Point2f> pa, pb;
   for (const cv::DMatch& m : matches) {
@@ -108,12 +155,24 @@ PairCheck CheckPair(int a, int b, const FrameFeatures& fa, const FrameFeatures& 
   cv::decomposeEssentialMat(e, r1, r2, baseline);
   const Eigen::Matrix3d ra = ca.c2w.leftCols<3>().cast<double>(), rb = cb.c2w.leftCols<3>().cast<double>();
   const Eigen::Matrix3d poses = rb.transpose() * ra;  // Camera a's coordinates to camera b's, from the poses.
-  p.inliers = inliers;
   p.rotation = ToEigen(r);
   p.baseline = Eigen::Vector3d(t.at<double>(0), t.at<double>(1), t.at<double>(2)).normalized();
   p.disagreement_deg =
       float(std::min(RotationAngleDegrees(poses, ToEigen(r1)), RotationAngleDegrees(poses, ToEigen(r2))));
-  p.disagrees = p.disagreement_deg > o.max_disagreement_deg;
+  p.inliers = inliers;
+  if (p.disagreement_deg <= o.max_disagreement_deg) return p;
+  // Turned: only a pair that holds more than chance, and whose matches the
+  // poses cannot explain, disagrees. (Only turned pairs pay for the shuffled
+  // RANSAC: with few true matches it runs its full 1000 iterations.)
+  if (o.min_chance_ratio > 0) {
+    p.chance_inliers = ChanceInliers(a, b, pa, pb, threshold);
+    if (inliers < o.min_chance_ratio * p.chance_inliers) {
+      p.inliers = 0;  // Counted in pairs_below_chance.
+      return p;
+    }
+  }
+  p.explained = ExplainedByPoses(pa, pb, ca, cb, o.pose_px / std::min(fa.focal, fb.focal));
+  p.disagrees = o.min_explained_fraction <= 0 || p.explained < o.min_explained_fraction * double(inliers);
   return p;
 }
 
@@ -168,7 +227,9 @@ void Group(const PoseCheckOptions& o, const std::vector<bool>& continuous, PoseC
   std::vector<double> agreeing;
   for (const PairCheck& p : r->pairs) {
     r->disagreeing_pairs += p.disagrees;
-    if (!p.disagrees) agreeing.push_back(p.disagreement_deg);
+    const bool turned = p.disagreement_deg > o.max_disagreement_deg;
+    r->explained_pairs += turned && !p.disagrees;
+    if (!turned) agreeing.push_back(p.disagreement_deg);
     in_pair[p.a] = in_pair[p.b] = 1;
   }
   if (!agreeing.empty()) {
@@ -224,6 +285,7 @@ absl::StatusOr<PoseCheckReport> CheckPoses(const std::vector<View>& views, const
   }
   for (const PairCheck& p : checked) {
     if (p.inliers > 0) r.pairs.push_back(p);
+    r.pairs_below_chance += p.inliers == 0 && p.chance_inliers > 0;
   }
   std::vector<bool> continuous(views.size(), false);
   for (size_t i = 0; i + 1 < views.size(); ++i) {
@@ -264,6 +326,10 @@ std::string PoseCheckReport::Summary(const std::vector<View>& views) const {
   std::string s =
       absl::StrFormat("%d of %d frame pairs matched; %d disagree with the poses by > %.0f deg (agreeing: median %.1f deg)",
                       int(pairs.size()), pairs_tried, disagreeing_pairs, threshold_deg, median_agreeing_deg);
+  if (pairs_below_chance > 0) absl::StrAppend(&s, "; ", pairs_below_chance, " more matched no better than chance");
+  if (explained_pairs > 0) {
+    absl::StrAppend(&s, "; ", explained_pairs, " more turned by the photos' own estimate but explained by the poses");
+  }
   if (inconclusive) return absl::StrCat(s, "; inconclusive (", conflicts, " pairs contradict the grouping)");
   if (disputed.empty()) return absl::StrCat(s, "; every checked frame agrees");
   std::vector<std::string> which;
