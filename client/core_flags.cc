@@ -134,6 +134,8 @@ void BindPoseCheckFlags(CLI::App* c, PoseCheckOptions* o) {
   c->add_option("--check-max-disagreement", o->max_disagreement_deg,
                 "Pose check: degrees between the photos' and the poses' rotation above which a pair disagrees")
       ->capture_default_str();
+  c->add_option("--check-estimator", o->estimator, "Pose check: essential-matrix estimator, usac or ransac")
+      ->capture_default_str();
   c->add_option("--check-chance-ratio", o->min_chance_ratio,
                 "Pose check: a pair counts with this many times the inliers of its matches shuffled (0 = off)")
       ->capture_default_str();

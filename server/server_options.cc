@@ -184,6 +184,7 @@ absl::Status ApplyPoseCheck(const nlohmann::json& g, ServerOptions* o) {
       s = Get(*it, "pose_check.sequence_neighbours", &o->pose_check.sequence_neighbours);
     }
     else if (k == "pose_px") s = Get(*it, "pose_check.pose_px", &o->pose_check.pose_px);
+    else if (k == "estimator") s = Get(*it, "pose_check.estimator", &o->pose_check.estimator);
     else if (k == "min_chance_ratio") s = Get(*it, "pose_check.min_chance_ratio", &o->pose_check.min_chance_ratio);
     else if (k == "min_explained_fraction") {
       s = Get(*it, "pose_check.min_explained_fraction", &o->pose_check.min_explained_fraction);

@@ -138,7 +138,7 @@ struct ServerOptions {
   // uploaded; "warn" only reports them; "drop" also trains and gates
   // without them; "off" skips the check. Config object "pose_check":
   // action, min_inliers, max_disagreement_deg, sequence_neighbours,
-  // min_chance_ratio, pose_px, min_explained_fraction.
+  // min_chance_ratio, pose_px, min_explained_fraction, estimator.
   std::string pose_check_action = "auto";
   PoseCheckOptions pose_check;
   // Baking (issue 41; core/bake/baker.h, docs/baking.md): each new

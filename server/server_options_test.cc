@@ -71,6 +71,12 @@ TEST(ServerOptionsTest, PoseCheckIsConfigured) {
   EXPECT_EQ(o.pose_check.pose_px, 3.0f);
   EXPECT_EQ(o.pose_check.min_explained_fraction, 0.4f);
   EXPECT_TRUE(o.Validate().ok());
+  ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"estimator": "ransac"}})", &o).ok());
+  EXPECT_EQ(o.pose_check.estimator, "ransac");
+  EXPECT_TRUE(o.Validate().ok());
+  ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"estimator": "lmeds"}})", &o).ok());
+  EXPECT_FALSE(o.Validate().ok());
+  o.pose_check.estimator = "usac";
   ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "fix"}})", &o).ok());
   EXPECT_FALSE(o.Validate().ok());
   ASSERT_TRUE(ApplyConfigJson(R"({"pose_check": {"action": "off", "sequence_neighbours": 9}})", &o).ok());

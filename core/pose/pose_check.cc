@@ -32,6 +32,9 @@ absl::Status PoseCheckOptions::Validate() const {
   if (!(max_disagreement_deg > 0 && max_disagreement_deg < 180)) {
     return absl::InvalidArgumentError("pose check: max_disagreement_deg must be in (0, 180)");
   }
+  if (estimator != "usac" && estimator != "ransac") {
+    return absl::InvalidArgumentError(absl::StrCat("pose check: estimator must be 'usac' or 'ransac', not '", estimator, "'"));
+  }
   if (!(min_chance_ratio >= 0)) return absl::InvalidArgumentError("pose check: min_chance_ratio must be >= 0");
   if (!(pose_px > 0)) return absl::InvalidArgumentError("pose check: pose_px must be > 0");
   if (!(min_explained_fraction >= 0 && min_explained_fraction <= 1)) {
@@ -107,19 +110,26 @@ int ExplainedByPoses(const std::vector<cv::Point2f>& pa, const std::vector<cv::P
   return explained;
 }
 
+// The essential matrix from a to b of normalised points (K = I), with the
+// estimator named in the options; `mask` marks its inliers.
+cv::Mat Essential(const std::vector<cv::Point2f>& pa, const std::vector<cv::Point2f>& pb, double threshold,
+                  const std::string& estimator, cv::Mat& mask) {
+  const int method = estimator == "ransac" ? cv::RANSAC : cv::USAC_DEFAULT;
+  return cv::findEssentialMat(pa, pb, cv::Mat::eye(3, 3, CV_64F), method, 0.999, threshold, mask);
+}
+
 // The most essential-matrix inliers RANSAC finds among the same matches with
 // b's points shuffled (two shuffles, seeded by the pair): what a pair's
 // inlier count is worth when its matches are mostly wrong.
 int ChanceInliers(int a, int b, const std::vector<cv::Point2f>& pa, const std::vector<cv::Point2f>& pb,
-                  double threshold) {
+                  double threshold, const std::string& estimator) {
   std::mt19937 rng(uint32_t(a) * 7919u + uint32_t(b));
   int most = 0;
   for (int k = 0; k < 2; ++k) {
     std::vector<cv::Point2f> shuffled = pb;
     std::shuffle(shuffled.begin(), shuffled.end(), rng);
     cv::Mat mask;
-    const cv::Mat e =
-        cv::findEssentialMat(pa, shuffled, cv::Mat::eye(3, 3, CV_64F), cv::RANSAC, 0.999, threshold, mask);
+    const cv::Mat e = Essential(pa, shuffled, threshold, estimator, mask);
     if (!e.empty()) most = std::max(most, cv::countNonZero(mask));
   }
   return most;
@@ -142,7 +152,7 @@ PairCheck CheckPair(int a, int b, const FrameFeatures& fa, const FrameFeatures& 
   }
   const double threshold = o.ransac_px / std::min(fa.focal, fb.focal);
   cv::Mat mask;
-  const cv::Mat e = cv::findEssentialMat(pa, pb, cv::Mat::eye(3, 3, CV_64F), cv::RANSAC, 0.999, threshold, mask);
+  const cv::Mat e = Essential(pa, pb, threshold, o.estimator, mask);
   if (e.rows != 3 || e.cols != 3) return p;  // None, or several solutions: too weak a pair.
   cv::Mat r, t;
   const int inliers = cv::recoverPose(e, pa, pb, cv::Mat::eye(3, 3, CV_64F), r, t, mask);
@@ -165,7 +175,7 @@ PairCheck CheckPair(int a, int b, const FrameFeatures& fa, const FrameFeatures& 
   // poses cannot explain, disagrees. (Only turned pairs pay for the shuffled
   // RANSAC: with few true matches it runs its full 1000 iterations.)
   if (o.min_chance_ratio > 0) {
-    p.chance_inliers = ChanceInliers(a, b, pa, pb, threshold);
+    p.chance_inliers = ChanceInliers(a, b, pa, pb, threshold, o.estimator);
     if (inliers < o.min_chance_ratio * p.chance_inliers) {
       p.inliers = 0;  // Counted in pairs_below_chance.
       return p;

@@ -70,6 +70,13 @@ struct PoseCheckOptions {
   int min_inliers = 20;
   float ransac_px = 1.0f;
   float min_chance_ratio = 1.3f;
+  // The essential-matrix estimator: "usac" (OpenCV's USAC_DEFAULT: PROSAC
+  // sampling, local optimisation, its own five-point solver) or "ransac"
+  // (cv::RANSAC, whose five-point solver spends ~0.3 ms an iteration in
+  // cv::solvePoly and runs its full 1000 iterations on a pair of few true
+  // matches: 334 ms for 300 matches at 30 % inliers, against 66 ms with
+  // USAC and as many inliers; 55 % of the check's time went there).
+  std::string estimator = "usac";
   // A pair disagrees with the poses when the two rotations differ by more
   // than this. Two-view rotations from 20-60 inliers scatter by up to ~20
   // degrees; the failures this check exists for are a run turned about the

@@ -57,7 +57,7 @@ def main():
         # server frames, so a coarse bake keeps the updates quick.
         f.write('{"batch_rays": 512, "target_samples": 8192, "bake": {"resolution": 64, "fit_rays": 4096}}')
     server = Server(args.server, f"{work}/store", f"{args.out}/server.log",
-                    ["--iters", str(args.iters), "--first-scan-iters", "300", "--config", f"{work}/config.json",
+                    ["--iters", str(args.iters), "--first-scan-iters", "150", "--config", f"{work}/config.json",
                      "--log-level", "debug"])  # Every request and its status (and why, when refused).
     env = dict(os.environ, CLNERF_SERVER=f"127.0.0.1:{server.grpc}")
     driver = None
