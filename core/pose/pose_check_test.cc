@@ -75,8 +75,8 @@ TEST(PoseCheckTest, SingleBadFrameIsDisputed) {
 // cv::RANSAC fits an essential matrix to 20-28 of them by chance, whose
 // rotation is anything. At the exact poses such pairs disputed frames until
 // the chance test and the poses' own epipolar geometry were asked. USAC
-// (the default estimator) fits none to them here (5 of 66 pairs matched);
-// neither may dispute a frame.
+// (the faster estimator, not the default) fits none to them here (5 of 66
+// pairs matched); neither may dispute a frame.
 TEST(PoseCheckTest, WeakPairsAtTheExactPosesDisputeNothing) {
   ProceduralSceneOptions o = testing_util::ChangingScene(0);
   o.textured = true;
