@@ -104,9 +104,9 @@ TEST(ColmapSfmTest, StartsFromAGivenCamera) {
   if (!ColmapInstalled()) GTEST_SKIP() << "colmap is not installed";
   const std::string dir = TempDir("colmap_seeded");
   std::vector<std::string> photos;
-  // 16 photos (20 took 26 s of CI's time): what is
-  // checked is the seeded camera, not the mapping.
-  absl::StatusOr<Scene> scene = OrbitPhotos(320, 240, 16, dir, &photos);
+  // 20 photos: with 16 COLMAP posed 14 in one CI run (15 needed), 14 at
+  // 240 x 180 posed 12.
+  absl::StatusOr<Scene> scene = OrbitPhotos(320, 240, 20, dir, &photos);
   ASSERT_TRUE(scene.ok()) << scene.status();
   const Intrinsics truth = scene->train[0].camera.intrinsics;
   SfmOptions o;
@@ -128,7 +128,7 @@ TEST(ColmapSfmTest, StartsFromAGivenCamera) {
       EXPECT_NEAR(c->intrinsics.fx, 1.05 * truth.fx, 1e-3 * truth.fx);
     }
   }
-  EXPECT_GE(r->registered, 15);  // 90 %: fewer would have been mapped again.
+  EXPECT_GE(r->registered, 18);  // 90 %: fewer would have been mapped again.
   fs::remove_all(dir);
 }
 
