@@ -33,7 +33,8 @@ absl::Status PoseCheckOptions::Validate() const {
     return absl::InvalidArgumentError("pose check: max_disagreement_deg must be in (0, 180)");
   }
   if (estimator != "usac" && estimator != "ransac") {
-    return absl::InvalidArgumentError(absl::StrCat("pose check: estimator must be 'usac' or 'ransac', not '", estimator, "'"));
+    return absl::InvalidArgumentError(
+        absl::StrCat("pose check: estimator must be 'ransac' or 'usac', not '", estimator, "'"));
   }
   if (!(min_chance_ratio >= 0)) return absl::InvalidArgumentError("pose check: min_chance_ratio must be >= 0");
   if (!(pose_px > 0)) return absl::InvalidArgumentError("pose check: pose_px must be > 0");
