@@ -92,7 +92,8 @@ TEST_F(UnposedScanTest, VideoOverHttpIsPosedTrainedAndItsCamerasMatchTheTruth) {
   // a run fails, what it posed says why.
   std::string metrics;
   for (const auto& [k, v] : j.metrics()) metrics += " " + k + "=" + std::to_string(v);
-  ASSERT_EQ(j.phase(), v1::JOB_PHASE_DONE) << j.error() << "; job metrics:" << metrics;
+  ASSERT_EQ(j.phase(), v1::JOB_PHASE_DONE) << j.error() << "; job metrics:" << metrics << "; true focal "
+                                           << scene.train[0].camera.intrinsics.fx << " px";
   EXPECT_EQ(j.metrics().at("posing_frames"), 24.0);
   EXPECT_LT(j.metrics().at("posing_reprojection_px"), 2.0);
   // COLMAP's poses were checked against the photos (neighbours in the
@@ -144,7 +145,8 @@ TEST_F(UnposedScanTest, VideoOverHttpIsPosedTrainedAndItsCamerasMatchTheTruth) {
   std::sort(rotation.begin(), rotation.end());
   std::cout << "posed " << pairs.size() << " of " << scene.train.size() << " frames; median centre error "
             << centre[centre.size() / 2] * 100 << " % of the extent, rotation " << rotation[rotation.size() / 2]
-            << " deg (max " << centre.back() * 100 << " %, " << rotation.back() << " deg)\n";
+            << " deg (max " << centre.back() * 100 << " %, " << rotation.back() << " deg); gate PSNR "
+            << j.metrics().at("new_train_psnr") << " dB\n";
   EXPECT_LT(centre[centre.size() / 2], 0.005);
   EXPECT_LT(rotation[rotation.size() / 2], 0.5);
 

@@ -272,10 +272,19 @@ bool UpdateWorker::PoseScan(const std::string& job_id, const ScanRecord& scan, c
     (*metrics)["posing_registered"] = r->registered;
     (*metrics)["posing_reprojection_px"] = r->mean_reprojection_px;
     (*metrics)["posing_seconds"] = SecondsSince(t0);
+    // The shared camera the tool settled on: a self-calibration that drifted
+    // shows here first.
+    Intrinsics cam;
+    for (const std::optional<Camera>& c : r->cameras) {
+      if (c) cam = c->intrinsics;
+    }
+    (*metrics)["posing_focal_px"] = 0.5 * (cam.fx + cam.fy);
+    (*metrics)["posing_k1"] = cam.k1;
     absl::Status s = scans_->SetPoses(scan.scan_id, r->cameras, r->points);
     if (s.ok()) {
-      spdlog::info("job {}: posed {} of {} frames ({:.2f} px, {:.1f} s)", job_id, r->registered, photos->size(),
-                   r->mean_reprojection_px, SecondsSince(t0));
+      spdlog::info("job {}: posed {} of {} frames ({:.2f} px, focal {:.1f} px, k1 {:.3f}, {:.1f} s)", job_id,
+                   r->registered, photos->size(), r->mean_reprojection_px, 0.5 * (cam.fx + cam.fy), cam.k1,
+                   SecondsSince(t0));
       return true;
     }
     r = s;
