@@ -2,6 +2,7 @@
 
 #include <omp.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <optional>
@@ -272,19 +273,18 @@ bool UpdateWorker::PoseScan(const std::string& job_id, const ScanRecord& scan, c
     (*metrics)["posing_registered"] = r->registered;
     (*metrics)["posing_reprojection_px"] = r->mean_reprojection_px;
     (*metrics)["posing_seconds"] = SecondsSince(t0);
-    // The shared camera the tool settled on: a self-calibration that drifted
-    // shows here first.
-    Intrinsics cam;
-    for (const std::optional<Camera>& c : r->cameras) {
-      if (c) cam = c->intrinsics;
-    }
-    (*metrics)["posing_focal_px"] = 0.5 * (cam.fx + cam.fy);
+    // The one camera every posed frame shares, as the tool settled on it: a
+    // self-calibration that drifted shows here first.
+    const auto posed = std::find_if(r->cameras.begin(), r->cameras.end(),
+                                    [](const std::optional<Camera>& c) { return c.has_value(); });
+    const Intrinsics cam = posed != r->cameras.end() ? (*posed)->intrinsics : Intrinsics();
+    const double focal = 0.5 * (cam.fx + cam.fy);
+    (*metrics)["posing_focal_px"] = focal;
     (*metrics)["posing_k1"] = cam.k1;
     absl::Status s = scans_->SetPoses(scan.scan_id, r->cameras, r->points);
     if (s.ok()) {
       spdlog::info("job {}: posed {} of {} frames ({:.2f} px, focal {:.1f} px, k1 {:.3f}, {:.1f} s)", job_id,
-                   r->registered, photos->size(), r->mean_reprojection_px, 0.5 * (cam.fx + cam.fy), cam.k1,
-                   SecondsSince(t0));
+                   r->registered, photos->size(), r->mean_reprojection_px, focal, cam.k1, SecondsSince(t0));
       return true;
     }
     r = s;
