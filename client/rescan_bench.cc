@@ -511,6 +511,21 @@ void ScoreTestAligned(const RescanContext& c, const std::string& which, const Ng
               cs.scored.size(), *psnr);
 }
 
+// UpdateOptions::refine_cameras: the cameras the update kept for visit B
+// (the last ones of M_t, in the scan's order) against the known poses.
+void RefinedCameraErrors(const RescanContext& c, const CaseScan& cs, const ContinualState& next, nlohmann::json* row) {
+  const ReplayMemory& mem = next.memory;
+  const size_t n = cs.scan.train.size();
+  if (mem.num_cameras() < n || cs.posed_truth.size() != n) return;
+  std::vector<View> kept = cs.scan.train;
+  for (size_t i = 0; i < n; ++i) kept[i].camera = mem.GetCamera(uint32_t(mem.num_cameras() - n + i));
+  const PoseErrors e = FrameErrors(kept, cs.posed_truth, c.extent);
+  (*row)["camera_refined_centre_error_pct_median"] = e.centre_median;
+  (*row)["camera_refined_rotation_error_deg_median"] = e.rotation_median;
+  std::printf("  cameras refined while training: pose error median %.2f%% / %.2f deg\n", e.centre_median,
+              e.rotation_median);
+}
+
 // Visit B's update from the registered scan, once per update seed
 // (--update-seeds: --train-seed, +1, ...; visit A is the same for all), and
 // its held-out scores: each seed's and their means.
@@ -525,6 +540,7 @@ absl::Status TrainCase(const RescanContext& c, const std::string& which, const C
     absl::StatusOr<ContinualState> next = ContinualUpdate(cs.scan, c.place_state, o, {}, nullptr, nullptr);
     if (!next.ok()) return next.status();
     const double train_seconds = SecondsSince(t0);
+    if (o.refine_cameras) RefinedCameraErrors(c, cs, *next, row);
     const std::string renders =
         a.save_renders.empty() ? "" : absl::StrCat(a.save_renders, "/", which, "_seed", o.train.seed);
     const double latest = HeldOutScores(*next->model, c.test_b, 1, a.eval_views, renders).psnr;
@@ -763,6 +779,11 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
       ->check(CLI::Range(1, 20))
       ->capture_default_str();
   c->add_option("--train-seed", a->update.train.seed, "Training seed of visit A and of every update")
+      ->capture_default_str();
+  c->add_option("--refine-cameras", a->update.refine_cameras,
+                "Visit B's update learns a pose correction per photo while it trains (camera_refiner.h)")
+      ->capture_default_str();
+  c->add_option("--camera-lr", a->update.camera_refine.learning_rate, "... at this learning rate")
       ->capture_default_str();
   BindRegulariserFlags(c, &a->update.train);  // Every training of the bench.
   c->add_option("--oversample", a->update.capacity.oversample,

@@ -55,6 +55,7 @@ class ContinualRaySampler : public RaySampler {
                       float meil_new_fraction, float new_share = 0.0f, float depth_fraction = 0.0f);
   void Sample(int n, std::mt19937_64* rng, RayBatch* out) override;
   std::vector<Camera> Cameras() const override { return model_cameras_; }
+  void SetCamera(int view, const Camera& model_camera) override { model_cameras_.at(size_t(view)) = model_camera; }
   // RayBatch::view indexes `views` (photos only; replay rays carry -1).
   int NumPhotoViews() const override { return int(views_.size()); }
   // Pixels with a sparse-depth target over all views.

@@ -19,6 +19,36 @@ constexpr std::pair<ContinualMethod, const char*> kMethods[] = {
     {ContinualMethod::kER, "er"},         {ContinualMethod::kMEIL, "meil"},
     {ContinualMethod::kCLNeRF, "clnerf"}, {ContinualMethod::kCLNeRFNoER, "clnerf-noer"},
 };
+// The new scan's cameras as M_t keeps them: as uploaded, or with the
+// refiner's corrections (model space back to world), which go into `rep`.
+std::vector<Camera> NewScanCameras(const Scene& scan, const NgpModel& model, const CameraRefiner* refiner,
+                                   UpdateReport* rep) {
+  std::vector<Camera> out;
+  for (const View& v : scan.train) out.push_back(v.camera);
+  if (refiner == nullptr) return out;
+  const Normalization& norm = model.normalization();
+  std::vector<double> turns, shifts;
+  for (size_t i = 0; i < out.size(); ++i) {
+    const Camera& m = refiner->camera(int(i));
+    out[i].c2w.leftCols<3>() = norm.rotation.transpose() * m.c2w.leftCols<3>();
+    out[i].c2w.col(3) = norm.ToWorld(m.c2w.col(3));
+    turns.push_back(refiner->rotation_deg(int(i)));
+    shifts.push_back(refiner->translation(int(i)) / norm.scale);
+  }
+  auto median = [](std::vector<double> v) {
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  };
+  rep->refined_cameras = int(out.size());
+  rep->camera_turn_median_deg = median(turns);
+  rep->camera_turn_max_deg = *std::max_element(turns.begin(), turns.end());
+  rep->camera_shift_median = median(shifts);
+  rep->camera_shift_max = *std::max_element(shifts.begin(), shifts.end());
+  rep->camera_clamped = refiner->clamped();
+  rep->camera_refine_summary = refiner->Summary();
+  return out;
+}
+
 }  // namespace
 
 absl::StatusOr<ContinualMethod> ParseContinualMethod(const std::string& name) {
@@ -71,7 +101,8 @@ absl::Status UpdateOptions::Validate() const {
     return absl::InvalidArgumentError("meil_new_fraction must be in (0, 1)");
   }
   for (const absl::Status& s : {train.Validate(), model.Validate(), capacity.Validate(), replay_labels.Validate(),
-                                 replay_weights.Validate(), replay_confidence.Validate(), view_error.Validate()}) {
+                                 replay_weights.Validate(), replay_confidence.Validate(), view_error.Validate(),
+                                 refine_cameras ? camera_refine.Validate() : absl::OkStatus()}) {
     if (!s.ok()) return s;
   }
   return absl::OkStatus();
@@ -252,6 +283,14 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
     }
   }
   Trainer trainer(model.get(), &sampler, to);
+  // Pose corrections of the new scan's photos (views 0..n-1 of the sampler),
+  // only where past views hold the frame.
+  const bool refine = options.refine_cameras && prev != nullptr && rep.replay_views + rep.buffer_views > 0;
+  if (refine) {
+    std::vector<uint8_t> which(sampler.Cameras().size(), 0);
+    std::fill_n(which.begin(), scan.train.size(), uint8_t(1));
+    if (absl::Status s = trainer.RefineCameras(options.camera_refine, std::move(which)); !s.ok()) return s;
+  }
   absl::Status st = trainer.Run(
       [&](const StepStats& s) {
         if (!progress) return;
@@ -290,7 +329,8 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
   next.memory = prev != nullptr ? prev->memory : ReplayMemory(k_buffer);
   std::mt19937_64 rng(seed ^ 0x5eed);
   std::vector<uint32_t> new_ids;
-  for (const View& v : scan.train) new_ids.push_back(next.memory.AddCamera(v.camera));
+  const std::vector<Camera> new_cameras = NewScanCameras(scan, *model, trainer.camera_refiner(), &rep);
+  for (const Camera& c : new_cameras) new_ids.push_back(next.memory.AddCamera(c));
   if (options.prioritized_buffer && k_buffer > 0) {
     // Keep the K images (old buffer ∪ new scan) with the lowest PSNR under θ_t.
     std::vector<std::pair<double, BufferedImage>> cand;
@@ -346,6 +386,7 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
     next.ewc = pen;
   }
   if (!model->AllFinite()) return absl::InternalError("update produced non-finite parameters");
+  if (rep.refined_cameras > 0) spdlog::info("update step {}: cameras refined: {}", t, rep.camera_refine_summary);
   next.model = std::move(model);
   if (report != nullptr) *report = rep;
   spdlog::debug("update step {}: {} new, {} buffer, {} replay views; replay prep {:.1f}s ({} bytes); train {:.1f}s",

@@ -110,6 +110,14 @@ struct UpdateOptions {
   // 22.60 dB); the inverse-sqrt schedules lost to it
   // (docs/continual_results.md).
   bool carry_optimizer = true;
+  // Updates only, for methods that train on past views (replay or a
+  // buffer): each of the new scan's photos gets a pose correction learnt
+  // with the field (core/train/camera_refiner.h), held in the frame by the
+  // past views, which do not move. What structure from motion and the
+  // registration leave (a few tenths of a degree per frame) is then fitted
+  // instead of blurred. The corrected cameras are the ones M_t keeps.
+  bool refine_cameras = false;
+  CameraRefineOptions camera_refine;
   TrainOptions train;                   // Per-step training budget etc.
   ModelOptions model;                   // Base options (first step / re-init).
   bool derive_capacity = true;
@@ -158,6 +166,14 @@ struct UpdateReport {
   long long samples = 0;
   int skipped_batches = 0;            // NaN/Inf batches skipped by the trainer.
   long long depth_pixels = 0;         // New-scan pixels with a sparse-depth target.
+  // UpdateOptions::refine_cameras: photos refined, their corrections (turn
+  // in degrees, shift in world units), how many reached a bound, and the
+  // refiner's summary line; 0 / empty when off.
+  int refined_cameras = 0;
+  double camera_turn_median_deg = 0, camera_turn_max_deg = 0;
+  double camera_shift_median = 0, camera_shift_max = 0;
+  int camera_clamped = 0;
+  std::string camera_refine_summary;
 };
 
 using UpdateProgressFn = std::function<void(const UpdateProgress&)>;

@@ -55,6 +55,12 @@ class RaySampler {
   // Model-space cameras of every view the sampler draws from (for the
   // occupancy grid's visibility mask).
   virtual std::vector<Camera> Cameras() const = 0;
+  // Replaces view `view`'s model-space camera (the index Cameras() and
+  // RayBatch::view use), for CameraRefiner's pose corrections: later batches
+  // draw that view's rays from it. Sparse-depth targets keep the distances
+  // computed at the original camera (a correction of a fraction of a degree
+  // moves them by less than their Gaussian's width).
+  virtual void SetCamera(int view, const Camera& model_camera) {}
   // How many photos RayBatch::view indexes (0 = the sampler sets none).
   virtual int NumPhotoViews() const { return 0; }
 };
@@ -80,6 +86,7 @@ class ImageRaySampler : public RaySampler {
   void SetViewErrorSampling(const ViewErrorOptions& options);
   void ObserveErrors(const RayBatch& batch, const std::vector<float>& sq_err) override;
   std::vector<Camera> Cameras() const override { return cameras_; }
+  void SetCamera(int view, const Camera& model_camera) override { cameras_.at(size_t(view)) = model_camera; }
   // Every view is a photo; RayBatch::view is its index in `views`.
   int NumPhotoViews() const override { return int(views_.size()); }
 

@@ -10,6 +10,7 @@
 #include "core/data/contraction.h"
 #include "core/field/field.h"
 #include "core/field/proposal_sampler.h"
+#include "core/field/sh_encoding.h"
 #include "core/render/volume_rendering.h"
 #include "core/train/view_colour.h"
 #include "spdlog/spdlog.h"
@@ -114,6 +115,55 @@ struct Trainer::ThreadScratch {
 
 namespace {
 constexpr int kBlockRays = 128;
+
+// Adds one wave's gradients with respect to its rays' origins and unit
+// directions (model space) to g_o / g_d (3 per ray of the block), for the
+// rays with wants[i] != 0, after FieldEvaluator::Backward left dL/dfeature
+// in W.fc.d_feat and the per-segment colour-bias gradient in W.fc.d_col.
+// A sample at x = o + t d (t held fixed, as the marcher or the proposals
+// placed it) reaches the grid through the contraction and the grid's
+// [0, 1]^3 mapping; the colour's SH view encoding adds the direction's
+// second path. Explicit geometric terms of regularisers (the distortion
+// loss's interval positions) are not included.
+void WaveRayGradients(const NgpModel& model, const TrainWave& W, const float* origin, const float* dir,
+                      const uint8_t* wants, float* g_o, float* g_d) {
+  const HashGrid& grid = model.grid();
+  const int Dg = grid.output_dim();
+  const float* params = model.params().grid.data();
+  const Network& net = model.network();
+  const Network::Layer& c0 = net.colour_layers()[0];
+  const Eigen::Map<const Eigen::MatrixXf> w_col(model.params().mlp.data() + c0.offset, c0.rows, c0.cols);
+  const float b = model.bound(), inv2b = 0.5f / b;
+  for (size_t k = 0; k < W.kray.size(); ++k) {
+    const int i = W.kray[k];
+    if (!wants[i]) continue;
+    const Eigen::Map<const Eigen::Vector3f> o(origin + 3 * size_t(i)), d(dir + 3 * size_t(i));
+    Eigen::Vector3f go = Eigen::Vector3f::Zero(), gd = Eigen::Vector3f::Zero();
+    for (int c = W.kseg[k]; c < W.kseg[k + 1]; ++c) {
+      float dpos[3];
+      grid.BackwardPosition(params, &W.fc.pos[3 * size_t(c)], &W.fc.d_feat[size_t(c) * Dg], 1, dpos);
+      const Eigen::Vector3f x = o + W.kt[c] * d;
+      const Eigen::Vector3f q = model.contracted() ? Contract(x) : x;
+      Eigen::Vector3f gq;
+      for (int a = 0; a < 3; ++a) gq[a] = std::abs(q[a]) < b ? dpos[a] * inv2b : 0.0f;  // Clamped outside.
+      const Eigen::Vector3f gx = model.contracted() ? Eigen::Vector3f(ContractJacobian(x).transpose() * gq) : gq;
+      go += gx;
+      gd += W.kt[c] * gx;
+    }
+    // View dependence: colour bias = W_sh SH(d) + ...; dL/dSH = W_sh^T dL/dbias.
+    const Eigen::Map<const Eigen::VectorXf> dbias(&W.fc.d_col[size_t(c0.rows) * k], c0.rows);
+    const Eigen::Matrix<float, kShDim, 1> dsh = w_col.leftCols(kShDim).transpose() * dbias;
+    float jac[kShDim * 3];
+    ShJacobian(d.x(), d.y(), d.z(), jac);
+    for (int s = 0; s < kShDim; ++s) {
+      for (int a = 0; a < 3; ++a) gd[a] += dsh[s] * jac[3 * s + a];
+    }
+    for (int a = 0; a < 3; ++a) {
+      g_o[3 * size_t(i) + a] += go[a];
+      g_d[3 * size_t(i) + a] += gd[a];
+    }
+  }
+}
 
 // A regulariser weight where < 0 means "auto": `auto_weight` for unbounded
 // (contracted) scenes, 0 for bounded ones.
@@ -233,6 +283,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
 
   const int nblocks = (nrays + kBlockRays - 1) / kBlockRays;
   ray_sq_err_.assign(size_t(nrays), 0.0f);
+  const bool ray_grads = WantRayGradients(batch);
   // Reset every scratch, not only those of the threads that run: the OpenMP
   // runtime may grant fewer threads than requested (OMP_THREAD_LIMIT, nested
   // regions), and the reductions below read all of them.
@@ -515,6 +566,10 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
         const int mk = int(W.keep.size());
         field.Backward(mk, W.kseg.data(), W.kray.data(), int(W.kray.size()), W.d_rgb.data(), W.d_sigma.data(), &W.fc,
                        s.grad_mlp.data(), s.grad_emb.data());
+        if (ray_grads) {
+          WaveRayGradients(model, W, &batch.origin[3 * size_t(r0)], &batch.dir[3 * size_t(r0)], &ray_wants_[r0],
+                           &ray_grad_origin_[3 * size_t(r0)], &ray_grad_dir_[3 * size_t(r0)]);
+        }
         s.store_pos.insert(s.store_pos.end(), W.fc.pos.begin(), W.fc.pos.begin() + 3 * size_t(mk));
         s.store_dfeat.insert(s.store_dfeat.end(), W.fc.d_feat.begin(), W.fc.d_feat.begin() + size_t(mk) * Dg);
       }
@@ -582,11 +637,60 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
   return float(loss);
 }
 
-float Trainer::ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* g) {
+bool Trainer::WantRayGradients(const RayBatch& batch) {
+  const int n = batch.size();
+  ray_wants_.assign(size_t(n), 0);
+  bool any = false;
+  for (int r = 0; r < n; ++r) {
+    const int v = batch.view.empty() ? -1 : batch.view[r];
+    ray_wants_[r] = all_ray_gradients_ || (refiner_ != nullptr && step_ >= refiner_->options().start_iteration &&
+                                           refiner_->Refines(v));
+    any = any || ray_wants_[r];
+  }
+  ray_grad_origin_.assign(any ? 3 * size_t(n) : 0, 0.0f);
+  ray_grad_dir_.assign(any ? 3 * size_t(n) : 0, 0.0f);
+  return any;
+}
+
+absl::Status Trainer::RefineCameras(const CameraRefineOptions& options, std::vector<uint8_t> refine) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  refiner_ = std::make_unique<CameraRefiner>(sampler_->Cameras(), std::move(refine), options);
+  return absl::OkStatus();
+}
+
+void Trainer::StepCameras(const RayBatch& batch, float lr) {
+  if (refiner_ == nullptr || ray_grad_origin_.empty()) return;
+  refiner_->ZeroGradients();
+  for (int r = 0; r < batch.size(); ++r) {
+    if (!ray_wants_[r]) continue;
+    refiner_->AddRayGradient(batch.view[r], Eigen::Map<const Eigen::Vector3f>(&batch.dir[3 * size_t(r)]),
+                             Eigen::Map<const Eigen::Vector3f>(&ray_grad_origin_[3 * size_t(r)]),
+                             Eigen::Map<const Eigen::Vector3f>(&ray_grad_dir_[3 * size_t(r)]));
+  }
+  ++camera_steps_;
+  if (!refiner_->Step(camera_steps_, lr / options_.learning_rate)) {
+    spdlog::warn("step {}: camera-refinement gradient has NaN/Inf; cameras not moved", step_);
+    return;
+  }
+  std::vector<uint8_t> moved(size_t(sampler_->Cameras().size()), 0);
+  for (int r = 0; r < batch.size(); ++r) {
+    if (ray_wants_[r]) moved[size_t(batch.view[r])] = 1;
+  }
+  for (size_t v = 0; v < moved.size(); ++v) {
+    if (moved[v]) sampler_->SetCamera(int(v), refiner_->camera(int(v)));
+  }
+}
+
+float Trainer::ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* g,
+                                       bool ray_gradients) {
   std::fill(grad_grid_.begin(), grad_grid_.end(), 0.0f);
   std::fill(grad_prop_.begin(), grad_prop_.end(), 0.0f);
   batch_seed_ = 0;  // Proposal placement at bin centres: the same batch gives the same loss.
+  all_ray_gradients_ = ray_gradients;
   float loss = ForwardBackward(batch, jitter.data(), /*ray_bg=*/nullptr, /*track_touched=*/false);
+  all_ray_gradients_ = false;
+  g->ray_origin = ray_grad_origin_;
+  g->ray_dir = ray_grad_dir_;
   if (options_.ewc != nullptr) loss += ApplyEwc(/*track_touched=*/false);
   if (options_.grid_decay > 0) loss += ApplyGridDecay(/*touched_only=*/false);
   g->grid = grad_grid_;
@@ -792,6 +896,7 @@ absl::Status Trainer::Step() {
         "training diverged at step %d: parameters became NaN/Inf after the update", next));
   }
   step_ = next;
+  StepCameras(batch, lr);
   sampler_->ObserveErrors(batch, ray_sq_err_);
 
   // Adapt the batch so it marches about target_samples samples.

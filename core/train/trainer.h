@@ -35,6 +35,7 @@
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
 #include "core/train/adam.h"
+#include "core/train/camera_refiner.h"
 #include "core/train/optimizer_state.h"
 #include "core/field/ngp_model.h"
 #include "core/train/ray_sampler.h"
@@ -214,12 +215,24 @@ class Trainer {
   // gradient checks). Gradients are returned in the same layout as params.
   struct Gradients {
     std::vector<float> grid, mlp, emb, proposal, view_colour;
+    // With ray_gradients: dL/d(origin) and dL/d(direction) of every ray,
+    // 3 per ray, model space (camera_refiner.h's inputs).
+    std::vector<float> ray_origin, ray_dir;
   };
   // The per-view colour transforms (12 per photo; empty when
   // options.view_colour is off or the sampler names no photos).
   const std::vector<float>& view_colours() const { return view_colour_; }
   std::vector<float>* mutable_view_colours() { return &view_colour_; }
-  float ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* grads);
+  float ComputeLossAndGradients(const RayBatch& batch, const std::vector<float>& jitter, Gradients* grads,
+                                bool ray_gradients = false);
+
+  // From the next step on, learns pose corrections of the sampler's views
+  // with refine[v] != 0 (camera_refiner.h; v indexes RaySampler::Cameras()
+  // and RayBatch::view), and moves the sampler's cameras with them.
+  // INVALID_ARGUMENT for bad options.
+  absl::Status RefineCameras(const CameraRefineOptions& options, std::vector<uint8_t> refine);
+  // Null unless RefineCameras was called.
+  const CameraRefiner* camera_refiner() const { return refiner_.get(); }
 
  private:
   struct ThreadScratch;
@@ -238,6 +251,11 @@ class Trainer {
   float ApplyGridDecay(bool touched_only);
   // Zeroes the gradients and touched flags of one level's touched entries.
   void ClearLevelGradients(int level);
+  // Marks the batch's rays that need origin/direction gradients (ray_wants_)
+  // and sizes their buffers; false when none does.
+  bool WantRayGradients(const RayBatch& batch);
+  // The camera refiner's step on the last batch's ray gradients.
+  void StepCameras(const RayBatch& batch, float lr);
 
   NgpModel* model_;
   RaySampler* sampler_;
@@ -267,6 +285,12 @@ class Trainer {
   std::vector<float> view_colour_, grad_view_colour_;  // Per-view colour transforms.
   uint64_t batch_seed_ = 1;       // Proposal placement stream of the current batch (non-zero).
   std::vector<std::unique_ptr<ThreadScratch>> scratch_;
+  // Camera refinement (null = off) and the per-ray gradients it consumes.
+  std::unique_ptr<CameraRefiner> refiner_;
+  int camera_steps_ = 0;
+  bool all_ray_gradients_ = false;  // ComputeLossAndGradients(..., ray_gradients = true).
+  std::vector<uint8_t> ray_wants_;
+  std::vector<float> ray_grad_origin_, ray_grad_dir_;
   // Batch statistics from the last ForwardBackward.
   double batch_mse_ = 0;
   std::vector<float> ray_sq_err_;  // Per ray of the last batch: mean squared colour error.
