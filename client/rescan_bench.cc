@@ -540,6 +540,7 @@ absl::Status TrainCase(const RescanContext& c, const std::string& which, const C
     absl::StatusOr<ContinualState> next = ContinualUpdate(cs.scan, c.place_state, o, {}, nullptr, nullptr);
     if (!next.ok()) return next.status();
     const double train_seconds = SecondsSince(t0);
+    (*row)["refine_cameras"] = o.refine_cameras;
     if (o.refine_cameras) RefinedCameraErrors(c, cs, *next, row);
     const std::string renders =
         a.save_renders.empty() ? "" : absl::StrCat(a.save_renders, "/", which, "_seed", o.train.seed);

@@ -280,6 +280,8 @@ absl::Status ApplyConfigJson(const std::string& json_text, ServerOptions* o) {
     else if (k == "view_colour") s = Get(*it, k.c_str(), &o->update.train.view_colour);  // Per-photo colour transforms.
     else if (k == "replay_labels_per_draw") s = Get(*it, k.c_str(), &o->update.replay_labels.labels_per_draw);
     else if (k == "carry_optimizer") s = Get(*it, k.c_str(), &o->update.carry_optimizer);
+    else if (k == "refine_cameras") s = Get(*it, k.c_str(), &o->update.refine_cameras);  // Pose corrections while training.
+    else if (k == "camera_learning_rate") s = Get(*it, k.c_str(), &o->update.camera_refine.learning_rate);
     else if (k == "warm_lr_scale") s = Get(*it, k.c_str(), &o->update.warm_lr_scale);  // Warm updates' learning-rate factor.
     else if (k == "error_share") s = Get(*it, k.c_str(), &o->update.view_error.error_share);  // 0 = uniform.
     else if (k == "error_tiles") s = Get(*it, k.c_str(), &o->update.view_error.tiles);

@@ -14,7 +14,10 @@
 // fields with dense Adam (core/field/proposal_sampler.h). With
 // TrainOptions::view_colour, each photo's rays pass through that photo's
 // affine colour transform before the loss (view_colour.h); the transforms
-// are the trainer's own state, not part of the model.
+// are the trainer's own state, not part of the model. With RefineCameras,
+// the rays of the named photos also carry the loss's gradient with respect to
+// their origin and direction, and the photos' cameras move with it
+// (camera_refiner.h).
 //
 // Stability: the loss, every gradient and every updated parameter are checked
 // for NaN/Inf; a bad step is not applied and Step() returns INTERNAL naming

@@ -694,6 +694,14 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   gate.metrics["train_seconds"] = report.train_seconds;
   gate.metrics["replay_prepare_seconds"] = report.replay_prepare_seconds;
   if (report.depth_pixels > 0) gate.metrics["depth_pixels"] = double(report.depth_pixels);
+  if (report.refined_cameras > 0) {  // UpdateOptions::refine_cameras.
+    gate.metrics["camera_refined"] = double(report.refined_cameras);
+    gate.metrics["camera_turn_median_deg"] = report.camera_turn_median_deg;
+    gate.metrics["camera_turn_max_deg"] = report.camera_turn_max_deg;
+    gate.metrics["camera_shift_median"] = report.camera_shift_median;
+    gate.metrics["camera_shift_max"] = report.camera_shift_max;
+    gate.metrics["camera_clamped"] = double(report.camera_clamped);
+  }
   gate.metrics["update_seconds"] = SecondsSince(t0);
   if (!prev) gate.metrics["time_to_first_view_seconds"] = double(NowUnixMs() - job->created_unix_ms) / 1000.0;
   jobs_->Update(job_id, [&](JobStatus* j) { j->metrics = gate.metrics; });
