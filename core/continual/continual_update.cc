@@ -285,7 +285,9 @@ absl::StatusOr<ContinualState> ContinualUpdate(const Scene& scan, const Continua
   Trainer trainer(model.get(), &sampler, to);
   // Pose corrections of the new scan's photos (views 0..n-1 of the sampler),
   // only where past views hold the frame.
-  const bool refine = options.refine_cameras && prev != nullptr && rep.replay_views + rep.buffer_views > 0;
+  // Not for re-init: a field that starts random gives the cameras noise.
+  const bool refine = options.refine_cameras && prev != nullptr && options.init == InitMode::kWarm &&
+                      rep.replay_views + rep.buffer_views > 0;
   if (refine) {
     std::vector<uint8_t> which(sampler.Cameras().size(), 0);
     std::fill_n(which.begin(), scan.train.size(), uint8_t(1));

@@ -110,8 +110,8 @@ struct UpdateOptions {
   // 22.60 dB); the inverse-sqrt schedules lost to it
   // (docs/continual_results.md).
   bool carry_optimizer = true;
-  // Updates only, for methods that train on past views (replay or a
-  // buffer): each of the new scan's photos gets a pose correction learnt
+  // Warm-started updates only, for methods that train on past views (replay
+  // or a buffer): each of the new scan's photos gets a pose correction learnt
   // with the field (core/train/camera_refiner.h), held in the frame by the
   // past views, which do not move. What structure from motion and the
   // registration leave (a few tenths of a degree per frame) is then fitted

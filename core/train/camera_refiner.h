@@ -39,7 +39,8 @@ struct CameraRefineOptions {
   // Adam's learning rate for the corrections (radians for the turn, model
   // units for the shift), scaled by the trainer's schedule (lr / initial lr),
   // so the corrections settle as the field does. nerfacto's camera optimiser
-  // uses 6e-4.
+  // uses 6e-4. (With the inverse-sqrt schedules and a carried optimiser the
+  // trainer's rate starts lower each update, and so does this one.)
   float learning_rate = 5e-4f;
   // Bounds on a photo's total correction: a turn of at most this many
   // degrees and a shift of at most this many model units (the model's box is

@@ -23,8 +23,9 @@
 // for NaN/Inf; a bad step is not applied and Step() returns INTERNAL naming
 // the step that diverged, leaving the model at its last finite state.
 //
-// A Trainer mutates its model and is not thread-safe; it uses OpenMP threads
-// internally.
+// A Trainer mutates its model (and, when refining cameras, its sampler's
+// cameras through RaySampler::SetCamera between batches) and is not
+// thread-safe; it uses OpenMP threads internally.
 #ifndef CLNERF_CORE_TRAIN_TRAINER_H_
 #define CLNERF_CORE_TRAIN_TRAINER_H_
 
@@ -219,7 +220,8 @@ class Trainer {
   struct Gradients {
     std::vector<float> grid, mlp, emb, proposal, view_colour;
     // With ray_gradients: dL/d(origin) and dL/d(direction) of every ray,
-    // 3 per ray, model space (camera_refiner.h's inputs).
+    // 3 per ray, model space (camera_refiner.h's inputs). Without it, empty
+    // unless a refiner is active (then filled for its photos' rays only).
     std::vector<float> ray_origin, ray_dir;
   };
   // The per-view colour transforms (12 per photo; empty when

@@ -684,8 +684,17 @@ void UpdateWorker::RunJob(const std::string& job_id) {
   std::optional<ContinualState> next = Train(job_id, scan_id, prev.get(), *scene, &report);
   if (!next) return;
 
-  // 3. Deployment gate.
+  // 3. Deployment gate, at the cameras the update kept: with camera
+  // refinement (UpdateOptions::refine_cameras) the training photos' are the
+  // corrected ones, the last of M_t in the scan's order. The held-out frames
+  // keep their registered poses (they were not trained on).
   jobs_->Update(job_id, [&](JobStatus* j) { j->phase = JobPhase::kValidating; });
+  if (report.refined_cameras == int(scene->train.size()) && next->memory.num_cameras() >= scene->train.size()) {
+    const uint32_t first = uint32_t(next->memory.num_cameras() - scene->train.size());
+    for (size_t i = 0; i < scene->train.size(); ++i) {
+      scene->train[i].camera = next->memory.GetCamera(first + uint32_t(i));
+    }
+  }
   scene->test = std::move(test);
   GateReport gate = RunDeploymentGate(*next->model, *scene, prev ? &prev->model() : nullptr,
                                       prev ? &prev->memory() : nullptr, options_.gate, options_.train_threads,
