@@ -27,23 +27,17 @@ std::vector<Camera> NewScanCameras(const Scene& scan, const NgpModel& model, con
   for (const View& v : scan.train) out.push_back(v.camera);
   if (refiner == nullptr) return out;
   const Normalization& norm = model.normalization();
-  std::vector<double> turns, shifts;
   for (size_t i = 0; i < out.size(); ++i) {
     const Camera& m = refiner->camera(int(i));
     out[i].c2w.leftCols<3>() = norm.rotation.transpose() * m.c2w.leftCols<3>();
     out[i].c2w.col(3) = norm.ToWorld(m.c2w.col(3));
-    turns.push_back(refiner->rotation_deg(int(i)));
-    shifts.push_back(refiner->translation(int(i)) / norm.scale);
   }
-  auto median = [](std::vector<double> v) {
-    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
-    return v[v.size() / 2];
-  };
+  const CameraRefiner::Stats st = refiner->CorrectionStats();
   rep->refined_cameras = int(out.size());
-  rep->camera_turn_median_deg = median(turns);
-  rep->camera_turn_max_deg = *std::max_element(turns.begin(), turns.end());
-  rep->camera_shift_median = median(shifts);
-  rep->camera_shift_max = *std::max_element(shifts.begin(), shifts.end());
+  rep->camera_turn_median_deg = st.turn_median_deg;
+  rep->camera_turn_max_deg = st.turn_max_deg;
+  rep->camera_shift_median = st.shift_median / norm.scale;  // World units.
+  rep->camera_shift_max = st.shift_max / norm.scale;
   rep->camera_clamped = refiner->clamped();
   rep->camera_refine_summary = refiner->Summary();
   return out;

@@ -104,17 +104,26 @@ double CameraRefiner::translation(int view) const { return param_[size_t(view)].
 
 int CameraRefiner::clamped() const { return int(std::count(clamped_.begin(), clamped_.end(), uint8_t(1))); }
 
-std::string CameraRefiner::Summary() const {
+CameraRefiner::Stats CameraRefiner::CorrectionStats() const {
   std::vector<double> turns, shifts;
   for (size_t v = 0; v < refine_.size(); ++v) {
     if (!refine_[v]) continue;
     turns.push_back(rotation_deg(int(v)));
     shifts.push_back(translation(int(v)));
   }
-  const double max_turn = turns.empty() ? 0 : *std::max_element(turns.begin(), turns.end());
-  const double max_shift = shifts.empty() ? 0 : *std::max_element(shifts.begin(), shifts.end());
+  Stats s;
+  if (turns.empty()) return s;
+  s.turn_median_deg = Median(turns);
+  s.turn_max_deg = *std::max_element(turns.begin(), turns.end());
+  s.shift_median = Median(shifts);
+  s.shift_max = *std::max_element(shifts.begin(), shifts.end());
+  return s;
+}
+
+std::string CameraRefiner::Summary() const {
+  const Stats s = CorrectionStats();
   return absl::StrFormat("%d photos: median turn %.3f deg (max %.3f), median shift %.4f (max %.4f), %d clamped",
-                         int(turns.size()), Median(turns), max_turn, Median(shifts), max_shift, clamped());
+                         num_refined(), s.turn_median_deg, s.turn_max_deg, s.shift_median, s.shift_max, clamped());
 }
 
 }  // namespace clnerf

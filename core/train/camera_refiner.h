@@ -83,6 +83,12 @@ class CameraRefiner {
   double translation(int view) const;
   // Photos whose correction reached a bound at least once.
   int clamped() const;
+  // Over the refined photos: median and largest turn (degrees) and shift
+  // (model units); zeros when none is refined.
+  struct Stats {
+    double turn_median_deg = 0, turn_max_deg = 0, shift_median = 0, shift_max = 0;
+  };
+  Stats CorrectionStats() const;
   // "N photos: median turn X deg (max Y), median shift Z (max W), K clamped".
   std::string Summary() const;
 
