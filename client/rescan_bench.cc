@@ -46,6 +46,7 @@
 #include "core/train/optimizer_state.h"
 #include "core/pose/photometric_refine.h"
 #include "core/pose/photometric_similarity.h"
+#include "core/pose/pose_arbitration.h"
 #include "core/pose/place_map.h"
 #include "core/pose/registration.h"
 #include "core/pose/sfm.h"
@@ -416,6 +417,25 @@ absl::Status ScoreFirstScanPoses(const RescanContext& c, const NgpModel& posed_m
   return absl::OkStatus();
 }
 
+// As the update worker does for a scan it posed, before refining it:
+// frames whose SfM pose the place's map disputes take their PnP pose.
+void ArbitrateLikeTheService(const RescanContext& c, const RegistrationReport& r, CaseScan* cs, nlohmann::json* row) {
+  absl::StatusOr<ArbitrationReport> a =
+      ArbitrateDisputedFrames(r.localized, r.tried, ModelPlaceMap(*c.place_state->model, RenderOptions()), c.extent,
+                              &cs->scan, c.args->registration.arbitration);
+  if (!a.ok()) {
+    std::printf("  arbitration failed: %s\n", std::string(a.status().message()).c_str());
+    return;
+  }
+  const PoseErrors e = FrameErrors(cs->scan.train, cs->posed_truth, c.extent);
+  (*row)["arbitration_disputed"] = a->disputed;
+  (*row)["arbitration_moved"] = a->taken;
+  (*row)["arbitration_seconds"] = a->seconds;
+  (*row)["arbitrated_rotation_error_deg_max"] = e.rotation_max;
+  std::printf("  %s (%.1f s); poses %.2f%% / %.2f deg from the known (max %.1f%% / %.1f deg)\n",
+              a->Summary().c_str(), a->seconds, e.centre_median, e.rotation_median, e.centre_max, e.rotation_max);
+}
+
 // A later visit registered into the place (and, for a scan it posed,
 // refined as the service does); false (row filled) when refused.
 bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs, nlohmann::json* row) {
@@ -462,6 +482,9 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   // As the service: a scan it posed has its camera refined against the
   // place after registration ("unposed-unrefined": without, to compare).
   const bool refine = which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto";
+  if (refine && r.status.ok() && c.args->registration.arbitrate) {
+    ArbitrateLikeTheService(c, r, cs, row);
+  }
   if (refine && r.status.ok()) {
     RefineLikeTheService(*c.place_state->model, r, c.extent, which, cs->posed_truth, c.args->registration.camera,
                          &cs->scan, row);
@@ -767,6 +790,10 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
   c->add_option("--rotation", a->rotation_deg, "Visit B's own frame: rotation (degrees)")->capture_default_str();
   c->add_option("--min-side", a->registration.localizer.min_side,
                 "Registration: photos smaller than this (long side, pixels) are matched at this size")
+      ->capture_default_str();
+  c->add_option("--arbitrate", a->registration.arbitrate,
+                "Unposed cases: frames whose COLMAP pose the place's map disputes take their PnP pose "
+                "(pose_arbitration.h)")
       ->capture_default_str();
   c->add_option("--similarity-frames", a->registration.similarity_options.max_frames,
                 "Registration: frames the photometric similarity refinement renders and aligns")

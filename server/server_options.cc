@@ -216,6 +216,7 @@ absl::Status ApplyRegistration(const nlohmann::json& g, RegistrationOptions* o) 
     else if (k == "photometric_similarity") {
       s = Get(*it, "registration.photometric_similarity", &o->photometric_similarity);
     }
+    else if (k == "arbitrate") s = Get(*it, "registration.arbitrate", &o->arbitrate);
     else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'registration.", k, "'"));
     if (!s.ok()) return s;
   }

@@ -90,6 +90,7 @@ absl::Status RegistrationOptions::Validate() const {
   if (absl::Status s = localizer.Validate(); !s.ok()) return s;
   if (absl::Status s = fit.Validate(); !s.ok()) return s;
   if (absl::Status s = photometric_options.Validate(); !s.ok()) return s;
+  if (absl::Status s = arbitration.Validate(); !s.ok()) return s;
   if (absl::Status s = similarity_options.Validate(); !s.ok()) return s;
   if (max_references < 1) return absl::InvalidArgumentError("max_references must be >= 1");
   if (max_frames < 2) return absl::InvalidArgumentError("max_frames must be >= 2");

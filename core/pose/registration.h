@@ -34,6 +34,7 @@
 #include "core/pose/feature_localizer.h"
 #include "core/pose/photometric_refine.h"
 #include "core/pose/photometric_similarity.h"
+#include "core/pose/pose_arbitration.h"
 #include "core/pose/place_map.h"
 #include "core/pose/similarity.h"
 
@@ -99,6 +100,13 @@ struct RegistrationOptions {
   // hazy map moved it for no gain in reprojection error (2.35 px both), and
   // keeping it scored 21.10 dB against 20.25 on the same COLMAP answer.
   SharedCameraOptions camera;
+  // A scan the service posed: before RefineAgainstPlace, each frame whose
+  // structure-from-motion pose (moved into the place) disagrees with its own
+  // PnP pose against the place gets whichever the place's render at it
+  // resembles the photo better (pose_arbitration.h). On beer_2's tiled floor
+  // COLMAP mirrored 3 of 14 frames that PnP had within a degree. False: skip.
+  bool arbitrate = true;
+  ArbitrationOptions arbitration;
   absl::Status Validate() const;
 };
 

@@ -13,6 +13,7 @@
 #include "core/continual/deployment_gate.h"
 #include "core/data/image.h"
 #include "core/pose/place_map.h"
+#include "core/pose/pose_arbitration.h"
 #include "core/pose/pose_check.h"
 #include "core/pose/registration.h"
 #include "core/pose/sfm.h"
@@ -85,6 +86,20 @@ std::vector<std::string> FrameNames(const Scene& scene) {
 std::vector<double> SfmStageEstimate(int frames, bool sequential) {
   const double pairs = sequential ? 10.0 * frames : 0.5 * frames * (frames - 1);
   return {0.25 * frames, (sequential ? 0.063 : 0.07) * pairs, 0.2 * frames};
+}
+
+// A scan the service posed: frames whose SfM pose the place's map disputes
+// move to their PnP pose (pose_arbitration.h), as "registration_*" metrics.
+void ArbitrateFrames(const std::string& job_id, const PlaceMap& map, double extent, const RegistrationReport& r,
+                     const ArbitrationOptions& o, Scene* scene, std::map<std::string, double>* metrics) {
+  absl::StatusOr<ArbitrationReport> a = ArbitrateDisputedFrames(r.localized, r.tried, map, extent, scene, o);
+  if (!a.ok()) {
+    spdlog::warn("job {}: frame arbitration skipped: {}", job_id, a.status().ToString());
+    return;
+  }
+  (*metrics)["registration_disputed_frames"] = a->disputed;
+  (*metrics)["registration_frames_moved_to_pnp"] = a->taken;
+  if (a->disputed > 0) spdlog::info("job {}: {} ({:.1f} s)", job_id, a->Summary(), a->seconds);
 }
 
 }  // namespace
@@ -396,6 +411,9 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
     if (metrics->count("posing_frames") > 0) {
       // Posed here by SfM over this scan alone: its self-calibrated camera
       // and its poses refined against the place (registration.h).
+      if (options_.registration.arbitrate) {
+        ArbitrateFrames(job_id, map, extent, r, options_.registration.arbitration, scene, metrics);
+      }
       SharedCameraReport cam;
       Intrinsics in;
       if (absl::Status s = RefineAgainstPlace(r, scene, &cam, &in, options_.registration.camera); s.ok()) {

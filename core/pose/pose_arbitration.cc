@@ -1,0 +1,116 @@
+#include "core/pose/pose_arbitration.h"
+
+#include <chrono>
+#include <cmath>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "core/data/stopwatch.h"
+#include "core/pose/similarity.h"
+
+namespace clnerf {
+
+absl::Status ArbitrationOptions::Validate() const {
+  if (!(rotation_deg > 0) || !(centre > 0)) {
+    return absl::InvalidArgumentError("arbitration rotation_deg and centre must be > 0");
+  }
+  if (max_side < 16) return absl::InvalidArgumentError("arbitration max_side must be at least 16");
+  if (!(margin >= 0 && margin < 2)) return absl::InvalidArgumentError("arbitration margin must be in [0, 2)");
+  return absl::OkStatus();
+}
+
+std::string ArbitrationReport::Summary() const {
+  std::string s = absl::StrFormat("%d of %d disputed frames moved to their PnP pose", taken, disputed);
+  for (const FrameArbitration& f : frames) {
+    absl::StrAppendFormat(&s, "%s frame %d (%.1f deg, %.1f%% apart; correlation %.2f registered, %.2f PnP%s)",
+                          &f == &frames.front() ? ":" : ",", f.frame, f.rotation_deg, 100 * f.centre,
+                          f.ncc_registered, f.ncc_localized, f.took_localized ? ", moved" : "");
+  }
+  return s;
+}
+
+namespace {
+
+std::vector<double> GreyValues(const Image& im) {
+  std::vector<double> g(im.num_pixels());
+  for (size_t i = 0; i < g.size(); ++i) g[i] = Luma(im.rgb.data() + 3 * i);
+  return g;
+}
+
+}  // namespace
+
+absl::StatusOr<double> MapCorrelation(const PlaceMap& map, const Image& photo, const Camera& camera, int max_side) {
+  const Intrinsics& in = camera.intrinsics;
+  if (photo.width != in.width || photo.height != in.height) {
+    return absl::InvalidArgumentError(absl::StrFormat("the photo is %dx%d, its camera %dx%d", photo.width,
+                                                      photo.height, in.width, in.height));
+  }
+  const Camera small = CameraWithSideIn(camera, 1, max_side);
+  absl::StatusOr<MapView> view = map.Render(small);
+  if (!view.ok()) return view.status();
+  const Image shrunk = ResizeImage(photo, small.intrinsics.width, small.intrinsics.height);
+  const std::vector<double> a = GreyValues(shrunk), b = GreyValues(view->rgb);
+  if (a.size() != b.size() || a.empty()) return absl::InternalError("the map's render does not match its camera");
+  double ma = 0, mb = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    ma += a[i];
+    mb += b[i];
+  }
+  ma /= double(a.size());
+  mb /= double(b.size());
+  double ab = 0, aa = 0, bb = 0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    ab += (a[i] - ma) * (b[i] - mb);
+    aa += (a[i] - ma) * (a[i] - ma);
+    bb += (b[i] - mb) * (b[i] - mb);
+  }
+  const double flat = 1e-8 * double(a.size());
+  if (!(aa > flat) || !(bb > flat)) return absl::InvalidArgumentError("the photo or the map's render is flat");
+  return ab / std::sqrt(aa * bb);
+}
+
+absl::StatusOr<ArbitrationReport> ArbitrateDisputedFrames(const std::vector<FrameLocalization>& localized,
+                                                          const std::vector<int>& tried, const PlaceMap& map,
+                                                          double extent, Scene* scene,
+                                                          const ArbitrationOptions& options) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  const auto t0 = std::chrono::steady_clock::now();
+  ArbitrationReport out;
+  for (size_t k = 0; k < tried.size() && k < localized.size(); ++k) {
+    const FrameLocalization& l = localized[k];
+    const size_t i = size_t(tried[k]);
+    if (!l.placed || i >= scene->train.size() || !l.c2w.allFinite()) continue;
+    View& v = scene->train[i];
+    FrameArbitration f;
+    f.frame = int(i);
+    f.rotation_deg = RotationAngleDegrees(v.camera.c2w.leftCols<3>().cast<double>(), l.c2w.leftCols<3>().cast<double>());
+    f.centre = extent > 0 ? double((v.camera.position() - l.c2w.col(3)).norm()) / extent : 0.0;
+    if (f.rotation_deg <= options.rotation_deg && f.centre <= options.centre) continue;
+    ++out.disputed;
+    Camera at_pnp = v.camera;
+    at_pnp.c2w = l.c2w;
+    absl::StatusOr<double> registered = MapCorrelation(map, v.image, v.camera, options.max_side);
+    absl::StatusOr<double> localized = MapCorrelation(map, v.image, at_pnp, options.max_side);
+    for (const absl::StatusOr<double>* c : {&registered, &localized}) {
+      if (!c->ok() && !absl::IsInvalidArgument(c->status())) return c->status();  // The map failed.
+    }
+    if (!localized.ok()) {  // No case for moving it.
+      out.frames.push_back(f);
+      continue;
+    }
+    // A registered pose whose render cannot be compared (flat: empty space)
+    // loses to any localised pose that can.
+    f.ncc_registered = registered.ok() ? *registered : -1.0;
+    f.ncc_localized = *localized;
+    f.took_localized = f.ncc_localized >= f.ncc_registered + options.margin;
+    if (f.took_localized) {
+      v.camera.c2w = l.c2w;
+      ++out.taken;
+    }
+    out.frames.push_back(f);
+  }
+  out.seconds = SecondsSince(t0);
+  return out;
+}
+
+}  // namespace clnerf
