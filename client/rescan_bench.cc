@@ -293,6 +293,9 @@ struct CaseScan {
   std::vector<int> posed;         // Indices into `truth` of the views kept.
   std::vector<View> posed_truth;  // truth[posed[k]].
   std::vector<View> scored;       // Held-out views scored at visit A's time.
+  // Frames the pose check disputed, left for the map to vouch for (as the
+  // service does for a later scan it posed) instead of dropped at once.
+  std::set<std::string> suspect;
   double posing_seconds = 0, register_seconds = 0, baseline = 0;
 };
 
@@ -327,6 +330,30 @@ bool PoseCase(const RescanContext& c, const std::string& which, CaseScan* cs, nl
   return true;
 }
 
+// Removes the training frames named in `names` from `cs` (with their
+// entries in `posed` and `posed_truth`); returns how many.
+size_t DropCaseFrames(const std::set<std::string>& names, CaseScan* cs) {
+  std::vector<View> kept, kept_truth;
+  std::vector<int> posed;
+  for (size_t k = 0; k < cs->scan.train.size(); ++k) {
+    if (names.count(cs->scan.train[k].name)) continue;
+    kept.push_back(std::move(cs->scan.train[k]));
+    posed.push_back(cs->posed[k]);
+    if (k < cs->posed_truth.size()) kept_truth.push_back(std::move(cs->posed_truth[k]));
+  }
+  const size_t dropped = cs->scan.train.size() - kept.size();
+  cs->scan.train = std::move(kept);
+  cs->posed = std::move(posed);
+  if (!cs->posed_truth.empty()) cs->posed_truth = std::move(kept_truth);
+  return dropped;
+}
+
+// Whether a case leaves its disputed frames to arbitration after
+// registration (a later visit COLMAP posed, refined as the service does).
+bool ArbitratesSuspects(const BenchRescanArgs& a, const std::string& which) {
+  return a.registration.arbitrate && (which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto");
+}
+
 // The update worker's pose check (core/pose/pose_check.h) on the scan as
 // posed, before registration: its disputed frames are reported and, with
 // --pose-check drop (auto: for a scan COLMAP posed), left out (with their
@@ -349,16 +376,11 @@ void CheckCasePoses(const RescanContext& c, const std::string& which, CaseScan* 
   std::printf("  %s: pose check: %s\n", which.c_str(), r->Summary(views).c_str());
   if (!drop || r->disputed.empty()) return;
   const std::set<std::string> disputed = DisputedNames(*r, views);
-  std::vector<View> kept;
-  std::vector<int> posed;
-  for (size_t k = 0; k < cs->scan.train.size(); ++k) {
-    if (disputed.count(cs->scan.train[k].name)) continue;
-    kept.push_back(std::move(cs->scan.train[k]));
-    posed.push_back(cs->posed[k]);
+  if (ArbitratesSuspects(*c.args, which)) {  // Registration decides: ArbitrateLikeTheService.
+    cs->suspect = disputed;
+    return;
   }
-  (*row)["pose_check_dropped"] = cs->scan.train.size() - kept.size();
-  cs->scan.train = std::move(kept);
-  cs->posed = std::move(posed);
+  (*row)["pose_check_dropped"] = DropCaseFrames(disputed, cs);
 }
 
 // `held` (the views to score) aligned to `model` from where they are; the
@@ -419,14 +441,24 @@ absl::Status ScoreFirstScanPoses(const RescanContext& c, const NgpModel& posed_m
 
 // As the update worker does for a scan it posed, before refining it:
 // frames whose SfM pose the place's map disputes take their PnP pose.
-void ArbitrateLikeTheService(const RescanContext& c, const RegistrationReport& r, CaseScan* cs, nlohmann::json* row) {
-  absl::StatusOr<ArbitrationReport> a =
-      ArbitrateDisputedFrames(r.localized, r.tried, ModelPlaceMap(*c.place_state->model, RenderOptions()), c.extent,
-                              &cs->scan, c.args->registration.arbitration);
-  if (!a.ok()) {
-    std::printf("  arbitration failed: %s\n", std::string(a.status().message()).c_str());
-    return;
+// `r` forgets the frames dropped.
+void ArbitrateLikeTheService(const RescanContext& c, RegistrationReport* r, CaseScan* cs, nlohmann::json* row) {
+  std::vector<int> suspect;
+  for (size_t i = 0; i < cs->scan.train.size(); ++i) {
+    if (cs->suspect.count(cs->scan.train[i].name)) suspect.push_back(int(i));
   }
+  absl::StatusOr<ArbitrationReport> a =
+      ArbitrateDisputedFrames(r->localized, r->tried, ModelPlaceMap(*c.place_state->model, RenderOptions()),
+                              c.extent, &cs->scan, c.args->registration.arbitration, suspect);
+  if (!a.ok()) std::printf("  arbitration failed: %s\n", std::string(a.status().message()).c_str());
+  const std::vector<int> dropped = a.ok() ? a->dropped : suspect;
+  std::set<std::string> names;
+  for (int i : dropped) names.insert(cs->scan.train[size_t(i)].name);
+  r->DropFrames(dropped);
+  (*row)["pose_check_dropped"] = DropCaseFrames(names, cs);
+  cs->suspect.clear();
+  if (!a.ok()) return;
+  (*row)["pose_check_confirmed"] = a->confirmed;
   const PoseErrors e = FrameErrors(cs->scan.train, cs->posed_truth, c.extent);
   (*row)["arbitration_disputed"] = a->disputed;
   (*row)["arbitration_moved"] = a->taken;
@@ -442,6 +474,14 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   const auto t0 = std::chrono::steady_clock::now();
   RegistrationReport r = RegisterScan(cs->scan, ModelPlaceMap(*c.place_state->model, RenderOptions()), c.place,
                                       c.extent, c.args->registration);
+  if (!r.status.ok() && !cs->suspect.empty()) {  // As the service: again without the disputed frames.
+    std::printf("  %s: not placed with the disputed frames (%s); again without them\n", which.c_str(),
+                std::string(r.status.message()).c_str());
+    (*row)["pose_check_dropped"] = DropCaseFrames(cs->suspect, cs);
+    cs->suspect.clear();
+    r = RegisterScan(cs->scan, ModelPlaceMap(*c.place_state->model, RenderOptions()), c.place, c.extent,
+                     c.args->registration);
+  }
   cs->register_seconds = SecondsSince(t0);
   (*row)["registered"] = r.status.ok();
   (*row)["identity"] = r.identity;
@@ -483,8 +523,9 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   // place after registration ("unposed-unrefined": without, to compare).
   const bool refine = which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto";
   if (refine && r.status.ok() && c.args->registration.arbitrate) {
-    ArbitrateLikeTheService(c, r, cs, row);
+    ArbitrateLikeTheService(c, &r, cs, row);
   }
+  if (!cs->suspect.empty()) (*row)["pose_check_dropped"] = DropCaseFrames(cs->suspect, cs);
   if (refine && r.status.ok()) {
     RefineLikeTheService(*c.place_state->model, r, c.extent, which, cs->posed_truth, c.args->registration.camera,
                          &cs->scan, row);

@@ -206,6 +206,7 @@ absl::Status ApplyRegistration(const nlohmann::json& g, RegistrationOptions* o) 
     else if (k == "min_side") s = Get(*it, "registration.min_side", &o->localizer.min_side);
     else if (k == "identity_chi_square") s = Get(*it, "registration.identity_chi_square", &o->identity_chi_square);
     else if (k == "min_inliers") s = Get(*it, "registration.min_inliers", &o->localizer.min_inliers);
+    else if (k == "weak_min_inliers") s = Get(*it, "registration.weak_min_inliers", &o->localizer.weak_min_inliers);
     else if (k == "min_frames") s = Get(*it, "registration.min_frames", &o->min_frames);
     else if (k == "photometric") s = Get(*it, "registration.photometric", &o->photometric);
     else if (k == "camera_min_rms_gain") s = Get(*it, "registration.camera_min_rms_gain", &o->camera.min_rms_gain);

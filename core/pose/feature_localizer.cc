@@ -52,6 +52,7 @@ absl::Status LocalizerOptions::Validate() const {
   if (!(reprojection_px > 0)) return absl::InvalidArgumentError("reprojection_px must be > 0");
   if (ransac_iterations < 10) return absl::InvalidArgumentError("ransac_iterations must be >= 10");
   if (min_inliers < 6) return absl::InvalidArgumentError("min_inliers must be >= 6");
+  if (weak_min_inliers < 6) return absl::InvalidArgumentError("weak_min_inliers must be >= 6");
   return absl::OkStatus();
 }
 
@@ -167,7 +168,8 @@ FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& c
     }
   }
   out.matches = int(by_query.size());
-  if (out.matches < o.min_inliers) return out;
+  const int weak = std::min(o.weak_min_inliers, o.min_inliers);
+  if (out.matches < weak) return out;
   std::vector<cv::Point3f> object;
   std::vector<cv::Point2f> normalised, pixels;
   for (const auto& [qi, m] : by_query) {
@@ -183,7 +185,7 @@ FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& c
   std::vector<int> inliers;
   const bool ok = cv::solvePnPRansac(object, normalised, k, cv::noArray(), rvec, tvec, false, o.ransac_iterations,
                                      float(o.reprojection_px / f), 0.999, inliers, cv::SOLVEPNP_EPNP);
-  if (!ok || int(inliers.size()) < o.min_inliers) {
+  if (!ok || int(inliers.size()) < weak) {
     out.inliers = int(inliers.size());
     return out;
   }
@@ -204,7 +206,9 @@ FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& c
     out.inlier_points.emplace_back(object[i].x, object[i].y, object[i].z);
     out.inlier_pixels.emplace_back((pixels[i].x + 0.5f) * sx, (pixels[i].y + 0.5f) * sy);
   }
-  out.placed = out.c2w.allFinite();
+  const bool enough = out.inliers >= o.min_inliers;
+  out.placed = enough && out.c2w.allFinite();
+  out.weak = !enough && out.c2w.allFinite();
   return out;
 }
 

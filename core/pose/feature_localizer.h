@@ -56,11 +56,20 @@ struct LocalizerOptions {
   float reprojection_px = 4.0f;
   int ransac_iterations = 1000;
   int min_inliers = 15;
+  // A frame with fewer inliers but at least this many still gets its pose,
+  // as a candidate only (FrameLocalization::weak): nothing fits or refines
+  // on it, but pose arbitration may take it for a frame whose own pose is
+  // disputed, once the map's render at it resembles the photo clearly better
+  // (pose_arbitration.h). At least 6; above min_inliers it is min_inliers.
+  int weak_min_inliers = 8;
   absl::Status Validate() const;
 };
 
 struct FrameLocalization {
   bool placed = false;
+  // Not placed, but posed from at least weak_min_inliers: `c2w` is a
+  // candidate that only pose arbitration reads.
+  bool weak = false;
   Pose c2w = Pose::Identity();  // The photo's pose in the place's frame.
   int matches = 0;              // 2-D/3-D correspondences tried.
   int inliers = 0;              // PnP inliers.

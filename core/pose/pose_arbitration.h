@@ -56,14 +56,19 @@ struct FrameArbitration {
   double ncc_registered = 0;   // The photo against the map at each pose.
   double ncc_localized = 0;
   bool took_localized = false;
+  bool suspect = false;        // Its own pose was distrusted (see below).
+  bool weak = false;           // Its PnP pose was a weak one (feature_localizer.h).
 };
 
 struct ArbitrationReport {
   int disputed = 0;  // Frames whose two poses disagreed.
   int taken = 0;     // Of them, moved to their localised pose.
+  int confirmed = 0;          // Suspect frames whose two poses agreed (kept).
+  std::vector<int> dropped;   // Suspect frames the map did not vouch for.
   double seconds = 0;
   std::vector<FrameArbitration> frames;  // The disputed ones.
-  // One line for logs: "2 of 3 disputed frames moved to their PnP pose (...)".
+  // One line for logs: "2 of 3 disputed frames moved to their PnP pose (...)"
+  // and, where frames were suspect, how many were confirmed and dropped.
   std::string Summary() const;
 };
 
@@ -82,10 +87,20 @@ absl::StatusOr<double> MapCorrelation(const PlaceMap& map, const Image& photo, c
 // `extent`: PlaceExtent. INVALID_ARGUMENT for bad options; a frame whose
 // correlation cannot be computed (a flat render) keeps its pose; other
 // errors of the map pass through.
+//
+// `suspect` (indices in scene->train): frames whose own pose is distrusted
+// already (the pose check disputed them: pose_check.h). Such a frame is kept
+// only where the map vouches for a pose: its PnP pose agrees with its own
+// (counted in `confirmed`), or wins the correlation by the margin (it is
+// moved there); for these frames a weak PnP pose (FrameLocalization::weak)
+// counts too, the correlation being the check its few inliers are not. Every other suspect frame (not tried, not placed by PnP, or
+// its PnP pose no better) is listed in `dropped`, for the caller to remove:
+// what the pose check alone would have dropped, less what the map rescued.
 absl::StatusOr<ArbitrationReport> ArbitrateDisputedFrames(const std::vector<FrameLocalization>& localized,
                                                           const std::vector<int>& tried, const PlaceMap& map,
                                                           double extent, Scene* scene,
-                                                          const ArbitrationOptions& options = {});
+                                                          const ArbitrationOptions& options = {},
+                                                          const std::vector<int>& suspect = {});
 
 }  // namespace clnerf
 

@@ -84,6 +84,42 @@ TEST(ArbitrateDisputedFramesTest, MirroredFramesTakeTheirPnpPoseAndWrongPnpPoses
   }
 }
 
+// Frames the pose check disputed (suspect): kept only where the map vouches
+// for a pose. 1: posed right, PnP agrees (confirmed); 2: mirrored, PnP right
+// (moved); 4: mirrored, PnP right but weak (moved: the map is the check);
+// 6: mirrored, PnP as wrong (dropped: no pose wins); 8: mirrored, not posed
+// by PnP (dropped). 9: mirrored but not suspect, with a weak PnP pose: a
+// weak pose alone is no case for moving it. 3: untouched.
+TEST(ArbitrateDisputedFramesTest, SuspectFramesAreKeptOnlyWhereTheMapVouchesForAPose) {
+  Fixture f;
+  Scene scan = f.place.scan;
+  const std::vector<View> truth = scan.train;
+  ASSERT_GE(truth.size(), 10u);
+  std::vector<FrameLocalization> loc(truth.size());
+  std::vector<int> tried;
+  for (size_t i = 0; i < truth.size(); ++i) {
+    loc[i].placed = i != 4 && i != 8 && i != 9;
+    loc[i].weak = i == 4 || i == 9;
+    loc[i].c2w = truth[i].camera.c2w;
+    tried.push_back(int(i));
+  }
+  for (int i : {2, 4, 6, 8, 9}) testing_util::TurnAboutTheScene(&scan.train, i, i, 170.0);
+  std::vector<View> other = {scan.train[6]};
+  testing_util::TurnAboutTheScene(&other, 0, 0, 10.0);
+  loc[6].c2w = other[0].camera.c2w;  // PnP as wrong: 10 degrees from the mirrored pose.
+
+  absl::StatusOr<ArbitrationReport> r =
+      ArbitrateDisputedFrames(loc, tried, f.map, f.place.extent, &scan, {}, /*suspect=*/{1, 2, 4, 6, 8});
+  ASSERT_TRUE(r.ok()) << r.status();
+  EXPECT_EQ(r->confirmed, 1) << r->Summary();
+  EXPECT_EQ(r->taken, 2) << r->Summary();
+  EXPECT_EQ(r->dropped, (std::vector<int>{6, 8})) << r->Summary();
+  for (int i : {2, 4}) EXPECT_LT(Turn(scan.train[i].camera.c2w, truth[i].camera.c2w), 1e-3) << i << r->Summary();
+  EXPECT_GT(Turn(scan.train[9].camera.c2w, truth[9].camera.c2w), 160.0) << r->Summary();
+  EXPECT_EQ(scan.train[1].camera.c2w, truth[1].camera.c2w);
+  EXPECT_EQ(scan.train[3].camera.c2w, truth[3].camera.c2w);
+}
+
 TEST(ArbitrateDisputedFramesTest, AScanWhosePosesAgreeIsUntouched) {
   Fixture f;
   Scene scan = f.place.scan;

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <iterator>
+#include <set>
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
@@ -126,6 +128,21 @@ std::string RegistrationReport::Summary() const {
                                                    transform.RotationDegrees()));
   }
   return s;
+}
+
+void RegistrationReport::DropFrames(const std::vector<int>& frames) {
+  const std::set<int> gone(frames.begin(), frames.end());
+  std::vector<FrameLocalization> kept_localized;
+  std::vector<int> kept_tried;
+  for (size_t k = 0; k < tried.size() && k < localized.size(); ++k) {
+    if (gone.count(tried[k])) continue;
+    // Frames before it that are gone shift it down.
+    const int shift = int(std::distance(gone.begin(), gone.lower_bound(tried[k])));
+    kept_tried.push_back(tried[k] - shift);
+    kept_localized.push_back(localized[k]);
+  }
+  tried = std::move(kept_tried);
+  localized = std::move(kept_localized);
 }
 
 void RegistrationReport::AddMetrics(std::map<std::string, double>* m) const {

@@ -133,6 +133,11 @@ struct RegistrationReport {
   std::string Summary() const;
   // "registration_*" gauges for a version's metrics.
   void AddMetrics(std::map<std::string, double>* metrics) const;
+  // For a caller that removes scan.train[i] for every i in `frames` after
+  // registration: forgets their entries in `localized` and `tried` and
+  // re-indexes the rest of `tried` to the scan without them, so that what
+  // reads the report after (RefineAgainstPlace) sees the right frames.
+  void DropFrames(const std::vector<int>& frames);
 };
 
 // (done, total) frames localised so far.

@@ -228,6 +228,22 @@ TEST(RegistrationTest, ARefinementBackToTheIdentityKeepsTheScanAsUploaded) {
   EXPECT_FALSE(RefinedToIdentity(noisy, back, centres, o));
 }
 
+TEST(RegistrationTest, DroppedFramesLeaveTheReportIndexingTheScanWithoutThem) {
+  RegistrationReport r;
+  r.tried = {0, 2, 3, 5, 7};
+  for (int i : r.tried) {
+    FrameLocalization l;
+    l.inliers = 100 + i;  // Tags each entry with its frame.
+    r.localized.push_back(l);
+  }
+  r.DropFrames({1, 3, 7});  // 1 was not tried; 3 and 7 were.
+  EXPECT_EQ(r.tried, (std::vector<int>{0, 1, 3}));  // Frames 0, 2, 5 of the scan without 1, 3, 7.
+  ASSERT_EQ(r.localized.size(), 3u);
+  EXPECT_EQ(r.localized[0].inliers, 100);
+  EXPECT_EQ(r.localized[1].inliers, 102);
+  EXPECT_EQ(r.localized[2].inliers, 105);
+}
+
 TEST(RegistrationTest, OptionsAreValidated) {
   RegistrationOptions o;
   EXPECT_TRUE(o.Validate().ok());

@@ -90,16 +90,39 @@ std::vector<double> SfmStageEstimate(int frames, bool sequential) {
 
 // A scan the service posed: frames whose SfM pose the place's map disputes
 // move to their PnP pose (pose_arbitration.h), as "registration_*" metrics.
-void ArbitrateFrames(const std::string& job_id, const PlaceMap& map, double extent, const RegistrationReport& r,
-                     const ArbitrationOptions& o, Scene* scene, std::map<std::string, double>* metrics) {
-  absl::StatusOr<ArbitrationReport> a = ArbitrateDisputedFrames(r.localized, r.tried, map, extent, scene, o);
-  if (!a.ok()) {
-    spdlog::warn("job {}: frame arbitration skipped: {}", job_id, a.status().ToString());
-    return;
+// `suspect` (training views the pose check disputed) are kept where the map
+// vouches for them and removed otherwise (pose_check_dropped).
+// `r` forgets the frames removed.
+void ArbitrateFrames(const std::string& job_id, const PlaceMap& map, double extent, const ArbitrationOptions& o,
+                     const std::set<std::string>& suspect, RegistrationReport* r, Scene* scene,
+                     std::map<std::string, double>* metrics) {
+  std::vector<int> distrusted;
+  for (size_t i = 0; i < scene->train.size(); ++i) {
+    if (suspect.count(scene->train[i].name)) distrusted.push_back(int(i));
   }
+  absl::StatusOr<ArbitrationReport> a =
+      ArbitrateDisputedFrames(r->localized, r->tried, map, extent, scene, o, distrusted);
+  if (!a.ok()) spdlog::warn("job {}: frame arbitration skipped: {}", job_id, a.status().ToString());
+  const std::vector<int> dropped = a.ok() ? a->dropped : distrusted;
+  std::set<std::string> names;
+  for (int i : dropped) names.insert(scene->train[size_t(i)].name);
+  r->DropFrames(dropped);
+  if (!suspect.empty()) (*metrics)["pose_check_dropped"] = double(DropViewsNamed(names, &scene->train));
+  if (!a.ok()) return;
+  if (!suspect.empty()) (*metrics)["pose_check_confirmed"] = a->confirmed;
   (*metrics)["registration_disputed_frames"] = a->disputed;
   (*metrics)["registration_frames_moved_to_pnp"] = a->taken;
-  if (a->disputed > 0) spdlog::info("job {}: {} ({:.1f} s)", job_id, a->Summary(), a->seconds);
+  if (a->disputed > 0 || !suspect.empty()) spdlog::info("job {}: {} ({:.1f} s)", job_id, a->Summary(), a->seconds);
+}
+
+// A scan that could not be placed with the frames the pose check disputed
+// (`why`) drops them, to be registered again without.
+void DropSuspects(const std::string& job_id, const absl::Status& why, std::set<std::string>* suspect, Scene* scene,
+                  std::map<std::string, double>* metrics) {
+  spdlog::warn("job {}: not placed with the {} frames the pose check disputed ({}); again without them", job_id,
+               suspect->size(), std::string(why.message()));
+  (*metrics)["pose_check_dropped"] = double(DropViewsNamed(*suspect, &scene->train));
+  suspect->clear();
 }
 
 }  // namespace
@@ -386,7 +409,8 @@ bool UpdateWorker::AlignSimilarityToPlace(const std::string& job_id, const std::
 }
 
 bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,
-                                     Scene* scene, std::map<std::string, double>* metrics) {
+                                     std::set<std::string> suspect, Scene* scene,
+                                     std::map<std::string, double>* metrics) {
   const std::string frame = PoseFrameOf(*scans_, scan_id);
   jobs_->Update(job_id, [&](JobStatus* j) {
     j->phase = JobPhase::kRegistering;
@@ -401,6 +425,10 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
   const double extent = PlaceExtent(place, prev.model().normalization());
   RegistrationReport r = RegisterScan(*scene, map, place, extent, options_.registration, StepProgress(job_id),
       &cancel_);
+  if (!r.status.ok() && !absl::IsCancelled(r.status) && !suspect.empty()) {  // Again without them.
+    DropSuspects(job_id, r.status, &suspect, scene, metrics);
+    r = RegisterScan(*scene, map, place, extent, options_.registration, StepProgress(job_id), &cancel_);
+  }
   if (absl::IsCancelled(r.status)) {
     FinishCancelled(job_id, scan_id);
     return false;
@@ -412,7 +440,7 @@ bool UpdateWorker::RegisterIntoPlace(const std::string& job_id, const std::strin
       // Posed here by SfM over this scan alone: its self-calibrated camera
       // and its poses refined against the place (registration.h).
       if (options_.registration.arbitrate) {
-        ArbitrateFrames(job_id, map, extent, r, options_.registration.arbitration, scene, metrics);
+        ArbitrateFrames(job_id, map, extent, options_.registration.arbitration, suspect, &r, scene, metrics);
       }
       SharedCameraReport cam;
       Intrinsics in;
@@ -532,7 +560,7 @@ bool UpdateWorker::LoadDeployed(const std::string& job_id, const std::string& sc
 }
 
 void UpdateWorker::CheckScanPoses(const std::string& job_id, bool posed_here, Scene* scene,
-                                  std::map<std::string, double>* metrics) {
+                                  std::map<std::string, double>* metrics, std::set<std::string>* suspect) {
   const std::string& action = options_.pose_check_action;
   const bool drop = DropsDisputed(action, posed_here);
   if (action == "off" || scene->train.empty()) return;
@@ -552,8 +580,14 @@ void UpdateWorker::CheckScanPoses(const std::string& job_id, bool posed_here, Sc
   spdlog::warn("job {}: pose check: {}{}", job_id, r->Summary(views), drop ? "; training without them" : "");
   if (!drop) return;
   const std::set<std::string> disputed = DisputedNames(*r, views);
-  (*metrics)["pose_check_dropped"] = double(DropViewsNamed(disputed, &scene->train));
   DropViewsNamed(disputed, &scene->test);
+  if (suspect != nullptr) {  // The place's map decides after registration.
+    for (const View& v : scene->train) {
+      if (disputed.count(v.name)) suspect->insert(v.name);
+    }
+    return;
+  }
+  (*metrics)["pose_check_dropped"] = double(DropViewsNamed(disputed, &scene->train));
 }
 
 std::optional<Scene> UpdateWorker::PrepareScan(const std::string& job_id, const std::string& scan_id,
@@ -574,8 +608,12 @@ std::optional<Scene> UpdateWorker::PrepareScan(const std::string& job_id, const 
     return std::nullopt;
   }
   if (prev) scene->kind = prev->model().kind();
-  CheckScanPoses(job_id, posed_here, &*scene, metrics);
-  if (prev && !RegisterIntoPlace(job_id, scan_id, *prev, &*scene, metrics)) return std::nullopt;
+  // A later scan the service posed leaves its disputed frames to the
+  // place's map (pose_arbitration.h); any other scan drops them here.
+  std::set<std::string> suspect;
+  const bool arbitrated = prev != nullptr && posed_here && options_.registration.arbitrate;
+  CheckScanPoses(job_id, posed_here, &*scene, metrics, arbitrated ? &suspect : nullptr);
+  if (prev && !RegisterIntoPlace(job_id, scan_id, *prev, std::move(suspect), &*scene, metrics)) return std::nullopt;
   return *std::move(scene);
 }
 

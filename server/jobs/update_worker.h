@@ -28,6 +28,7 @@
 #include <memory>
 #include <mutex>
 #include <optional>
+#include <set>
 #include <string>
 #include <thread>
 
@@ -142,14 +143,19 @@ class UpdateWorker {
                                            std::map<std::string, double>* metrics);
   bool PoseScan(const std::string& job_id, const ScanRecord& scan, const Servable* prev,
                 std::map<std::string, double>* metrics);
+  // `suspect`: training views the pose check disputed and left to the
+  // place's map (CheckScanPoses): kept where it vouches for a pose
+  // (pose_arbitration.h), removed otherwise.
   bool RegisterIntoPlace(const std::string& job_id, const std::string& scan_id, const Servable& prev,
-                         Scene* scene, std::map<std::string, double>* metrics);
+                         std::set<std::string> suspect, Scene* scene, std::map<std::string, double>* metrics);
   // The scan's poses against its photos (ServerOptions::pose_check_action):
   // disputed frames logged, pose_check_* metrics added, and with "drop" (or
   // "auto" for a scan the service posed: `posed_here`) the disputed views
-  // removed from `scene` (train and held out).
+  // removed from `scene` (train and held out). With `suspect` (a later scan
+  // the service posed, arbitration on) the disputed training views are put
+  // there instead of removed, for RegisterIntoPlace.
   void CheckScanPoses(const std::string& job_id, bool posed_here, Scene* scene,
-                      std::map<std::string, double>* metrics);
+                      std::map<std::string, double>* metrics, std::set<std::string>* suspect);
   // After RegisterIntoPlace placed a scan the service posed: each frame
   // aligned photometrically to `map` (RefineScanPhotometric). False when the
   // job ended (cancelled).
