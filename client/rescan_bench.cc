@@ -833,8 +833,9 @@ CLI::App* BindBenchRescan(CLI::App* parent, BenchRescanArgs* a) {
                 "Registration: photos smaller than this (long side, pixels) are matched at this size")
       ->capture_default_str();
   c->add_option("--arbitrate", a->registration.arbitrate,
-                "Unposed cases: frames whose COLMAP pose the place's map disputes take their PnP pose "
-                "(pose_arbitration.h)")
+                "Unposed cases: frames whose COLMAP pose the place's map disputes take their PnP pose, and the "
+                "frames the pose check disputes are kept only where the map vouches for them (false: dropped "
+                "before registration; pose_arbitration.h)")
       ->capture_default_str();
   c->add_option("--similarity-frames", a->registration.similarity_options.max_frames,
                 "Registration: frames the photometric similarity refinement renders and aligns")

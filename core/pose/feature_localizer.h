@@ -61,7 +61,10 @@ struct LocalizerOptions {
   // on it, but pose arbitration may take it for a frame whose own pose is
   // disputed, once the map's render at it resembles the photo clearly better
   // (pose_arbitration.h). At least 6; above min_inliers it is min_inliers.
-  int weak_min_inliers = 8;
+  // Off by default (= min_inliers): on beer_2 at 8 it rescued a mirrored
+  // frame from 13 inliers whose pose was 8.5 degrees off (its render still
+  // correlated 0.87 against 0.18), for no gain (docs/registration.md).
+  int weak_min_inliers = 15;
   absl::Status Validate() const;
 };
 
