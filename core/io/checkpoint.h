@@ -52,10 +52,15 @@
 //  * the occupancy grid is stored as bits (section OCCP, see checkpoint.cc):
 //    the threshold and the occupancy bits exactly (deflated), the visibility
 //    flags as a run-length-coded bitfield. The per-cell density EMA, which
-//    only warm-started training reads, is not stored: it loads as the
-//    threshold on occupied cells and 0 elsewhere, and a warm start's first
-//    occupancy updates (every cell during warm-up) rebuild it from the field.
-//    Version 2 stored the EMA as 8-bit log codes, which cost up to a byte per
+//    only warm-started training reads, is stored for the occupied cells
+//    only, as 8-bit log codes relative to the threshold (ancillary section
+//    occd, 1/8 octave: checkpoint.cc); it loads as those on occupied cells
+//    and 0 elsewhere (files without occd: the threshold on occupied cells),
+//    and a warm start's occupancy updates (new = max(decay * old, sigma))
+//    go on from there. Without occd an update from a stored version trained
+//    differently from one from the state in memory (a cell dense in the
+//    last training dropped out at its first refresh where the field
+//    dipped). Version 2 stored the EMA as 8-bit log codes, which cost up to a byte per
 //    cell: a trained fox_8 file was 1.38x its model bytes
 //    (NgpModel::num_bytes()); in version 3 it is 0.97x (lego: 0.87x), as
 //    measured by `clnerf bench scenes`. Version-2 files still load with their
