@@ -348,10 +348,16 @@ size_t DropCaseFrames(const std::set<std::string>& names, CaseScan* cs) {
   return dropped;
 }
 
+// Whether a case is a later visit COLMAP posed that is refined as the
+// service refines a scan it posed ("unposed-unrefined": not, to compare).
+bool RefinedLikeTheService(const std::string& which) {
+  return which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto";
+}
+
 // Whether a case leaves its disputed frames to arbitration after
-// registration (a later visit COLMAP posed, refined as the service does).
+// registration, as the service does for a scan it posed.
 bool ArbitratesSuspects(const BenchRescanArgs& a, const std::string& which) {
-  return a.registration.arbitrate && (which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto");
+  return a.registration.arbitrate && RefinedLikeTheService(which);
 }
 
 // The update worker's pose check (core/pose/pose_check.h) on the scan as
@@ -443,19 +449,12 @@ absl::Status ScoreFirstScanPoses(const RescanContext& c, const NgpModel& posed_m
 // frames whose SfM pose the place's map disputes take their PnP pose.
 // `r` forgets the frames dropped.
 void ArbitrateLikeTheService(const RescanContext& c, RegistrationReport* r, CaseScan* cs, nlohmann::json* row) {
-  std::vector<int> suspect;
-  for (size_t i = 0; i < cs->scan.train.size(); ++i) {
-    if (cs->suspect.count(cs->scan.train[i].name)) suspect.push_back(int(i));
-  }
+  std::set<std::string> drop;
   absl::StatusOr<ArbitrationReport> a =
-      ArbitrateDisputedFrames(r->localized, r->tried, ModelPlaceMap(*c.place_state->model, RenderOptions()),
-                              c.extent, &cs->scan, c.args->registration.arbitration, suspect);
+      ArbitrateRegisteredScan(ModelPlaceMap(*c.place_state->model, RenderOptions()), c.extent,
+                              c.args->registration.arbitration, cs->suspect, r, &cs->scan, &drop);
   if (!a.ok()) std::printf("  arbitration failed: %s\n", std::string(a.status().message()).c_str());
-  const std::vector<int> dropped = a.ok() ? a->dropped : suspect;
-  std::set<std::string> names;
-  for (int i : dropped) names.insert(cs->scan.train[size_t(i)].name);
-  r->DropFrames(dropped);
-  (*row)["pose_check_dropped"] = DropCaseFrames(names, cs);
+  (*row)["pose_check_dropped"] = DropCaseFrames(drop, cs);
   cs->suspect.clear();
   if (!a.ok()) return;
   (*row)["pose_check_confirmed"] = a->confirmed;
@@ -521,7 +520,7 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
   }
   // As the service: a scan it posed has its camera refined against the
   // place after registration ("unposed-unrefined": without, to compare).
-  const bool refine = which == "unposed" || which == "unposed-unseeded" || which == "unposed-nophoto";
+  const bool refine = RefinedLikeTheService(which);
   if (refine && r.status.ok() && c.args->registration.arbitrate) {
     ArbitrateLikeTheService(c, &r, cs, row);
   }

@@ -491,21 +491,23 @@ absl::Status ReadOccupiedDensity(const std::vector<RawSection>& sections, float 
     found = &s;
   }
   if (found == nullptr || !(threshold > 0) || !std::isfinite(threshold)) return absl::OkStatus();
-  std::vector<size_t> occupied;
-  for (size_t i = 0; i < density->size(); ++i) {
-    if ((bits[i / 64] >> (i % 64)) & 1) occupied.push_back(i);
-  }
+  const auto occupied = [&](size_t i) { return (bits[i / 64] >> (i % 64)) & 1; };
+  uint64_t count = 0;
+  for (size_t i = 0; i < density->size(); ++i) count += occupied(i);
   Reader r(found->payload);
   uint64_t n = 0;
-  if (!r.Get(&n) || n != occupied.size()) {
-    return Corrupt(source, absl::StrFormat("occupied-density section holds %d cells, the grid has %d occupied", n,
-                                           occupied.size()));
+  if (!r.Get(&n) || n != count) {
+    return Corrupt(source,
+                   absl::StrFormat("occupied-density section holds %d cells, the grid has %d occupied", n, count));
   }
   std::string_view rest;
   r.Bytes(r.remaining(), &rest);
   std::string codes;
   if (!Inflate(rest, size_t(n), &codes)) return Corrupt(source, "occupied-density codes do not decode");
-  for (size_t k = 0; k < occupied.size(); ++k) (*density)[occupied[k]] = DensityFromCode(uint8_t(codes[k]), threshold);
+  size_t k = 0;  // The next code: cells in index order, as written.
+  for (size_t i = 0; i < density->size(); ++i) {
+    if (occupied(i)) (*density)[i] = DensityFromCode(uint8_t(codes[k++]), threshold);
+  }
   return absl::OkStatus();
 }
 

@@ -145,6 +145,23 @@ void RegistrationReport::DropFrames(const std::vector<int>& frames) {
   localized = std::move(kept_localized);
 }
 
+absl::StatusOr<ArbitrationReport> ArbitrateRegisteredScan(const PlaceMap& map, double extent,
+                                                          const ArbitrationOptions& options,
+                                                          const std::set<std::string>& suspect,
+                                                          RegistrationReport* report, Scene* scene,
+                                                          std::set<std::string>* drop) {
+  std::vector<int> distrusted;
+  for (size_t i = 0; i < scene->train.size(); ++i) {
+    if (suspect.count(scene->train[i].name)) distrusted.push_back(int(i));
+  }
+  absl::StatusOr<ArbitrationReport> a =
+      ArbitrateDisputedFrames(report->localized, report->tried, map, extent, scene, options, distrusted);
+  drop->clear();
+  for (int i : a.ok() ? a->dropped : distrusted) drop->insert(scene->train[size_t(i)].name);
+  report->DropFrames(a.ok() ? a->dropped : distrusted);
+  return a;
+}
+
 void RegistrationReport::AddMetrics(std::map<std::string, double>* m) const {
   (*m)["registration_frames"] = frames;
   (*m)["registration_frames_localized"] = frames_localized;

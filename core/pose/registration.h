@@ -26,6 +26,7 @@
 #include <functional>
 #include <limits>
 #include <map>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -169,6 +170,18 @@ absl::StatusOr<std::vector<MapView>> RenderPlaceReferences(const PlaceMap& map, 
 // Errors as RefineSharedCamera's; `scene` is unchanged on error.
 absl::Status RefineAgainstPlace(const RegistrationReport& report, Scene* scene, SharedCameraReport* camera = nullptr,
                                 Intrinsics* refined = nullptr, const SharedCameraOptions& options = {});
+
+// Step 5½ for a scan the service posed, after ApplySimilarity: every frame
+// of `report` is arbitrated against `map` (ArbitrateDisputedFrames), the
+// training views named in `suspect` (the pose check's disputed frames) as
+// suspect. `report` forgets the suspect frames not vouched for, and their
+// names land in `drop` (all of `suspect` when the arbitration failed): the
+// caller removes those views from `scene`. Errors are the arbitration's.
+absl::StatusOr<ArbitrationReport> ArbitrateRegisteredScan(const PlaceMap& map, double extent,
+                                                          const ArbitrationOptions& options,
+                                                          const std::set<std::string>& suspect,
+                                                          RegistrationReport* report, Scene* scene,
+                                                          std::set<std::string>* drop);
 
 // Moves every view (train, val, test), sparse and content point and depth
 // target of `scene` by `s` (scan frame -> place frame).

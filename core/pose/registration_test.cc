@@ -4,6 +4,7 @@
 #include <cmath>
 #include <iostream>
 #include <random>
+#include <set>
 
 #include "core/data/procedural_scene.h"
 #include "core/pose/pose_test_util.h"
@@ -242,6 +243,44 @@ TEST(RegistrationTest, DroppedFramesLeaveTheReportIndexingTheScanWithoutThem) {
   EXPECT_EQ(r.localized[0].inliers, 100);
   EXPECT_EQ(r.localized[1].inliers, 102);
   EXPECT_EQ(r.localized[2].inliers, 105);
+}
+
+// Step 5½ through the report: of two mirrored frames the pose check
+// disputed, the one PnP placed goes back to its PnP pose and the other is
+// named for dropping and forgotten by the report; an arbitration that fails
+// names every suspect frame.
+TEST(RegistrationTest, ArbitratedScanNamesTheFramesToDropAndTheReportForgetsThem) {
+  Place p = MakePlace(41, /*textured=*/true);
+  ProceduralPlaceMap map(ProceduralWorldAt(p.options, 0));
+  Scene scan = p.scan;
+  const std::vector<View> truth = scan.train;
+  RegistrationReport r;
+  for (size_t i = 0; i < truth.size(); ++i) {
+    FrameLocalization l;
+    l.placed = i != 4;
+    l.c2w = truth[i].camera.c2w;
+    r.localized.push_back(l);
+    r.tried.push_back(int(i));
+  }
+  for (int i : {2, 4}) testing_util::TurnAboutTheScene(&scan.train, i, i, 170.0);
+  const std::set<std::string> suspect = {truth[2].name, truth[4].name};
+  std::set<std::string> drop;
+  RegistrationReport failing = r;
+  ArbitrationOptions bad;
+  bad.max_side = 4;
+  Scene untouched = scan;
+  EXPECT_FALSE(ArbitrateRegisteredScan(map, p.extent, bad, suspect, &failing, &untouched, &drop).ok());
+  EXPECT_EQ(drop, suspect);
+  EXPECT_EQ(failing.tried.size(), truth.size() - 2);
+
+  absl::StatusOr<ArbitrationReport> a = ArbitrateRegisteredScan(map, p.extent, {}, suspect, &r, &scan, &drop);
+  ASSERT_TRUE(a.ok()) << a.status();
+  EXPECT_EQ(drop, (std::set<std::string>{truth[4].name})) << a->Summary();
+  EXPECT_EQ(a->taken, 1) << a->Summary();
+  EXPECT_EQ(scan.train[2].camera.c2w, truth[2].camera.c2w);
+  ASSERT_EQ(r.tried.size(), truth.size() - 1);
+  EXPECT_EQ(r.tried[4], 4);  // Frame 5 of the scan, 4 once frame 4 is removed.
+  EXPECT_EQ(r.localized[4].c2w, truth[5].camera.c2w);
 }
 
 TEST(RegistrationTest, OptionsAreValidated) {

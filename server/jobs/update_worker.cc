@@ -96,18 +96,10 @@ std::vector<double> SfmStageEstimate(int frames, bool sequential) {
 void ArbitrateFrames(const std::string& job_id, const PlaceMap& map, double extent, const ArbitrationOptions& o,
                      const std::set<std::string>& suspect, RegistrationReport* r, Scene* scene,
                      std::map<std::string, double>* metrics) {
-  std::vector<int> distrusted;
-  for (size_t i = 0; i < scene->train.size(); ++i) {
-    if (suspect.count(scene->train[i].name)) distrusted.push_back(int(i));
-  }
-  absl::StatusOr<ArbitrationReport> a =
-      ArbitrateDisputedFrames(r->localized, r->tried, map, extent, scene, o, distrusted);
+  std::set<std::string> drop;
+  absl::StatusOr<ArbitrationReport> a = ArbitrateRegisteredScan(map, extent, o, suspect, r, scene, &drop);
   if (!a.ok()) spdlog::warn("job {}: frame arbitration skipped: {}", job_id, a.status().ToString());
-  const std::vector<int> dropped = a.ok() ? a->dropped : distrusted;
-  std::set<std::string> names;
-  for (int i : dropped) names.insert(scene->train[size_t(i)].name);
-  r->DropFrames(dropped);
-  if (!suspect.empty()) (*metrics)["pose_check_dropped"] = double(DropViewsNamed(names, &scene->train));
+  if (!suspect.empty()) (*metrics)["pose_check_dropped"] = double(DropViewsNamed(drop, &scene->train));
   if (!a.ok()) return;
   if (!suspect.empty()) (*metrics)["pose_check_confirmed"] = a->confirmed;
   (*metrics)["registration_disputed_frames"] = a->disputed;
