@@ -102,8 +102,8 @@ struct BakeReport {
   long long estimated_bytes = 0;
   long long stored_bytes = 0;
   bool view_dead_zone = false;
-  // 1 when the fitted asset was over the budget and stages 4-6 ran again
-  // with fewer blocks.
+  // How often the fitted asset was over the budget and stages 4-6 ran again
+  // with fewer blocks (at most 3).
   int over_budget_rebakes = 0;
   ColourFitReport fit;
   // candidate_seconds: stage 1; visibility_seconds: stages 2 and 3 (densities

@@ -271,6 +271,11 @@ TEST_P(FirstScanTest, CLNeRFBeatsNaiveTrainingOnTheFirstScan) {
     for (int t = 0; t < 3; ++t) {
       UpdateOptions o = TinyOptions(method, 150);
       o.init = init;
+      // The margins below were measured at Instant-NGP's occupancy decay;
+      // at the default 0.8 naive training forgets ~0.4 dB less on this tiny
+      // scene (re-init margin 2.9-3.8 dB over seeds 1-5, docs/render_cost.md),
+      // which says little of forgetting and much of the tiny budget.
+      o.model.occupancy.decay = 0.95f;
       absl::StatusOr<ContinualState> next =
           ContinualUpdate(seq.ScanScene(t), state ? &*state : nullptr, o, nullptr, nullptr, nullptr);
       ASSERT_TRUE(next.ok()) << next.status();
