@@ -53,7 +53,7 @@ def main():
                  f"lines: {curve_views} held-out views during training; stars: the whole test split at the end",
                  fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="center right")
     fig.tight_layout()
     out = os.path.join(d, "scenes_psnr_vs_time.png")
     fig.savefig(out)
