@@ -512,8 +512,9 @@ bool RegisterCase(const RescanContext& c, const std::string& which, CaseScan* cs
       const FrameLocalization& l = r.localized[k];
       std::string pnp;
       if (l.placed) {
-        pnp = absl::StrFormat(", PnP %.1f deg from the known, %.1f deg from registered",
-                              turn(l.c2w, cs->posed_truth[i].camera.c2w), turn(l.c2w, cs->scan.train[i].camera.c2w));
+        pnp = absl::StrFormat(", PnP %.1f deg from the known (std %.2f deg), %.1f deg from registered",
+                              turn(l.c2w, cs->posed_truth[i].camera.c2w), l.rotation_std_deg,
+                              turn(l.c2w, cs->scan.train[i].camera.c2w));
       }
       std::printf("    frame %zu: %s, %d inliers%s\n", i, l.placed ? "placed" : "not placed", l.inliers, pnp.c_str());
     }

@@ -2,12 +2,15 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <map>
 
 #include "absl/strings/str_cat.h"
 #include "core/data/image.h"
 #include "core/pose/sift_features.h"
+#include "Eigen/Eigenvalues"
 #include "Eigen/Geometry"
+#include "Eigen/LU"
 #include "opencv2/calib3d.hpp"
 #include "opencv2/core.hpp"
 #include "opencv2/features2d.hpp"
@@ -141,7 +144,50 @@ double SquaredReprojection(const std::vector<cv::Point3f>& object, const std::ve
   return sq;
 }
 
+// `object` in the camera's frame at pose (rvec, tvec).
+std::vector<Eigen::Vector3d> InCamera(const std::vector<cv::Point3f>& object, const cv::Mat& rvec, const cv::Mat& tvec) {
+  cv::Mat rm;
+  cv::Rodrigues(rvec, rm);
+  Eigen::Matrix3d r;
+  Eigen::Vector3d t;
+  for (int i = 0; i < 3; ++i) {
+    t(i) = tvec.at<double>(i);
+    for (int j = 0; j < 3; ++j) r(i, j) = rm.at<double>(i, j);
+  }
+  std::vector<Eigen::Vector3d> out;
+  out.reserve(object.size());
+  for (const cv::Point3f& p : object) out.push_back(r * Eigen::Vector3d(p.x, p.y, p.z) + t);
+  return out;
+}
+
 }  // namespace
+
+Eigen::Matrix3d PnPRotationCovariance(const std::vector<Eigen::Vector3d>& points, double squared_error) {
+  Eigen::Matrix<double, 6, 6> jtj = Eigen::Matrix<double, 6, 6>::Zero();
+  int used = 0;
+  for (const Eigen::Vector3d& x : points) {
+    if (x.z() <= 1e-9) continue;
+    ++used;
+    Eigen::Matrix<double, 2, 3> dp;  // d(x/z, y/z) / dx
+    dp << 1 / x.z(), 0, -x.x() / (x.z() * x.z()), 0, 1 / x.z(), -x.y() / (x.z() * x.z());
+    Eigen::Matrix<double, 3, 6> dx;  // dx / d(omega, delta t) for x' = exp(omega) x + delta t
+    dx.leftCols<3>() << 0, x.z(), -x.y(), -x.z(), 0, x.x(), x.y(), -x.x(), 0;
+    dx.rightCols<3>().setIdentity();
+    const Eigen::Matrix<double, 2, 6> j = dp * dx;
+    jtj += j.transpose() * j;
+  }
+  const double inf = std::numeric_limits<double>::infinity();
+  Eigen::FullPivLU<Eigen::Matrix<double, 6, 6>> lu(jtj);
+  if (used < 3 || !lu.isInvertible()) return Eigen::Matrix3d::Identity() * inf;
+  const double dof = std::max(1.0, 2.0 * used - 6.0);
+  return (squared_error / dof) * lu.inverse().topLeftCorner<3, 3>();
+}
+
+double RotationStdDeg(const Eigen::Matrix3d& covariance) {
+  if (!covariance.allFinite()) return std::numeric_limits<double>::infinity();
+  const double worst = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(covariance).eigenvalues().maxCoeff();
+  return std::sqrt(std::max(0.0, worst)) * 180.0 / M_PI;
+}
 
 FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& camera) const {
   const LocalizerOptions& o = impl_->options;
@@ -200,6 +246,7 @@ FrameLocalization FeatureLocalizer::Localize(const Image& image, const Camera& c
   out.c2w = CameraToWorld(rvec, tvec);
   out.inliers = int(inliers.size());
   out.reprojection_px = std::sqrt(sq / double(std::max<size_t>(1, img_in.size()))) * f;
+  out.rotation_std_deg = RotationStdDeg(PnPRotationCovariance(InCamera(obj_in, rvec, tvec), sq));
   const float sx = float(camera.intrinsics.width) / cam.intrinsics.width;
   const float sy = float(camera.intrinsics.height) / cam.intrinsics.height;
   for (int i : inliers) {
