@@ -47,10 +47,10 @@ TEST(ServerOptionsTest, DefaultsAreValidAndConfigOverrides) {
   EXPECT_FALSE(o.Validate().ok());
   ASSERT_TRUE(ApplyConfigJson(R"({"registration": {"camera_max_change": 0.05, "min_side": 999}})", &o).ok());
   EXPECT_FALSE(o.Validate().ok());  // Above max_side (480).
-  // Frames whose SfM and PnP poses disagree are arbitrated by the map.
-  EXPECT_TRUE(o.registration.arbitrate);
-  ASSERT_TRUE(ApplyConfigJson(R"({"registration": {"min_side": 240, "arbitrate": false}})", &o).ok());
+  // Arbitration of frames whose SfM and PnP poses disagree is opt-in.
   EXPECT_FALSE(o.registration.arbitrate);
+  ASSERT_TRUE(ApplyConfigJson(R"({"registration": {"min_side": 240, "arbitrate": true}})", &o).ok());
+  EXPECT_TRUE(o.registration.arbitrate);
   EXPECT_TRUE(o.Validate().ok());
 }
 

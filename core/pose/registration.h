@@ -105,8 +105,13 @@ struct RegistrationOptions {
   // structure-from-motion pose (moved into the place) disagrees with its own
   // PnP pose against the place gets whichever the place's render at it
   // resembles the photo better (pose_arbitration.h). On beer_2's tiled floor
-  // COLMAP mirrored 3 of 14 frames that PnP had within a degree. False: skip.
-  bool arbitrate = true;
+  // COLMAP mirrored 3 of 14 frames that PnP had within a degree (a map
+  // trained at occupancy decay 0.95). Off by default since the map got
+  // sharper (decay 0.8): PnP then placed all of them, but 6-9 deg off (a
+  // bias of the map where visit A saw little, at a PnP std of 0.3-0.7 deg),
+  // and taking those poses scored 25.13 dB against 26.36 for dropping the
+  // disputed frames (docs/registration.md, session 69). True: arbitrate.
+  bool arbitrate = false;
   ArbitrationOptions arbitration;
   absl::Status Validate() const;
 };
