@@ -36,6 +36,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "client/commands.h"
+#include "client/core_flags.h"
 #include "client/verb_set.h"
 #include "client/progress_bar.h"
 #include "core/io/checkpoint.h"
@@ -216,6 +217,8 @@ CLI::App* BindBenchScenes(CLI::App* parent, BenchScenesArgs* a) {
   c->add_flag("--capacity-sweep", a->capacity_sweep,
               "Also train with log2 tables derived-2..derived+1 (PSNR vs bytes chart)");
   BindThreadsFlag(c, &a->fit.train.threads);
+  // Ablations: the regularisers as `train` takes them (use a separate --out).
+  BindRegulariserFlags(c, &a->fit.train);
   c->add_option("--curve-every", a->curve_every, "PSNR-vs-time curve every N steps (default: iters / 10)");
   c->add_option("--curve-views", a->fit.curve_views, "Held-out views per curve point")->capture_default_str();
   c->add_option("--train-views", a->train_views, "Training views for the train-view PSNR")->capture_default_str();
