@@ -204,7 +204,7 @@ CLI::App* BindEval(CLI::App* parent, EvalArgs* a) {
   c->add_option("--data", a->data, "Dataset directory")->required();
   c->add_option("--split", a->split, "train|val|test")->capture_default_str();
   c->add_option("--json", a->json, "Write results as JSON to this file ('-' = stdout)");
-  c->add_option("--save-dir", a->eval.save_dir, "Also write the renders here");
+  c->add_option("--save-dir", a->eval.save_dir, "Also write the renders here (NNNN_name.png, and the photo each is scored against as NNNN_name.photo.png)");
   c->add_option("--max-views", a->eval.max_views, "Evaluate an evenly spaced subset (0 = all)")->capture_default_str();
   c->add_option("--nerf-samples", a->eval.render.nerf_samples,
                 "Proposal models: full-field samples per ray (0 = as trained; fewer is faster)")

@@ -924,11 +924,6 @@ int RunBenchRescan(const BenchRescanArgs& a) {
   if (!state_a.ok()) return Fail(state_a.status());
   c.place_state = &*state_a;
   const EvalResult scores_a = HeldOutScores(*state_a->model, c.test, 0, a.eval_views, a.save_renders);
-  if (!a.save_renders.empty()) {  // The photos beside the renders, for looking at them.
-    for (size_t i = 0; i < c.test.size(); ++i) {
-      (void)WriteImage(absl::StrCat(a.save_renders, "/photo_", i, ".png"), c.test[i].image);
-    }
-  }
   c.psnr_a = scores_a.psnr;
   // Four of visit A's own photos: a held-out score far below this is a field
   // that fits its photos and fails between them (floaters, speckle).
