@@ -21,10 +21,8 @@ void BindRegulariserFlags(CLI::App* c, TrainOptions* to) {
                 "Fade the occlusion penalty to 0 over this fraction of training (0 = constant)")
       ->capture_default_str();
   c->add_option("--grid-decay", t.grid_decay,
-                "Normalised weight decay on the hash grid's features (Zip-NeRF uses 0.1; 0 = off)")
+                "Normalised weight decay on the hash grid's features (Zip-NeRF uses 0.1; 0 = off; docs/clean_fields.md)")
       ->capture_default_str();
-  c->add_flag("--grid-decay-hashed-only", t.grid_decay_hashed_only,
-              "Apply --grid-decay only to the hashed (finer) levels, not the dense coarse ones");
   c->add_option("--coarse-to-fine", t.coarse_to_fine,
                 "Switch the hash levels on coarse to fine over this fraction of training (0 = off)")
       ->capture_default_str()

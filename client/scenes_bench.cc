@@ -356,7 +356,7 @@ int RunBenchScenes(const BenchScenesArgs& a) {
             {"curve_views", a.fit.curve_views}, {"train_views", a.train_views},
             {"scenes", scenes}, {"sweep", sweep}, {"sweep_best", best}};
   const TrainOptions& t = a.fit.train;  // The regulariser flags an ablation set (< 0: automatic).
-  j["regularisers"] = {{"grid_decay", t.grid_decay},         {"grid_decay_hashed_only", t.grid_decay_hashed_only},
+  j["regularisers"] = {{"grid_decay", t.grid_decay},
                        {"coarse_to_fine", t.coarse_to_fine}, {"distortion", t.distortion_reg},
                        {"near_density", t.near_density_reg}, {"opacity_reg", t.opacity_reg},
                        {"learning_rate", t.learning_rate},   {"random_background", t.random_background}};

@@ -761,7 +761,6 @@ float Trainer::ApplyGridDecay(bool touched_only) {
   double loss = 0;
 #pragma omp parallel for schedule(dynamic) reduction(+ : loss) num_threads(threads_)
   for (int l = 0; l < L; ++l) {
-    if (options_.grid_decay_hashed_only && grid.level_dense(l)) continue;
     // d/dv of w * mean(v^2) over the level's floats.
     const double n = double(grid.level_size(l)) * HashGrid::kFeatures;
     const float scale = float(2.0 * w / n);

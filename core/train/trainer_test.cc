@@ -563,59 +563,6 @@ TEST(TrainerGradientTest, GridDecayMatchesFiniteDifferences) {
   EXPECT_FALSE(bad.Validate().ok());
 }
 
-// grid_decay_hashed_only: the dense (collision-free) levels get no decay,
-// the hashed ones the same normalised decay, against central differences.
-TEST(TrainerGradientTest, GridDecayHashedOnlySkipsTheDenseLevels) {
-  SerialEigen serial;
-  NgpModel model = TinyModel(3, 2, SceneKind::kBounded, SamplerKind::kOccupancy);
-  ModelParams& p = model.mutable_params();
-  std::mt19937_64 rng(12);
-  std::uniform_real_distribution<float> u(0.0f, 1.0f);
-  for (float& v : p.grid) v = u(rng) - 0.5f;
-  NoSampler sampler(0);
-  TrainOptions on;
-  on.threads = 1;
-  on.grid_decay = 0.1f;
-  on.grid_decay_hashed_only = true;
-  TrainOptions off = on;
-  off.grid_decay = 0.0f;
-  const RayBatch batch = MakeBatch(16, 5);
-  std::vector<float> jitter(batch.size(), 0.5f);
-  Trainer with(&model, &sampler, on), without(&model, &sampler, off);
-  auto decay_loss = [&]() {
-    Trainer::Gradients g;
-    return double(with.ComputeLossAndGradients(batch, jitter, &g)) -
-           double(without.ComputeLossAndGradients(batch, jitter, &g));
-  };
-  Trainer::Gradients g_on, g_off;
-  const double l_on = with.ComputeLossAndGradients(batch, jitter, &g_on);
-  const double l_off = without.ComputeLossAndGradients(batch, jitter, &g_off);
-  const HashGrid& grid = model.grid();
-  int dense = 0, hashed = 0;
-  for (int l = 0; l < grid.num_levels(); ++l) (grid.level_dense(l) ? dense : hashed)++;
-  ASSERT_GE(dense, 1);
-  ASSERT_GE(hashed, 1);
-  EXPECT_NEAR(l_on - l_off, 0.1 * hashed / 12.0, 0.1 * hashed * 0.01);
-  const double ulp = double(std::nextafter(float(l_on), 1.0f)) - l_on;
-  const float h = 0.05f;
-  for (int l = 0; l < grid.num_levels(); ++l) {
-    for (int k = 0; k < 4; ++k) {
-      const size_t i = 2 * (grid.level_offset(l) + rng() % grid.level_size(l)) + rng() % 2;
-      const float x0 = p.grid[i];
-      p.grid[i] = x0 + h;
-      const double lp = decay_loss();
-      p.grid[i] = x0 - h;
-      const double lm = decay_loss();
-      p.grid[i] = x0;
-      const double fd = (lp - lm) / (2.0 * h);
-      const double analytic = double(g_on.grid[i]) - g_off.grid[i];
-      const double expected = grid.level_dense(l) ? 0.0 : 2.0 * 0.1 * x0 / (2.0 * grid.level_size(l));
-      EXPECT_NEAR(analytic, expected, 1e-6 * std::abs(expected) + 1e-12) << "level " << l;
-      EXPECT_NEAR(analytic, fd, 8 * ulp / (2.0 * h) + 1e-3 * std::abs(fd)) << "level " << l << " entry " << i;
-    }
-  }
-}
-
 TEST(FieldCallersTest, TrainerAndRendererAgreeOnEveryRay) {
   SerialEigen serial;
   for (const auto& [kind, sampler_kind] : {std::pair{SceneKind::kBounded, SamplerKind::kOccupancy},
