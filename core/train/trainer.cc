@@ -761,6 +761,9 @@ float Trainer::ApplyGridDecay(bool touched_only) {
   double loss = 0;
 #pragma omp parallel for schedule(dynamic) reduction(+ : loss) num_threads(threads_)
   for (int l = 0; l < L; ++l) {
+    // A level coarse_to_fine holds off gives no feature and gets no
+    // gradient, its decay's included (training never touches its entries).
+    if (!level_weights_.empty() && level_weights_[l] == 0.0f) continue;
     // d/dv of w * mean(v^2) over the level's floats.
     const double n = double(grid.level_size(l)) * HashGrid::kFeatures;
     const float scale = float(2.0 * w / n);
