@@ -76,12 +76,11 @@ absl::StatusOr<EvalResult> EvaluateWith(const ViewRenderer& render, const std::v
     if (!options.save_dir.empty()) {
       // "r_0" and "r_0.png" both become 0000_r_0.png (not r_0.png.png).
       const std::string stem = std::filesystem::path(v.name).stem().string();
-      const std::string path = absl::StrFormat("%s/%04d_%s.png", options.save_dir, int(k), stem);
-      if (absl::Status s = WriteImage(path, r->rgb); !s.ok()) return s;
+      const std::string base = absl::StrFormat("%s/%04d_%s", options.save_dir, int(k), stem);
+      if (absl::Status s = WriteImage(base + ".png", r->rgb); !s.ok()) return s;
       // The photo it is scored against, beside it (as the metrics see it:
       // RGBA photos composited on the background).
-      const std::string photo = absl::StrFormat("%s/%04d_%s.photo.png", options.save_dir, int(k), stem);
-      if (absl::Status s = WriteImage(photo, v.image); !s.ok()) return s;
+      if (absl::Status s = WriteImage(base + ".photo.png", v.image); !s.ok()) return s;
     }
   }
   for (const ViewScore& s : result.views) {

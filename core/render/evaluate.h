@@ -18,7 +18,9 @@ namespace clnerf {
 
 struct EvalOptions {
   RenderOptions render;
-  std::string save_dir;  // When set, writes <save_dir>/<index>_<name without extension>.png renders.
+  // When set, writes each render as <save_dir>/<index>_<name without
+  // extension>.png and the photo it is scored against beside it (.photo.png).
+  std::string save_dir;
   int max_views = 0;     // 0 = all views; otherwise an evenly spaced subset.
   absl::Status Validate() const;
 };

@@ -138,8 +138,8 @@ struct TrainOptions {
   // entries the batch touched (a step's cost stays with its rays); the
   // gradient check (ComputeLossAndGradients) takes every entry. 0 = off.
   // Default 0.01: over lego_100, fox_8, flower_4, beer_2 and a procedural
-  // room it raised test PSNR or kept it and cut speckle on every real
-  // capture, where 0.1 lost 2.4-2.7 dB on beer_2 and the room
+  // room it gave +0.50, +0.42, +1.38, -0.02 and -0.20 dB with 7-25 % less
+  // speckle on all five, where 0.1 lost 2.4-2.7 dB on beer_2 and the room
   // (docs/clean_fields.md, session 71).
   float grid_decay = 0.01f;
   // Coarse-to-fine hash levels (BARF, Neuralangelo): training starts with a
