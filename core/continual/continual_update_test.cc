@@ -364,11 +364,19 @@ TEST(ContinualUpdateTest, CarriedOptimizerRoundTripsAndResumesTheSame) {
 }
 
 // UpdateOptions::refine_cameras: a rescan of a textured procedural object
-// whose photos are the first scan's, each camera turned by 1.5 degrees about
-// a random axis and shifted by 1 % of the orbit (what registration leaves,
-// ~1.5 px here), comes out of its update closer to the true poses: the
-// first scan's replay holds the frame and the photos pull their cameras
-// back. Without refinement the kept cameras are the uploaded ones.
+// whose photos are the first scan's, with cameras disturbed as registration
+// leaves them, comes out of its update closer to the true poses: the first
+// scan's replay holds the frame and the photos pull their cameras back.
+// Without refinement the kept cameras are the uploaded ones. Two
+// disturbances, each checked on what 48 x 48 photos resolve:
+//  - turned by 1.5 degrees about a random axis (~1.5 px) and shifted by 1 %
+//    of the orbit (~0.6 px): the turn must halve, and the shift, below a
+//    pixel, must not grow by more than a tenth (measured: 0.0101 and
+//    0.0103 on two builds, where "smaller than uploaded" held on one
+//    machine and not on another);
+//  - shifted by 3 % of the orbit (~1.7 px) alone: the shift must fall by a
+//    quarter (measured 0.0167; part of it goes into a turn of ~0.8 deg,
+//    which a shift and a turn trade off at this size).
 TEST(ContinualUpdateTest, RefinedCamerasOfARescanMoveTowardsTheTruth) {
   ProceduralSceneOptions po;
   po.width = po.height = 48;
@@ -382,18 +390,21 @@ TEST(ContinualUpdateTest, RefinedCamerasOfARescanMoveTowardsTheTruth) {
   UpdateOptions o = TinyOptions(ContinualMethod::kCLNeRF, 600);
   absl::StatusOr<ContinualState> s0 = ContinualUpdate(*scene, nullptr, o, nullptr, nullptr, nullptr);
   ASSERT_TRUE(s0.ok()) << s0.status();
-  Scene rescan = *scene;
-  rescan.test.clear();
-  std::mt19937_64 rng(9);
-  std::normal_distribution<float> g(0.0f, 1.0f);
   double extent = 0;
   for (const View& v : scene->train) extent = std::max(extent, double(v.camera.position().norm()));
-  for (View& v : rescan.train) {
-    v.camera.time_step = 1;
-    const Eigen::Vector3f axis = Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized();
-    v.camera.c2w.leftCols<3>() = Eigen::AngleAxisf(1.5f * float(M_PI) / 180, axis) * v.camera.c2w.leftCols<3>();
-    v.camera.c2w.col(3) += 0.01f * float(extent) * Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized();
-  }
+  auto disturbed = [&](float turn_deg, float shift) {
+    Scene rescan = *scene;
+    rescan.test.clear();
+    std::mt19937_64 rng(9);
+    std::normal_distribution<float> g(0.0f, 1.0f);
+    for (View& v : rescan.train) {
+      v.camera.time_step = 1;
+      const Eigen::Vector3f axis = Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized();
+      v.camera.c2w.leftCols<3>() = Eigen::AngleAxisf(turn_deg * float(M_PI) / 180, axis) * v.camera.c2w.leftCols<3>();
+      v.camera.c2w.col(3) += shift * float(extent) * Eigen::Vector3f(g(rng), g(rng), g(rng)).normalized();
+    }
+    return rescan;
+  };
   auto errors = [&](const ContinualState& s, double* turn, double* shift) {
     std::vector<double> t, c;
     const size_t n = scene->train.size();
@@ -409,9 +420,10 @@ TEST(ContinualUpdateTest, RefinedCamerasOfARescanMoveTowardsTheTruth) {
     *turn = t[t.size() / 2];
     *shift = c[c.size() / 2];
   };
+  const Scene turned = disturbed(1.5f, 0.01f);
   UpdateOptions off = TinyOptions(ContinualMethod::kCLNeRF, 20);
   off.refine_cameras = false;
-  absl::StatusOr<ContinualState> plain = ContinualUpdate(rescan, &*s0, off, nullptr, nullptr, nullptr);
+  absl::StatusOr<ContinualState> plain = ContinualUpdate(turned, &*s0, off, nullptr, nullptr, nullptr);
   ASSERT_TRUE(plain.ok()) << plain.status();
   double turn0, shift0;
   errors(*plain, &turn0, &shift0);
@@ -421,22 +433,30 @@ TEST(ContinualUpdateTest, RefinedCamerasOfARescanMoveTowardsTheTruth) {
   UpdateOptions on = TinyOptions(ContinualMethod::kCLNeRF, 400);
   on.refine_cameras = true;
   UpdateReport rep;
-  absl::StatusOr<ContinualState> refined = ContinualUpdate(rescan, &*s0, on, nullptr, nullptr, &rep);
+  absl::StatusOr<ContinualState> refined = ContinualUpdate(turned, &*s0, on, nullptr, nullptr, &rep);
   ASSERT_TRUE(refined.ok()) << refined.status();
   double turn1, shift1;
   errors(*refined, &turn1, &shift1);
   EXPECT_EQ(rep.refined_cameras, 16);
   EXPECT_GT(rep.camera_turn_median_deg, 0.0);
   EXPECT_FALSE(rep.camera_refine_summary.empty());
-  std::printf("refined cameras: median turn error %.3f deg (uploaded %.3f), shift %.4f (uploaded %.4f) of the "
-              "orbit; %s\n",
+  std::printf("turned cameras, refined: median turn error %.3f deg (uploaded %.3f), shift %.4f (uploaded %.4f) of "
+              "the orbit; %s\n",
               turn1, turn0, shift1, shift0, rep.camera_refine_summary.c_str());
   EXPECT_LT(turn1, 0.5 * turn0);
-  EXPECT_LT(shift1, shift0);
+  EXPECT_LT(shift1, 1.1 * shift0);
   // The first scan's cameras never move.
   for (uint32_t i = 0; i < s0->memory.num_cameras(); ++i) {
     EXPECT_EQ(refined->memory.GetCamera(i).c2w, s0->memory.GetCamera(i).c2w);
   }
+
+  absl::StatusOr<ContinualState> moved = ContinualUpdate(disturbed(0.0f, 0.03f), &*s0, on, nullptr, nullptr, nullptr);
+  ASSERT_TRUE(moved.ok()) << moved.status();
+  double turn2, shift2;
+  errors(*moved, &turn2, &shift2);
+  std::printf("shifted cameras, refined: median shift %.4f (uploaded 0.0300) of the orbit, turn %.3f deg\n", shift2,
+              turn2);
+  EXPECT_LT(shift2, 0.75 * 0.03);
 }
 
 }  // namespace

@@ -37,6 +37,7 @@ OccupancyGrid::OccupancyGrid(const OccupancyGridOptions& options, float bound, f
     block_ok_.push_back(std::abs(inner - std::round(inner)) < 1e-3f);
   }
   block_bits_.assign((size_t(block_res_) * block_res_ * block_res_ * cascades_ + 63) / 64, 0);
+  block_dist_.assign(size_t(block_res_) * block_res_ * block_res_ * cascades_, 0);
   SetAllOccupied();
 }
 
@@ -52,6 +53,58 @@ void OccupancyGrid::RefreshBlocks() {
       const size_t k = c * blocks_per + x / kBlockCells +
                        size_t(block_res_) * (y / kBlockCells + size_t(block_res_) * (z / kBlockCells));
       block_bits_[k >> 6] |= uint64_t(1) << (k & 63);
+    }
+  }
+  for (int c = 0; c < cascades_; ++c) BlockDistances(c);
+}
+
+void OccupancyGrid::BlockDistances(int c) {
+  const int n = block_res_;
+  const size_t per = size_t(n) * n * n;
+  uint8_t* dist = block_dist_.data() + size_t(c) * per;
+  // Blocks a jump must stop at: occupied ones, and those inside the finer
+  // cascade's cube (blocks align with it when block_ok_), where the march
+  // reads the finer cascade instead. A cascade whose blocks do not align
+  // has none to jump.
+  if (!block_ok_[c]) {
+    std::fill(dist, dist + per, uint8_t(0));
+    return;
+  }
+  const int inner = c == 0 ? n : int(std::lround((half_[c] - half_[c - 1]) * cells_per_unit_[c] / kBlockCells));
+  for (int z = 0; z < n; ++z) {
+    for (int y = 0; y < n; ++y) {
+      for (int x = 0; x < n; ++x) {
+        const size_t i = x + size_t(n) * (y + size_t(n) * z);
+        const size_t k = size_t(c) * per + i;
+        const bool finer = x >= inner && x < n - inner && y >= inner && y < n - inner && z >= inner && z < n - inner;
+        dist[i] = ((block_bits_[k >> 6] >> (k & 63)) & 1) || finer ? 0 : 255;
+      }
+    }
+  }
+  // Chessboard distance transform: two raster passes over the 26
+  // neighbours (Rosenfeld & Pfaltz), exact for this metric. The grid's
+  // outside is not a stop (EmptyBoxAround clips the box to the grid).
+  for (int pass = 0; pass < 2; ++pass) {
+    const int step = pass == 0 ? 1 : -1, first = pass == 0 ? 0 : n - 1;
+    for (int zi = 0, z = first; zi < n; ++zi, z += step) {
+      for (int yi = 0, y = first; yi < n; ++yi, y += step) {
+        for (int xi = 0, x = first; xi < n; ++xi, x += step) {
+          uint8_t& d = dist[x + size_t(n) * (y + size_t(n) * z)];
+          if (d == 0) continue;
+          int best = d;
+          // The 13 neighbours already visited in this pass's order.
+          for (int dz = -1; dz <= 0; ++dz) {
+            for (int dy = -1; dy <= (dz < 0 ? 1 : 0); ++dy) {
+              for (int dx = -1; dx <= (dz < 0 || dy < 0 ? 1 : -1); ++dx) {
+                const int nx = x + step * dx, ny = y + step * dy, nz = z + step * dz;
+                if (nx < 0 || nx >= n || ny < 0 || ny >= n || nz < 0 || nz >= n) continue;
+                best = std::min(best, dist[nx + size_t(n) * (ny + size_t(n) * nz)] + 1);
+              }
+            }
+          }
+          d = uint8_t(std::min(best, 255));
+        }
+      }
     }
   }
 }

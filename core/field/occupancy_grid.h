@@ -97,6 +97,30 @@ class OccupancyGrid {
     const size_t b = size_t(c) * block_res_ * block_res_ * block_res_ + x + size_t(block_res_) * (y + size_t(block_res_) * z);
     return (block_bits_[b >> 6] >> (b & 63)) & 1;
   }
+  // The empty space around p's block that a march may cross in one jump:
+  // the box of cascade-c blocks centred on it, (2D - 1) blocks a side for
+  // the block's chessboard distance D to the nearest block that has an
+  // occupied cell or lies in the finer cascade's region (clipped to the
+  // grid), as [lo, hi] in the cascade's coordinates (model space, or
+  // contracted space). False, with lo and hi untouched, when p's block is
+  // such a block or the cascade has no blocks.
+  bool EmptyBoxAround(const Eigen::Vector3f& p, int c, Eigen::Vector3f* lo, Eigen::Vector3f* hi) const {
+    if (block_res_ == 0) return false;
+    const float h = half_[c], s = cells_per_unit_[c] / kBlockCells;
+    const int x = std::clamp(int((p.x() + h) * s), 0, block_res_ - 1);
+    const int y = std::clamp(int((p.y() + h) * s), 0, block_res_ - 1);
+    const int z = std::clamp(int((p.z() + h) * s), 0, block_res_ - 1);
+    const int r = int(block_dist_[size_t(c) * block_res_ * block_res_ * block_res_ + x +
+                                  size_t(block_res_) * (y + size_t(block_res_) * z)]) - 1;
+    if (r < 0) return false;
+    const float bs = kBlockCells / cells_per_unit_[c];
+    const int b[3] = {x, y, z};
+    for (int a = 0; a < 3; ++a) {
+      (*lo)[a] = float(std::max(b[a] - r, 0)) * bs - h;
+      (*hi)[a] = float(std::min(b[a] + r, block_res_ - 1) + 1) * bs - h;
+    }
+    return true;
+  }
   // Side length of a cell of cascade c.
   float CellSize(int c) const { return 1.0f / cells_per_unit_[c]; }
 
@@ -121,7 +145,7 @@ class OccupancyGrid {
   // Bytes the grid holds (training state included: densities, visibility).
   size_t resident_bytes() const {
     return density_.capacity() * sizeof(float) + visible_.capacity() + bits_.capacity() * sizeof(uint64_t) +
-           block_bits_.capacity() * sizeof(uint64_t) + fresh_.capacity() * sizeof(float);
+           block_bits_.capacity() * sizeof(uint64_t) + block_dist_.capacity() + fresh_.capacity() * sizeof(float);
   }
   const std::vector<float>& density() const { return density_; }
   const std::vector<uint8_t>& visible() const { return visible_; }
@@ -131,8 +155,11 @@ class OccupancyGrid {
 
  private:
   void RefreshBits();
-  // Recomputes block_bits_ from bits_ (after every change to bits_).
+  // Recomputes block_bits_ and block_dist_ from bits_ (after every change
+  // to bits_).
   void RefreshBlocks();
+  // block_dist_ of cascade c from block_bits_.
+  void BlockDistances(int c);
 
   OccupancyGridOptions options_;
   bool contracted_ = false;
@@ -146,6 +173,9 @@ class OccupancyGrid {
   std::vector<uint64_t> bits_;
   int block_res_ = 0;                 // res_ / kBlockCells, or 0 (no blocks).
   std::vector<uint64_t> block_bits_;  // One bit per block, cascades in order.
+  // Per block: chessboard distance (in blocks, capped at 255) to the nearest
+  // block the march may not jump (EmptyBoxAround); 0 for such blocks.
+  std::vector<uint8_t> block_dist_;
   std::vector<uint8_t> block_ok_;     // Per cascade: its blocks align with the finer cascade.
   std::vector<float> fresh_;
   std::vector<float> half_;           // Half-size of each cascade.

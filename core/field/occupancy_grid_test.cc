@@ -135,6 +135,67 @@ TEST(OccupancyGridTest, BlocksMarkWhetherAnyOfTheirCellsIsOccupied) {
   }
 }
 
+// The empty box around each block is the cube of the block's chessboard
+// distance D to the nearest block with an occupied cell or inside the finer
+// cascade's cube (brute force here), clipped to the grid: (2D - 1) blocks a
+// side, every cell in it empty, none of it in the finer cascade. Occupied
+// clusters leave runs of empty blocks several blocks long to measure.
+TEST(OccupancyGridTest, EmptyBoxesAreTheChessboardDistanceToTheNearestStop) {
+  for (float bound : {2.0f, 1.5f}) {
+    SCOPED_TRACE(testing::Message() << "bound " << bound);
+    OccupancyGrid g(Options(64), bound, 0.01f);
+    std::mt19937_64 rng(11);
+    std::vector<Eigen::Vector3i> seeds;
+    for (int k = 0; k < 6; ++k) seeds.push_back(Eigen::Vector3i(rng() % 64, rng() % 64, rng() % 64));
+    SetEveryCell(&g, [&](uint32_t i) {
+      const Eigen::Vector3i p(int(i % 64), int(i / 64 % 64), int(i / 4096 % 64));
+      for (const Eigen::Vector3i& q : seeds) {
+        if ((p - q).cwiseAbs().maxCoeff() <= 2) return 1e4f;
+      }
+      return 0.0f;
+    });
+    const int nb = 16;
+    int boxes = 0, largest = 0;
+    for (int c = 0; c < g.num_cascades(); ++c) {
+      const bool has_blocks = bound == 2.0f || c < g.num_cascades() - 1;
+      const float h = g.cascade_half_size(c), bs = g.BlockSize(c);
+      // Blocks inside the finer cascade's cube: [inner, nb - inner) per axis.
+      const int inner = c == 0 ? nb : int(std::lround((h - g.cascade_half_size(c - 1)) / bs));
+      std::vector<Eigen::Vector3i> stops;
+      for (int z = 0; z < nb; ++z)
+        for (int y = 0; y < nb; ++y)
+          for (int x = 0; x < nb; ++x) {
+            const Eigen::Vector3f centre((x + 0.5f) * bs - h, (y + 0.5f) * bs - h, (z + 0.5f) * bs - h);
+            const bool finer = x >= inner && x < nb - inner && y >= inner && y < nb - inner && z >= inner && z < nb - inner;
+            if (finer || g.OccupiedBlockAt(centre, c)) stops.push_back(Eigen::Vector3i(x, y, z));
+          }
+      for (int z = 0; z < nb; ++z)
+        for (int y = 0; y < nb; ++y)
+          for (int x = 0; x < nb; ++x) {
+            int dist = 255;
+            for (const Eigen::Vector3i& q : stops) {
+              dist = std::min(dist, (q - Eigen::Vector3i(x, y, z)).cwiseAbs().maxCoeff());
+            }
+            const Eigen::Vector3f p((x + 0.3f) * bs - h, (y + 0.6f) * bs - h, (z + 0.9f) * bs - h);
+            Eigen::Vector3f lo, hi;
+            const bool box = g.EmptyBoxAround(p, c, &lo, &hi);
+            ASSERT_EQ(box, has_blocks && dist > 0) << c << " " << x << " " << y << " " << z;
+            if (!box) continue;
+            const int r = dist - 1;
+            const Eigen::Vector3i b(x, y, z);
+            for (int a = 0; a < 3; ++a) {
+              ASSERT_NEAR(lo[a], std::max(b[a] - r, 0) * bs - h, 1e-5f);
+              ASSERT_NEAR(hi[a], (std::min(b[a] + r, nb - 1) + 1) * bs - h, 1e-5f);
+            }
+            ++boxes;
+            largest = std::max(largest, r);
+          }
+    }
+    EXPECT_GT(boxes, 1000);
+    EXPECT_GE(largest, 3);
+  }
+}
+
 TEST(OccupancyGridTest, FreshGridIsFullyOccupiedWithDerivedThreshold) {
   const OccupancyGrid g(Options(8), 0.5f, 0.02f);
   EXPECT_EQ(g.num_occupied(), g.num_cells());

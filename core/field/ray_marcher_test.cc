@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "Eigen/Dense"
+#include "core/data/contraction.h"
 #include "core/field/occupancy_test_util.h"
 #include "gtest/gtest.h"
 
@@ -306,6 +307,85 @@ TEST(MarchRayTest, RandomRaysThroughASparseGridVisitEveryOccupiedLatticePoint) {
     visited += CheckAgainstEveryStep(grid, o, d, std::max(t0, 0.0f) + 0.25f * mo.min_step(), t1, mo, 2.0f);
   }
   EXPECT_GT(visited, 200u);
+}
+
+// Contracted (unbounded) scenes: rays from inside the inner cube out to the
+// far bound through a sparse contracted grid of occupied clusters, where the
+// march crosses runs of empty blocks of the inner cube in one jump. It must
+// still sample every occupied cell the ray stays in for at least 2.5 of its
+// steps, and put no sample in an empty cell away from a face. The reference
+// walks each ray in steps of 1/20 of the smallest step it takes.
+TEST(MarchRayContractedTest, SamplesEveryOccupiedCellTheRayCrosses) {
+  const MarchOptions mo = Opts(1024, 1.0f / 256);
+  OccupancyGrid grid(GridOptions(64), kContractedBound, mo.min_step());
+  grid.set_contracted(true);
+  ASSERT_EQ(grid.num_cascades(), 3);
+  std::mt19937_64 rng(21);
+  std::vector<uint32_t> seeds;
+  for (int k = 0; k < 60; ++k) seeds.push_back(uint32_t(rng() % grid.num_cells()));
+  SetEveryCell(&grid, [&](uint32_t i) {
+    const int per = 64 * 64 * 64;
+    const Eigen::Vector3i p(int(i % 64), int(i / 64 % 64), int(i % per / 4096));
+    for (uint32_t q : seeds) {
+      const Eigen::Vector3i c(int(q % 64), int(q / 64 % 64), int(q % per / 4096));
+      if (int(q) / per == int(i) / per && (p - c).cwiseAbs().maxCoeff() <= 1) return 1e4f;
+    }
+    return 0.0f;
+  });
+  auto cell_of = [&](const Eigen::Vector3f& x) {
+    const Eigen::Vector3f q = Contract(x);
+    const int c = grid.CascadeOf(q);
+    return c < 0 ? -1 : int(grid.CellIndex(q, c));
+  };
+  auto on_face = [&](const Eigen::Vector3f& x) {
+    const Eigen::Vector3f q = Contract(x);
+    const int c = grid.CascadeOf(q);
+    const Eigen::Vector3f cu = (q.array() + grid.cascade_half_size(c)) / grid.CellSize(c);
+    return (cu.array() - cu.array().round()).abs().minCoeff() * grid.CellSize(c) < 1e-4f;
+  };
+  std::uniform_real_distribution<float> u(-1.0f, 1.0f);
+  const float far = ContractedFarBound(mo);
+  int crossed = 0;
+  for (int r = 0; r < 300; ++r) {
+    SCOPED_TRACE(testing::Message() << "ray " << r);
+    const Eigen::Vector3f o = 0.9f * Eigen::Vector3f(u(rng), u(rng), u(rng));
+    // Most rays aimed at a cluster (the grid is mostly empty).
+    Eigen::Vector3f d = Eigen::Vector3f(u(rng), u(rng), u(rng)).normalized();
+    if (r % 4 != 0) {
+      const Eigen::Vector3f target = Uncontract(grid.CellPosition(seeds[r % seeds.size()], Eigen::Vector3f::Zero()));
+      if ((target - o).norm() > 1e-3f) d = (target - o).normalized();
+    }
+    float t0, t1;
+    ASSERT_TRUE(IntersectBox(o, d, far, &t0, &t1));
+    const float start = mo.near;
+    std::vector<RaySample> s;
+    MarchRayContracted(grid, o, d, start, t1, mo, mo.max_samples, &s);
+    for (const RaySample& x : s) {
+      const Eigen::Vector3f p = o + x.t * d;
+      ASSERT_GE(cell_of(p), 0) << "sample outside the contracted cube at t = " << x.t;
+      if (!grid.OccupiedCell(uint32_t(cell_of(p)))) EXPECT_TRUE(on_face(p)) << "sample in an empty cell at t = " << x.t;
+    }
+    // Runs of the reference walk in one occupied cell.
+    float t = start;
+    size_t j = 0;
+    while (t < t1) {
+      const int cell = cell_of(o + t * d);
+      if (cell < 0) break;
+      const float first = t;
+      float longest_step = 0.0f;
+      while (t < t1 && cell_of(o + t * d) == cell) {
+        const float dt = ContractedStepAt(o + t * d, d, t, mo);
+        longest_step = std::max(longest_step, dt);
+        t += dt / 20.0f;
+      }
+      if (!grid.OccupiedCell(uint32_t(cell)) || t - first < 2.5f * longest_step) continue;
+      ++crossed;
+      while (j < s.size() && s[j].t < first) ++j;
+      EXPECT_TRUE(j < s.size() && s[j].t < t) << "occupied cell " << cell << " crossed over t in [" << first << ", "
+                                               << t << ") has no sample";
+    }
+  }
+  EXPECT_GT(crossed, 100);
 }
 
 // A ray that enters the box where p + h rounds to the far face (lego_100's
