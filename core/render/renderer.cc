@@ -35,8 +35,20 @@ struct RayState {
   float depth;
   float median;  // Where T first fell to 1/2 (< 0: not yet).
   float coloured, skipped;  // Weight of the samples that got / skipped the colour MLP.
+  float last_alpha;         // Opacity of the ray's last sample.
   bool alive;
 };
+
+// Samples to march for a ray in the next wave: the wave, or fewer where the
+// ray's last sample was opaque enough that, at that opacity, it would end
+// sooner (a ray that has reached a surface needs 1-3 more samples; it used
+// to march the whole wave and drop the rest: 20 % of fox_8's evaluated
+// samples). Only the batching changes, not the samples.
+int SamplesWanted(const RayState& s, int wave) {
+  if (!(s.last_alpha > 0.05f)) return wave;
+  const float needed = std::ceil(std::log(kMinTransmittance / s.T) / std::log1p(-s.last_alpha));
+  return needed >= float(wave) ? wave : std::max(1, int(needed));
+}
 
 // Renders one block of rays with a private workspace.
 long long RenderBlock(const FieldEvaluator& field, const float* origins, const float* dirs, int n, int time_step,
@@ -58,6 +70,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
     s.median = -1.0f;
     s.coloured = s.skipped = 0.0f;
     s.samples = 0;
+    s.last_alpha = 0.0f;
     s.alive = model.RayInterval(o, d, &s.t, &s.t_end);
   }
 
@@ -111,7 +124,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
       const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
       const size_t before = samples.size();
       const float t_before = s.t;
-      s.t = model.March(o, d, s.t, s.t_end, std::min(wave, max_samples - s.samples), &samples);
+      s.t = model.March(o, d, s.t, s.t_end, std::min(SamplesWanted(s, wave), max_samples - s.samples), &samples);
       if (samples.size() == before) {
         s.alive = false;
         continue;
@@ -147,6 +160,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
       for (int j = seg[k]; j < seg[k + 1]; ++j) {
         const float alpha = 1.0f - std::exp(-fc.sigma[j] * samples[j].dt);
         w[j] = T * alpha;
+        s.last_alpha = alpha;
         if (s.median < 0 && T * (1.0f - alpha) <= 0.5f) s.median = samples[j].t;
         T *= 1.0f - alpha;
         s.depth += w[j] * samples[j].t;  // Proposal samples: t is the interval midpoint.
