@@ -5,8 +5,9 @@
 // (new = max(decay * old, sigma)); a bitfield marks cells whose density
 // exceeds min(mean density, threshold). Cells that no training camera sees are
 // marked empty permanently. A second bitfield marks blocks of 4^3 cells with
-// any cell occupied, so that a bounded scene's march crosses empty space a
-// block at a time (ray_marcher.cc: why unbounded ones do not).
+// any cell occupied, and each block keeps its chessboard distance to the
+// nearest occupied one, so that a march crosses a run of empty blocks in one
+// jump (bounded scenes, and the inner cube of unbounded ones; ray_marcher.h).
 //
 // The grid does not evaluate the network: the trainer asks for the cells to
 // refresh (CellsToUpdate), evaluates densities at jittered positions, and

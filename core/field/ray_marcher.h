@@ -54,9 +54,12 @@ float MarchRay(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen:
 // (-2, 2)^3 (see contraction.h) and so do the step rules: the step in
 // contracted units is clamp(t * cone * |J d|, min_step, max_step(2)), i.e. a
 // pixel footprint near the cameras and about constant contracted steps far
-// away (1/r^2 spacing in model space), and empty cells are skipped by their
-// exit distance along the ray's contracted direction J d. Same contract as
-// MarchRay otherwise; t is in model units along the unit direction d.
+// away (1/r^2 spacing in model space). Empty space is skipped by its exit
+// distance along the ray's contracted direction J d: in the inner cube
+// (where the contraction is the identity) a run of empty blocks at once, in
+// the shell cell by cell; the sample after a skip lands where the skip ends.
+// Same contract as MarchRay otherwise; t is in model units along the unit
+// direction d.
 float MarchRayContracted(const OccupancyGrid& grid, const Eigen::Vector3f& o, const Eigen::Vector3f& d,
                          float t_start, float t_end, const MarchOptions& opt, int max_count,
                          std::vector<RaySample>* out);
