@@ -11,6 +11,9 @@ void BindRegulariserFlags(CLI::App* c, TrainOptions* to) {
   c->add_option("--distortion", t.distortion_reg,
                 "Distortion-loss weight (< 0: 0.01 for real captures, 0 for objects)")
       ->capture_default_str();
+  c->add_option("--distortion-warmup", t.distortion_warmup,
+                "Raise the distortion weight linearly from 0 over this fraction of training (0 = constant)")
+      ->capture_default_str();
   c->add_option("--near-density", t.near_density_reg,
                 "Occlusion-penalty weight on density near the cameras (< 0: 0.01 for real captures, 0 for objects)")
       ->capture_default_str();

@@ -358,6 +358,7 @@ int RunBenchScenes(const BenchScenesArgs& a) {
   const TrainOptions& t = a.fit.train;  // The regulariser flags an ablation set (< 0: automatic).
   j["regularisers"] = {{"grid_decay", t.grid_decay},
                        {"coarse_to_fine", t.coarse_to_fine}, {"distortion", t.distortion_reg},
+                       {"distortion_warmup", t.distortion_warmup},
                        {"near_density", t.near_density_reg}, {"opacity_reg", t.opacity_reg},
                        {"learning_rate", t.learning_rate},   {"random_background", t.random_background}};
   if (absl::Status s = WriteJson((out / "scenes.json").string(), j); !s.ok()) return Fail(s);

@@ -49,6 +49,9 @@ absl::Status TrainOptions::Validate() const {
   if (!std::isfinite(distortion_reg) || !std::isfinite(near_density_reg)) {
     return absl::InvalidArgumentError("train: distortion_reg and near_density_reg must be finite");
   }
+  if (!(distortion_warmup >= 0) || !std::isfinite(distortion_warmup)) {
+    return absl::InvalidArgumentError("train: distortion_warmup must be finite and >= 0");
+  }
   if (!(near_density_fade >= 0) || !std::isfinite(near_density_fade)) {
     return absl::InvalidArgumentError("train: near_density_fade must be finite and >= 0");
   }
@@ -180,6 +183,12 @@ bool AllFinite(const V& v) {
 }
 }  // namespace
 
+float TrainOptions::DistortionWeightAt(int step, bool contracted) const {
+  float w = ResolveAutoWeight(distortion_reg, kAutoDistortion, contracted);
+  if (distortion_warmup > 0 && iterations > 0) w *= std::min(1.0f, float(step) / (distortion_warmup * float(iterations)));
+  return w;
+}
+
 Trainer::Trainer(NgpModel* model, RaySampler* sampler, const TrainOptions& options)
     : model_(model), sampler_(sampler), options_(options), adam_(options.adam), rng_(options.seed) {
   threads_ = options.threads > 0 ? options.threads : omp_get_max_threads();
@@ -271,8 +280,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
   const float inv_n = 1.0f / float(std::max(nrays, 1));
   const float lambda = options_.opacity_reg;
   const Eigen::Vector3f bg = model.background();
-  const float dist_reg =
-      ResolveAutoWeight(options_.distortion_reg, TrainOptions::kAutoDistortion, model.contracted());
+  const float dist_reg = options_.DistortionWeightAt(step_, model.contracted());
   const float inv_box = 1.0f / (2.0f * model.bound());
   float near_reg = ResolveAutoWeight(options_.near_density_reg, TrainOptions::kAutoNearDensity, model.contracted());
   if (options_.near_density_fade > 0 && options_.iterations > 0) {

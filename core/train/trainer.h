@@ -84,6 +84,10 @@ struct TrainOptions {
   // bounded ones.
   float distortion_reg = -1.0f;
   static constexpr float kAutoDistortion = 1e-2f;
+  // > 0: the distortion weight rises linearly from 0 over this fraction of
+  // `iterations` (early training's blobs are then not pulled into thin
+  // layers before the views agree on where the surfaces are). 0: constant.
+  float distortion_warmup = 0.0f;
   // Occlusion penalty near the cameras (FreeNeRF): adds weight * sigma * dt
   // for every composited sample closer than `near_density_distance` (model
   // units) to its ray's origin. A region just in front of one camera is seen
@@ -172,6 +176,10 @@ struct TrainOptions {
   // gradient entry of this 1-based step with NaN. 0 = off.
   int inject_nan_gradient_at_step = 0;
   absl::Status Validate() const;
+  // The distortion loss's weight at training step `step` of a scene that is
+  // (un)bounded: distortion_reg resolved (< 0: auto), times the warm-up's
+  // ramp.
+  float DistortionWeightAt(int step, bool contracted) const;
 };
 
 struct StepStats {

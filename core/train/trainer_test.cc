@@ -733,6 +733,50 @@ TEST(TrainerGradientTest, CoarseToFineLevelsMatchFiniteDifferences) {
   }
 }
 
+// TrainOptions::distortion_warmup: the distortion weight rises from 0 at
+// the first step to its value at the warm-up's end (auto weights resolved
+// as without it), and the trainer uses it: at step 0 an unbounded scene's
+// loss with a warm-up is its loss without the distortion term, and with the
+// full weight it is not.
+TEST(TrainerStepTest, DistortionWarmupRaisesTheWeightFromZero) {
+  TrainOptions to;
+  to.iterations = 100;
+  to.distortion_reg = 0.04f;
+  to.distortion_warmup = 0.5f;
+  EXPECT_EQ(to.DistortionWeightAt(0, true), 0.0f);
+  EXPECT_FLOAT_EQ(to.DistortionWeightAt(25, true), 0.02f);
+  EXPECT_FLOAT_EQ(to.DistortionWeightAt(50, true), 0.04f);
+  EXPECT_FLOAT_EQ(to.DistortionWeightAt(90, false), 0.04f);  // Explicit: objects too.
+  to.distortion_reg = -1.0f;                                    // Auto.
+  EXPECT_FLOAT_EQ(to.DistortionWeightAt(25, true), 0.5f * TrainOptions::kAutoDistortion);
+  EXPECT_EQ(to.DistortionWeightAt(25, false), 0.0f);
+  to.distortion_warmup = 0.0f;
+  EXPECT_FLOAT_EQ(to.DistortionWeightAt(0, true), TrainOptions::kAutoDistortion);
+  for (float bad : {-0.1f, float(NAN), float(INFINITY)}) {
+    to.distortion_warmup = bad;
+    EXPECT_FALSE(to.Validate().ok()) << bad;
+  }
+
+  SerialEigen serial;
+  const NgpModel start = TinyModel(3, 2, SceneKind::kUnbounded);
+  const RayBatch batch = MakeBatch(16, 5);
+  const std::vector<float> jitter(batch.size(), 0.5f);
+  auto loss_at_step0 = [&](float distortion, float warmup) {
+    NgpModel model = start;
+    NoSampler sampler(0);
+    TrainOptions o;
+    o.threads = 1;
+    o.distortion_reg = distortion;
+    o.distortion_warmup = warmup;
+    Trainer trainer(&model, &sampler, o);
+    Trainer::Gradients g;
+    return trainer.ComputeLossAndGradients(batch, jitter, &g);
+  };
+  const float none = loss_at_step0(0.0f, 0.0f);
+  EXPECT_EQ(loss_at_step0(0.3f, 0.5f), none);
+  EXPECT_GT(std::abs(loss_at_step0(0.3f, 0.0f) - none), 1e-4f * std::abs(none));
+}
+
 TEST(TrainerStepTest, NanWeightStopsAtStepOneWithoutTouchingParameters) {
   SerialEigen serial;
   NgpModel model = TinyModel(5, /*time_steps=*/1);
