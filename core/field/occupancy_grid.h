@@ -91,12 +91,9 @@ class OccupancyGrid {
   float BlockSize(int c) const { return kBlockCells / cells_per_unit_[c]; }
   bool OccupiedBlockAt(const Eigen::Vector3f& p, int c) const {
     if (block_res_ == 0 || !block_ok_[c]) return true;
-    const float h = half_[c], s = cells_per_unit_[c] / kBlockCells;
-    const int x = std::clamp(int((p.x() + h) * s), 0, block_res_ - 1);
-    const int y = std::clamp(int((p.y() + h) * s), 0, block_res_ - 1);
-    const int z = std::clamp(int((p.z() + h) * s), 0, block_res_ - 1);
-    const size_t b = size_t(c) * block_res_ * block_res_ * block_res_ + x + size_t(block_res_) * (y + size_t(block_res_) * z);
-    return (block_bits_[b >> 6] >> (b & 63)) & 1;
+    int b[3];
+    const size_t k = BlockOf(p, c, b);
+    return (block_bits_[k >> 6] >> (k & 63)) & 1;
   }
   // The empty space around p's block that a march may cross in one jump:
   // the box of cascade-c blocks centred on it, (2D - 1) blocks a side for
@@ -107,15 +104,10 @@ class OccupancyGrid {
   // such a block or the cascade has no blocks.
   bool EmptyBoxAround(const Eigen::Vector3f& p, int c, Eigen::Vector3f* lo, Eigen::Vector3f* hi) const {
     if (block_res_ == 0) return false;
-    const float h = half_[c], s = cells_per_unit_[c] / kBlockCells;
-    const int x = std::clamp(int((p.x() + h) * s), 0, block_res_ - 1);
-    const int y = std::clamp(int((p.y() + h) * s), 0, block_res_ - 1);
-    const int z = std::clamp(int((p.z() + h) * s), 0, block_res_ - 1);
-    const int r = int(block_dist_[size_t(c) * block_res_ * block_res_ * block_res_ + x +
-                                  size_t(block_res_) * (y + size_t(block_res_) * z)]) - 1;
+    int b[3];
+    const int r = int(block_dist_[BlockOf(p, c, b)]) - 1;
     if (r < 0) return false;
-    const float bs = kBlockCells / cells_per_unit_[c];
-    const int b[3] = {x, y, z};
+    const float bs = BlockSize(c), h = half_[c];
     for (int a = 0; a < 3; ++a) {
       (*lo)[a] = float(std::max(b[a] - r, 0)) * bs - h;
       (*hi)[a] = float(std::min(b[a] + r, block_res_ - 1) + 1) * bs - h;
@@ -161,6 +153,13 @@ class OccupancyGrid {
   void RefreshBlocks();
   // block_dist_ of cascade c from block_bits_.
   void BlockDistances(int c);
+  // The block of cascade c that holds p (clamped into the grid, as cells
+  // are): its coordinates in b and its index into block_bits_/block_dist_.
+  size_t BlockOf(const Eigen::Vector3f& p, int c, int b[3]) const {
+    const float h = half_[c], s = cells_per_unit_[c] / kBlockCells;
+    for (int a = 0; a < 3; ++a) b[a] = std::clamp(int((p[a] + h) * s), 0, block_res_ - 1);
+    return size_t(c) * block_res_ * block_res_ * block_res_ + b[0] + size_t(block_res_) * (b[1] + size_t(block_res_) * b[2]);
+  }
 
   OccupancyGridOptions options_;
   bool contracted_ = false;

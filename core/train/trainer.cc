@@ -189,6 +189,14 @@ float TrainOptions::DistortionWeightAt(int step, bool contracted) const {
   return w;
 }
 
+float TrainOptions::NearDensityWeightAt(int step, bool contracted) const {
+  float w = ResolveAutoWeight(near_density_reg, kAutoNearDensity, contracted);
+  if (near_density_fade > 0 && iterations > 0) {
+    w *= std::max(0.0f, 1.0f - float(step) / (near_density_fade * float(iterations)));
+  }
+  return w;
+}
+
 Trainer::Trainer(NgpModel* model, RaySampler* sampler, const TrainOptions& options)
     : model_(model), sampler_(sampler), options_(options), adam_(options.adam), rng_(options.seed) {
   threads_ = options.threads > 0 ? options.threads : omp_get_max_threads();
@@ -282,10 +290,7 @@ float Trainer::ForwardBackward(const RayBatch& batch, const float* jitter, const
   const Eigen::Vector3f bg = model.background();
   const float dist_reg = options_.DistortionWeightAt(step_, model.contracted());
   const float inv_box = 1.0f / (2.0f * model.bound());
-  float near_reg = ResolveAutoWeight(options_.near_density_reg, TrainOptions::kAutoNearDensity, model.contracted());
-  if (options_.near_density_fade > 0 && options_.iterations > 0) {
-    near_reg *= std::max(0.0f, 1.0f - float(step_) / (options_.near_density_fade * float(options_.iterations)));
-  }
+  const float near_reg = options_.NearDensityWeightAt(step_, model.contracted());
   const float near_dist = options_.near_density_distance;
   const float depth_w = options_.depth_weight;
 

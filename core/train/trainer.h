@@ -180,6 +180,9 @@ struct TrainOptions {
   // (un)bounded: distortion_reg resolved (< 0: auto), times the warm-up's
   // ramp.
   float DistortionWeightAt(int step, bool contracted) const;
+  // The occlusion penalty's weight at step `step`: near_density_reg
+  // resolved (< 0: auto), times the fade (near_density_fade).
+  float NearDensityWeightAt(int step, bool contracted) const;
 };
 
 struct StepStats {
