@@ -114,6 +114,16 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
   c->add_option("--fit-iters", a->bake.fit.iterations, "Colour-fit solver iterations")->capture_default_str();
   c->add_option("--fit-prior", a->bake.fit.prior, "Colour-fit damping towards the field's own colours")
       ->capture_default_str();
+  c->add_option("--density-fit-rays", a->bake.density_fit.rays,
+                "Fit rays the density fit uses before the colour fit (0 = no density fit; e.g. 262144)")
+      ->capture_default_str();
+  c->add_option("--density-fit-steps", a->bake.density_fit.steps, "Density-fit Gauss-Newton steps")
+      ->capture_default_str();
+  c->add_option("--density-fit-iters", a->bake.density_fit.iterations, "Density-fit solver iterations per step")
+      ->capture_default_str();
+  c->add_option("--density-fit-prior", a->bake.density_fit.prior,
+                "Density-fit damping towards the current codes")
+      ->capture_default_str();
   c->add_option("--json", a->json, "Write the report as JSON to this file ('-' = stdout)");
   BindThreadsFlag(c, &a->threads);
   BindDatasetFlags(c, &a->dataset);
@@ -139,11 +149,12 @@ int RunBake(const BakeArgs& a) {
   const uint64_t bytes = *stored;
   std::printf("baked time step %d at %d^3 (%zu cameras from %s): %d of %d candidate blocks kept, %.1f MB raw, "
               "%.2f MB on disk, in %.1f s (candidates %.1f, density and visibility %.1f: %d blocks reached, colour %.1f, "
-              "fit %.1f: %lld rays, rms %.4f -> %.4f)\n",
+              "fit %.1f: density %lld rays, rms %.4f -> %.4f in %.1f s, %d steps; colour %lld rays, rms %.4f -> %.4f)\n",
               asset->time_step, rep.resolution, cams->size(), from.c_str(), rep.kept_blocks, rep.candidate_blocks,
               double(asset->raw_bytes()) / 1e6, double(bytes) / 1e6, rep.total_seconds, rep.candidate_seconds,
-              rep.visibility_seconds, rep.evaluated_blocks, rep.colour_seconds, rep.fit_seconds, rep.fit.rays, rep.fit.rms_before,
-              rep.fit.rms_after);
+              rep.visibility_seconds, rep.evaluated_blocks, rep.colour_seconds, rep.fit_seconds, rep.density_fit.rays,
+              rep.density_fit.rms_before, rep.density_fit.rms_after, rep.density_fit.seconds,
+              rep.density_fit.accepted_steps, rep.fit.rays, rep.fit.rms_before, rep.fit.rms_after);
   std::printf("view it: python3 -m http.server -d %s 8000, then open http://localhost:8000/baked.html\n",
               a.out.c_str());
   nlohmann::json j = {{"model", a.model},          {"out", a.out},
@@ -170,7 +181,13 @@ int RunBake(const BakeArgs& a) {
                                {"unknowns", rep.fit.unknowns}, {"nonzeros", rep.fit.nonzeros},
                                {"rms_before", rep.fit.rms_before}, {"rms_after", rep.fit.rms_after},
                                {"target_seconds", rep.fit.target_seconds}, {"rows_seconds", rep.fit.rows_seconds},
-                               {"solve_seconds", rep.fit.solve_seconds}}}};
+                               {"solve_seconds", rep.fit.solve_seconds}}},
+                      {"density_fit", {{"rays", rep.density_fit.rays}, {"unknowns", rep.density_fit.unknowns},
+                                       {"nonzeros", rep.density_fit.nonzeros},
+                                       {"accepted_steps", rep.density_fit.accepted_steps},
+                                       {"rms_before", rep.density_fit.rms_before},
+                                       {"rms_after", rep.density_fit.rms_after},
+                                       {"seconds", rep.density_fit.seconds}}}};
   if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
   return 0;
 }

@@ -13,9 +13,11 @@
 //     is recorded.
 //  4. Colour at the kept blocks' lattice points, from the full field seen
 //     along that mean direction (the colour the photos showed there).
-//  5. Colour fit (colour_fit.h): the colours that make the asset's renders
-//     of training-camera rays match the model's, by damped least squares
-//     from stage 4's colours.
+//  5. Density fit (density_fit.h), then colour fit (colour_fit.h): the
+//     density codes, then the colours, that make the asset's renders of
+//     training-camera rays match the model's (damped Gauss-Newton steps on
+//     the codes with stage 4's colours; damped least squares from stage 4's
+//     colours).
 //  6. Quantised to RGBA8 and packed into the atlas.
 //
 // Thread-safe for concurrent calls on the same (const) model; each call runs
@@ -29,6 +31,7 @@
 #include "absl/status/statusor.h"
 #include "core/bake/baked_asset.h"
 #include "core/bake/colour_fit.h"
+#include "core/bake/density_fit.h"
 #include "core/data/camera.h"
 #include "core/field/ngp_model.h"
 
@@ -58,7 +61,10 @@ struct BakeOptions {
   // (flower_4 at 768: +0.09 dB).
   float min_block_weight = 0.1f;
   int threads = 0;  // OpenMP threads; 0 = all available.
-  ColourFitOptions fit;  // Stage 5; fit.rays = 0 skips it.
+  ColourFitOptions fit;  // Stage 5; fit.rays = 0 skips it (and the density fit).
+  // Stage 5a, before the colour fit: the density codes refitted to the
+  // same targets (density_fit.h); density_fit.rays = 0 skips it.
+  DensityFitOptions density_fit;
   // Stage 5 also fits a view-dependent term per lattice point (c0 + H d;
   // format 2, baked_asset.h; skipped above fit.max_view_nonzeros). Test
   // views: fox_8 25.96 -> 27.74 dB, lego_100 30.04 -> 30.64, flower_4
@@ -106,6 +112,7 @@ struct BakeReport {
   // with fewer blocks (at most 3).
   int over_budget_rebakes = 0;
   ColourFitReport fit;
+  DensityFitReport density_fit;
   // candidate_seconds: stage 1; visibility_seconds: stages 2 and 3 (densities
   // are computed as rays reach candidates). With a derived finer grid the
   // seconds add up both grids' passes; the counts describe the final grid.

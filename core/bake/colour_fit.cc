@@ -300,36 +300,68 @@ absl::Status ColourFitOptions::Validate() const {
   return absl::OkStatus();
 }
 
-absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::vector<Camera>& cameras,
-                             const BakedAsset& asset, const ColourFitOptions& options, std::vector<float>* rgb,
-                             std::vector<float>* view, ColourFitReport* report) {
-  if (absl::Status s = options.Validate(); !s.ok()) return s;
-  if (rgb->size() != size_t(3 * kLattice) * size_t(asset.num_bricks()) ||
-      (view != nullptr && view->size() != 3 * rgb->size())) {
+namespace {
+
+absl::Status CheckColourArrays(const BakedAsset& asset, const std::vector<float>& rgb, const std::vector<float>* view) {
+  if (rgb.size() != size_t(3 * kLattice) * size_t(asset.num_bricks()) ||
+      (view != nullptr && view->size() != 3 * rgb.size())) {
     return absl::InvalidArgumentError("bake: colour array does not match the atlas");
   }
-  ColourFitReport rep;
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::Status MakeFitTargets(const NgpModel& model, int time_step, const std::vector<Camera>& cameras,
+                            const BakedAsset& asset, const ColourFitOptions& options, bool view, FitTargets* targets,
+                            ColourFitReport* report) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  *targets = FitTargets();
+  *report = ColourFitReport();
   if (options.rays == 0 || options.iterations == 0 || cameras.empty() || asset.num_bricks() == 0) {
-    if (report != nullptr) *report = rep;
     return absl::OkStatus();
   }
-  auto t0 = std::chrono::steady_clock::now();
-  std::vector<float> origins, dirs;
-  FitRays(asset, cameras, options.rays, &origins, &dirs);
-  rep.candidate_rays = int64_t(origins.size() / 3);
-  const FitWork work = EstimateWork(model, time_step, asset, view != nullptr, origins, dirs);
-  rep.estimated_nonzeros = int64_t(work.entries);
-  rep.estimated_model_samples = int64_t(work.model_samples);
-  ThinToBudget(work, options, &origins, &dirs);
-  const int n = int(origins.size() / 3);
+  const auto t0 = std::chrono::steady_clock::now();
+  FitRays(asset, cameras, options.rays, &targets->origins, &targets->dirs);
+  report->candidate_rays = targets->size();
+  const FitWork work = EstimateWork(model, time_step, asset, view, targets->origins, targets->dirs);
+  report->estimated_nonzeros = int64_t(work.entries);
+  report->estimated_model_samples = int64_t(work.model_samples);
+  ThinToBudget(work, options, &targets->origins, &targets->dirs);
+  const int n = targets->size();
   RenderOptions ro;
   ro.time_step = time_step;
   // The targets are the pixels the model itself serves (RenderView's defaults).
-  std::vector<float> model_rgb(3 * size_t(n));
-  RenderRays(model, origins.data(), dirs.data(), n, time_step, ro, model_rgb.data(), nullptr, nullptr);
-  rep.target_seconds = Since(t0);
-  t0 = std::chrono::steady_clock::now();
-  FitSystem A = BuildRows(asset, origins, dirs, model_rgb, *rgb, view != nullptr,
+  targets->rgb.assign(3 * size_t(n), 0.0f);
+  RenderRays(model, targets->origins.data(), targets->dirs.data(), n, time_step, ro, targets->rgb.data(), nullptr,
+             nullptr);
+  report->target_seconds = Since(t0);
+  return absl::OkStatus();
+}
+
+absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::vector<Camera>& cameras,
+                             const BakedAsset& asset, const ColourFitOptions& options, std::vector<float>* rgb,
+                             std::vector<float>* view, ColourFitReport* report) {
+  if (absl::Status s = CheckColourArrays(asset, *rgb, view); !s.ok()) return s;
+  ColourFitReport rep;
+  FitTargets targets;
+  if (absl::Status s = MakeFitTargets(model, time_step, cameras, asset, options, view != nullptr, &targets, &rep);
+      !s.ok()) {
+    return s;
+  }
+  if (absl::Status s = FitBakedColoursTo(targets, asset, options, rgb, view, &rep); !s.ok()) return s;
+  if (report != nullptr) *report = rep;
+  return absl::OkStatus();
+}
+
+absl::Status FitBakedColoursTo(const FitTargets& targets, const BakedAsset& asset, const ColourFitOptions& options,
+                               std::vector<float>* rgb, std::vector<float>* view, ColourFitReport* report) {
+  if (absl::Status s = options.Validate(); !s.ok()) return s;
+  if (absl::Status s = CheckColourArrays(asset, *rgb, view); !s.ok()) return s;
+  ColourFitReport& rep = *report;
+  if (targets.size() == 0 || options.iterations == 0) return absl::OkStatus();
+  auto t0 = std::chrono::steady_clock::now();
+  FitSystem A = BuildRows(asset, targets.origins, targets.dirs, targets.rgb, *rgb, view != nullptr,
                           std::min<int64_t>(rep.estimated_nonzeros, options.max_nonzeros > 0 ? options.max_nonzeros
                                                                                                : INT64_MAX));
   if (view != nullptr && int64_t(A.view.col.size()) > options.max_view_nonzeros) {
@@ -365,7 +397,6 @@ absl::Status FitBakedColours(const NgpModel& model, int time_step, const std::ve
   rep.nonzeros = A.entries();
   rep.rms_before = Rms(r0);
   rep.rms_after = Rms(Residual(A, fitted));
-  if (report != nullptr) *report = rep;
   return absl::OkStatus();
 }
 

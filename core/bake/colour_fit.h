@@ -91,6 +91,27 @@ float BakedRayWeights(const BakedAsset& asset, const Eigen::Vector3f& o, const E
                       std::vector<std::pair<uint32_t, float>>* weights,
                       std::vector<std::pair<uint32_t, float>>* view_row = nullptr);
 
+// The fit's rays (model space, 3 floats each, unit directions) and the
+// model's pixels for them (3 floats each): the teacher's answers, which the
+// density fit (density_fit.h) and the colour fit share.
+struct FitTargets {
+  std::vector<float> origins, dirs, rgb;
+  int size() const { return int(origins.size() / 3); }
+};
+
+// Chooses the fit's rays from `cameras` (options.rays, thinned to the work
+// budget that `asset`'s rows would cost; `view`: with the view term's
+// entries) and renders the model's pixel for each. Fills the report's ray
+// counts, estimates and target_seconds.
+absl::Status MakeFitTargets(const NgpModel& model, int time_step, const std::vector<Camera>& cameras,
+                            const BakedAsset& asset, const ColourFitOptions& options, bool view, FitTargets* targets,
+                            ColourFitReport* report);
+
+// The colour fit to given targets (FitBakedColours below, after its
+// targets are made). Keeps the report's target fields.
+absl::Status FitBakedColoursTo(const FitTargets& targets, const BakedAsset& asset, const ColourFitOptions& options,
+                               std::vector<float>* rgb, std::vector<float>* view, ColourFitReport* report);
+
 // `asset` holds the grid: index, and the density codes in the atlas's alpha
 // (its colour channels are not read). `rgb` holds 3 floats per lattice point
 // of every brick (brick-major, 9^3 points x fastest, as the atlas's bricks):
