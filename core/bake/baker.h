@@ -42,12 +42,13 @@ struct BakeOptions {
   // 0 = derived: 256 for objects; for unbounded scenes (whose inner cube,
   // where the cameras are, gets half of them) 512, or finer where the
   // download budget leaves room: baked at 512 first, the finest grid (up to
-  // 768) whose download, scaled by the surface area (R^2), stays within
+  // 1024) whose download, scaled by the surface area (R^2), stays within
   // 70 % of max_asset_bytes is baked instead, stepping one base cell
   // (fox_8, 5.1 MB estimated at 512 in session 49, -> 640: +0.18 dB; 5.6 MB
   // with session 50's visibility pass, -> 608; flower_4 -> 768:
-  // +0.48 dB; beer_2, over the budget at 512, stays). Past 768 the fit has
-  // too few rays per unknown (flower_4 at 960 and 1024: below 768).
+  // +0.48 dB; beer_2, over the budget at 512, stays). The cap was 768 while
+  // the models were blurrier (session 49: flower_4 at 960 and 1024 below
+  // 768); on session 73's model flower_4 at 1024 is +0.61 dB over 768.
   int resolution = 0;
   // Training-camera rays marched for visibility: pixels on a stride that
   // gives about this many over all cameras, plus every border pixel of
