@@ -172,6 +172,7 @@ TEST(DensityFitTest, RecoversDisturbedCodesFromTheirRenders) {
   };
   const double before = code_error(a);
   DensityFitOptions o;
+  o.rays = 1 << 14;
   o.steps = 3;
   o.prior = 0.1f;
   DensityFitReport rep;
@@ -202,6 +203,7 @@ TEST(DensityFitTest, BadOptionsAndArraysAreRefused) {
   rgb.pop_back();
   EXPECT_EQ(FitBakedDensities(targets, o, rgb, &a).code(), absl::StatusCode::kInvalidArgument);
   rgb.push_back(0.5f);
+  o.rays = 1 << 14;
   EXPECT_TRUE(FitBakedDensities(targets, o, rgb, &a).ok());  // No targets: nothing to do.
 }
 
