@@ -209,6 +209,9 @@ CLI::App* BindEval(CLI::App* parent, EvalArgs* a) {
   c->add_option("--nerf-samples", a->eval.render.nerf_samples,
                 "Proposal models: full-field samples per ray (0 = as trained; fewer is faster)")
       ->capture_default_str();
+  c->add_option("--min-transmittance", a->eval.render.min_transmittance,
+                "Stop rays once their transmittance falls to this (the rest takes the colour they saw)")
+      ->capture_default_str();
   BindThreadsFlag(c, &a->threads);
   BindDatasetFlags(c, &a->dataset);
   return c;

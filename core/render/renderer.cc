@@ -23,6 +23,9 @@ absl::Status RenderOptions::Validate() const {
     return absl::InvalidArgumentError("render: nerf_samples must be in [0, 1024]");
   }
   if (threads < 0) return absl::InvalidArgumentError("render: threads must be >= 0");
+  if (!(min_transmittance > 0.0f && min_transmittance <= 0.5f)) {
+    return absl::InvalidArgumentError("render: min_transmittance must be in (0, 0.5]");
+  }
   return absl::OkStatus();
 }
 
@@ -37,6 +40,7 @@ struct RayState {
   float coloured, skipped;  // Weight of the samples that got / skipped the colour MLP.
   float last_alpha;         // Opacity of the ray's last sample.
   bool alive;
+  bool stopped;  // Ended at the minimum transmittance, not at the far bound.
 };
 
 // Samples to march for a ray in the next wave: the wave, or fewer where the
@@ -44,9 +48,9 @@ struct RayState {
 // sooner (a ray that has reached a surface needs 1-3 more samples; it used
 // to march the whole wave and drop the rest: 20 % of fox_8's evaluated
 // samples). Only the batching changes, not the samples.
-int SamplesWanted(const RayState& s, int wave) {
+int SamplesWanted(const RayState& s, int wave, float min_transmittance) {
   if (!(s.last_alpha > 0.05f)) return wave;
-  const float needed = std::ceil(std::log(kMinTransmittance / s.T) / std::log1p(-s.last_alpha));
+  const float needed = std::ceil(std::log(min_transmittance / s.T) / std::log1p(-s.last_alpha));
   return needed >= float(wave) ? wave : std::max(1, int(needed));
 }
 
@@ -71,6 +75,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
     s.coloured = s.skipped = 0.0f;
     s.samples = 0;
     s.last_alpha = 0.0f;
+    s.stopped = false;
     s.alive = model.RayInterval(o, d, &s.t, &s.t_end);
   }
 
@@ -124,7 +129,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
       const Eigen::Map<const Eigen::Vector3f> o(origins + 3 * r), d(dirs + 3 * r);
       const size_t before = samples.size();
       const float t_before = s.t;
-      s.t = model.March(o, d, s.t, s.t_end, std::min(SamplesWanted(s, wave), max_samples - s.samples), &samples);
+      s.t = model.March(o, d, s.t, s.t_end, std::min(SamplesWanted(s, wave, options.min_transmittance), max_samples - s.samples), &samples);
       if (samples.size() == before) {
         s.alive = false;
         continue;
@@ -170,8 +175,9 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
         } else {
           s.skipped += w[j];
         }
-        if (T <= kMinTransmittance) {
+        if (T <= options.min_transmittance) {
           s.alive = false;
+          s.stopped = true;
           break;
         }
       }
@@ -206,6 +212,13 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
     if (s.skipped > 0.0f && s.coloured > 0.0f) {
       const float scale = (s.coloured + s.skipped) / s.coloured;
       for (float& c : s.rgb) c *= scale;
+    }
+    if (s.stopped && options.min_transmittance > kMinTransmittance) {
+      // The rest of the ray is taken to look like what it saw (at the
+      // training's own stop it is left to the background, as training has it).
+      for (float& c : s.rgb) c /= 1.0f - s.T;
+      s.depth /= 1.0f - s.T;
+      s.T = 0.0f;
     }
     for (int c = 0; c < 3; ++c) rgb_out[3 * r + c] = s.rgb[c] + s.T * bg[c];
     if (opacity_out) opacity_out[r] = 1.0f - s.T;

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "core/field/ngp_model.h"
+#include "core/render/volume_rendering.h"
 #include "gtest/gtest.h"
 
 namespace clnerf {
@@ -170,6 +171,35 @@ TEST(RendererTest, MedianDepthIsWhereHalfTheLightIsGone) {
   ASSERT_TRUE(thin.ok() && thin_mean.ok());
   EXPECT_NEAR(thin->depth[centre], far_face, 0.02f);
   EXPECT_LT(thin_mean->depth[centre], 0.5f);
+}
+
+// A ray stops once its transmittance reaches min_transmittance, and what is
+// left of it takes the colour it saw: in a dense haze of one colour the
+// pixel is the same as with the training's stop (1e-4) and the ray opaque,
+// for about half the samples (ln 100 against ln 10^4 units of optical
+// depth); the expected depth is the seen samples' mean, not cut short.
+TEST(RendererTest, StoppingAtAHigherTransmittanceKeepsTheColourItSaw) {
+  const NgpModel model = HazeModel(10.0f);  // T = e^-10 at the far face: rays stop inside.
+  RenderOptions full;
+  full.min_weight = 0.0f;
+  full.min_transmittance = kMinTransmittance;  // Training's stop.
+  RenderOptions early = full;
+  early.min_transmittance = 0.01f;  // The renderer's default.
+  absl::StatusOr<RenderedView> ref = RenderView(model, FrontCamera(), full);
+  absl::StatusOr<RenderedView> fast = RenderView(model, FrontCamera(), early);
+  ASSERT_TRUE(ref.ok() && fast.ok());
+  const size_t centre = size_t(11) * 37 + 18;
+  ASSERT_GT(ref->opacity[centre], 0.9998f);
+  for (int c = 0; c < 3; ++c) EXPECT_NEAR(fast->rgb.rgb[3 * centre + c], ref->rgb.rgb[3 * centre + c], 1e-3f);
+  EXPECT_EQ(fast->opacity[centre], 1.0f);
+  EXPECT_LT(double(fast->samples), 0.65 * double(ref->samples));
+  EXPECT_GT(double(fast->samples), 0.35 * double(ref->samples));
+  // Expected depth: ~1/sigma past the near face either way.
+  EXPECT_NEAR(fast->depth[centre], ref->depth[centre], 0.02f);
+  // The training's stop leaves the last 1e-4 to the background, as before.
+  RenderOptions bad = full;
+  bad.min_transmittance = 0.0f;
+  EXPECT_FALSE(RenderView(model, FrontCamera(), bad).ok());
 }
 
 TEST(RendererTest, OptionsOutOfRangeAreRefused) {
