@@ -232,23 +232,6 @@ double Rms(const std::vector<float>& r) {
 
 }  // namespace
 
-namespace {
-
-// Sorts (id, weight) pairs by id and merges repeated ids.
-void MergeRepeats(std::vector<std::pair<uint32_t, float>>* row) {
-  std::sort(row->begin(), row->end(), [](const auto& x, const auto& y) { return x.first < y.first; });
-  size_t out = 0;
-  for (size_t i = 0; i < row->size(); ++i) {
-    if (out > 0 && (*row)[out - 1].first == (*row)[i].first) {
-      (*row)[out - 1].second += (*row)[i].second;
-    } else {
-      (*row)[out++] = (*row)[i];
-    }
-  }
-  row->resize(out);
-}
-
-}  // namespace
 
 // One ray's row: march the asset, collect each corner's share of the pixel
 // (sample weight * trilinear weight * code / blended code), merge repeats;

@@ -7,6 +7,7 @@
 #include <cmath>
 
 #include "core/bake/baked_march.h"
+#include "core/bake/fit_system.h"
 
 namespace clnerf {
 namespace {
@@ -76,20 +77,6 @@ Eigen::Vector3f MarchSamples(const BakedAsset& a, const float* codes, const floa
   return pixel + Tf * a.background;
 }
 
-// Merges repeated ids of (id, derivative) pairs, sorted by id.
-void MergeRepeats(std::vector<std::pair<uint32_t, Eigen::Vector3f>>* row) {
-  std::sort(row->begin(), row->end(), [](const auto& x, const auto& y) { return x.first < y.first; });
-  size_t out = 0;
-  for (size_t i = 0; i < row->size(); ++i) {
-    if (out > 0 && (*row)[out - 1].first == (*row)[i].first) {
-      (*row)[out - 1].second += (*row)[i].second;
-    } else {
-      (*row)[out++] = (*row)[i];
-    }
-  }
-  row->resize(out);
-}
-
 // The pixel's derivatives by the codes of `samples` (back to front):
 // through each sample's opacity (and so every later sample's
 // transmittance) and through its colour's blend weights.
@@ -135,24 +122,6 @@ uint32_t Hash(uint32_t a) {
   a *= 0x846CA68Bu;
   a ^= a >> 16;
   return a;
-}
-
-// Sums f(i) over [0, n) in fixed chunks, then the chunks in order: the same
-// bits at any thread count.
-template <class F>
-double OrderedSum(int64_t n, F f) {
-  constexpr int64_t kChunk = 1 << 14;
-  const int64_t chunks = (n + kChunk - 1) / kChunk;
-  std::vector<double> part(size_t(std::max<int64_t>(chunks, 0)), 0.0);
-#pragma omp parallel for schedule(static)
-  for (int64_t c = 0; c < chunks; ++c) {
-    double acc = 0.0;
-    for (int64_t i = c * kChunk; i < std::min(n, (c + 1) * kChunk); ++i) acc += f(i);
-    part[size_t(c)] = acc;
-  }
-  double sum = 0.0;
-  for (double p : part) sum += p;
-  return sum;
 }
 
 struct Entry {
@@ -231,7 +200,9 @@ void DensitySystem::MultiplyTransposed(const std::vector<float>& y, std::vector<
 }
 
 double Dot(const std::vector<float>& u, const std::vector<float>& v) {
-  return OrderedSum(int64_t(u.size()), [&](int64_t i) { return double(u[size_t(i)]) * v[size_t(i)]; });
+  return OrderedSum<Eigen::Array<double, 1, 1>>(int64_t(u.size()), [&](int64_t i) {
+    return Eigen::Array<double, 1, 1>(double(u[size_t(i)]) * v[size_t(i)]);
+  })[0];
 }
 
 // CGLS from zero for min |J delta - residual|^2 + lambda |delta|^2.
@@ -371,9 +342,9 @@ absl::Status FitBakedDensities(const FitTargets& targets, const DensityFitOption
     rep.unknowns = int64_t(J.unknowns());
     rep.nonzeros = int64_t(J.entries.size());
     if (J.unknowns() == 0) break;
-    const double diag = OrderedSum(int64_t(J.entries.size()), [&](int64_t e) {
-                          return double(J.entries[size_t(e)].j.squaredNorm());
-                        }) / double(J.unknowns());
+    const double diag = OrderedSum<Eigen::Array<double, 1, 1>>(int64_t(J.entries.size()), [&](int64_t e) {
+                          return Eigen::Array<double, 1, 1>(double(J.entries[size_t(e)].j.squaredNorm()));
+                        })[0] / double(J.unknowns());
     const std::vector<float> delta = J.SolveDamped(options.prior * diag, options.iterations);
     std::vector<float> next = codes;
     for (size_t u = 0; u < J.unknowns(); ++u) next[J.point[u]] = std::clamp(codes[J.point[u]] + delta[u], 0.0f, 1.0f);

@@ -8,25 +8,6 @@
 namespace clnerf {
 namespace {
 
-// Sums f(i) over [0, n) in fixed chunks, in parallel, then the chunks in
-// order: the same bits at any thread count and on every run (an OpenMP
-// reduction adds the threads' shares in whatever order they finish).
-template <class T, class F>
-T OrderedSum(int64_t n, F f) {
-  constexpr int64_t kChunk = 1 << 14;
-  const int64_t chunks = (n + kChunk - 1) / kChunk;
-  std::vector<T> part(size_t(std::max<int64_t>(chunks, 0)), T::Zero());
-#pragma omp parallel for schedule(static)
-  for (int64_t c = 0; c < chunks; ++c) {
-    T acc = T::Zero();
-    for (int64_t i = c * kChunk; i < std::min(n, (c + 1) * kChunk); ++i) acc += f(i);
-    part[size_t(c)] = acc;
-  }
-  T sum = T::Zero();
-  for (const T& p : part) sum += p;
-  return sum;
-}
-
 // SolveDamped stops a channel once |A^T r - lambda delta|^2 is this fraction
 // of its start (|A^T r0|^2): float arithmetic resolves no further.
 constexpr double kSolvedResidualFraction = 1e-12;

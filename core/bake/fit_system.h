@@ -18,6 +18,7 @@
 #ifndef CLNERF_CORE_BAKE_FIT_SYSTEM_H_
 #define CLNERF_CORE_BAKE_FIT_SYSTEM_H_
 
+#include <algorithm>
 #include <cstdint>
 #include <utility>
 #include <vector>
@@ -82,6 +83,42 @@ struct FitSystem {
   // Transpose); returns delta.
   std::vector<float> SolveDamped(const std::vector<float>& r0, double lambda, int iterations) const;
 };
+
+// Sums f(i) over [0, n) in fixed chunks, in parallel, then the chunks in
+// order: the same bits at any thread count and on every run (an OpenMP
+// reduction adds the threads' shares in whatever order they finish). T is
+// an Eigen array (T::Zero()).
+template <class T, class F>
+T OrderedSum(int64_t n, F f) {
+  constexpr int64_t kChunk = 1 << 14;
+  const int64_t chunks = (n + kChunk - 1) / kChunk;
+  std::vector<T> part(size_t(std::max<int64_t>(chunks, 0)), T::Zero());
+#pragma omp parallel for schedule(static)
+  for (int64_t c = 0; c < chunks; ++c) {
+    T acc = T::Zero();
+    for (int64_t i = c * kChunk; i < std::min(n, (c + 1) * kChunk); ++i) acc += f(i);
+    part[size_t(c)] = acc;
+  }
+  T sum = T::Zero();
+  for (const T& p : part) sum += p;
+  return sum;
+}
+
+// Sorts (lattice id, value) pairs by id and merges repeated ids (adding
+// their values).
+template <class V>
+void MergeRepeats(std::vector<std::pair<uint32_t, V>>* row) {
+  std::sort(row->begin(), row->end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+  size_t out = 0;
+  for (size_t i = 0; i < row->size(); ++i) {
+    if (out > 0 && (*row)[out - 1].first == (*row)[i].first) {
+      (*row)[out - 1].second += (*row)[i].second;
+    } else {
+      (*row)[out++] = (*row)[i];
+    }
+  }
+  row->resize(out);
+}
 
 // Joins per-thread systems (before numbering), rows in the order given.
 // The parts are emptied.
