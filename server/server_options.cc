@@ -141,6 +141,7 @@ absl::Status ApplyBake(const nlohmann::json& g, ServerOptions* o) {
     else if (k == "fit_rays") s = Get(*it, "bake.fit_rays", &o->bake.fit.rays);
     else if (k == "fit_max_entries") s = Get(*it, "bake.fit_max_entries", &o->bake.fit.max_nonzeros);
     else if (k == "fit_max_model_samples") s = Get(*it, "bake.fit_max_model_samples", &o->bake.fit.max_model_samples);
+    else if (k == "density_fit_rays") s = Get(*it, "bake.density_fit_rays", &o->bake.density_fit.rays);
     else if (k == "max_asset_bytes") s = Get(*it, "bake.max_asset_bytes", &o->bake.max_asset_bytes);
     else if (k == "max_object_asset_bytes") s = Get(*it, "bake.max_object_asset_bytes", &o->bake.max_object_asset_bytes);
     else return absl::InvalidArgumentError(absl::StrCat("unknown config key 'bake.", k, "'"));

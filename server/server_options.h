@@ -148,8 +148,8 @@ struct ServerOptions {
   // baked on their first request (GET /api/asset) and kept beside the
   // version. A failed bake never stops a publish. Config object "bake":
   // on_publish, resolution, min_block_weight, visibility_rays, fit_rays,
-  // fit_max_entries, fit_max_model_samples, max_asset_bytes,
-  // max_object_asset_bytes.
+  // fit_max_entries, fit_max_model_samples, density_fit_rays (0 = off),
+  // max_asset_bytes, max_object_asset_bytes.
   bool bake_on_publish = true;
   BakeOptions bake;
 

@@ -19,7 +19,8 @@ TEST(ServerOptionsTest, DefaultsAreValidAndConfigOverrides) {
   // The bake's budgets: an unbounded scene's and an object's.
   EXPECT_EQ(o.bake.max_object_asset_bytes, 4'000'000);
   ASSERT_TRUE(ApplyConfigJson(R"({"bake": {"max_asset_bytes": 9000000, "max_object_asset_bytes": 2000000,
-                                           "fit_max_entries": 40000000}})", &o).ok());
+                                           "fit_max_entries": 40000000, "density_fit_rays": 65536}})", &o).ok());
+  EXPECT_EQ(o.bake.density_fit.rays, 65536);
   EXPECT_EQ(o.bake.max_asset_bytes, 9'000'000);
   EXPECT_EQ(o.bake.max_object_asset_bytes, 2'000'000);
   EXPECT_EQ(o.bake.fit.max_nonzeros, 40'000'000);

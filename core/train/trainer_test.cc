@@ -587,6 +587,7 @@ TEST(FieldCallersTest, TrainerAndRendererAgreeOnEveryRay) {
     const std::vector<float> jitter(batch.size(), 0.0f);  // The renderer starts at t0.
     RenderOptions ro;
     ro.min_weight = 0.0f;  // Colour every sample, as training does.
+    ro.min_transmittance = kMinTransmittance;  // And stop where training does.
     ro.threads = 1;
     for (int i = 0; i < batch.size(); ++i) {
       float rgb[3];
