@@ -255,6 +255,21 @@ inline BrickCell LocateInBrick(const float l_in[3]) {
   return cell;
 }
 
+// Lattice points are numbered brick * 9^3 + x + 9 (y + 9 z) over all bricks
+// (the colour and density fits' unknowns, their arrays brick-major).
+inline constexpr int kBrickLattice = kBakeBrick * kBakeBrick * kBakeBrick;
+
+// The number of corner `corner` of `cell` in `brick`.
+inline uint32_t LatticeId(uint32_t brick, const BrickCell& cell, int corner) {
+  return brick * uint32_t(kBrickLattice) +
+         uint32_t(cell.x(corner) + kBakeBrick * (cell.y(corner) + kBakeBrick * cell.z(corner)));
+}
+
+// The atlas texel of lattice point `local` (x + 9 (y + 9 z)) of `brick`.
+inline size_t BrickTexel(const BakedAsset& a, uint32_t brick, int local) {
+  return BrickTexel(a, brick, local % kBakeBrick, (local / kBakeBrick) % kBakeBrick, local / (kBakeBrick * kBakeBrick));
+}
+
 // Trilinear RGBA (0..255 per channel) of a 9^3 RGBA8 lattice `texel(x, y,
 // z, c)` at local coordinates l in [0, 8]^3.
 template <class Texel>

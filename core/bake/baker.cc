@@ -59,11 +59,6 @@ Eigen::Vector3f LatticePoint(const BakedAsset& a, int block, int i) {
   return q;
 }
 
-// Texel index (RGBA8 units) in the atlas of lattice point i of brick k.
-size_t BrickTexel(const BakedAsset& a, int k, int i) {
-  return BrickTexel(a, uint32_t(k), i % kBakeBrick, (i / kBakeBrick) % kBakeBrick, i / (kBakeBrick * kBakeBrick));
-}
-
 // Stage 1: blocks overlapping occupied occupancy cells, probed on a stride
 // no coarser than the occupancy grid's finest cell.
 void FindCandidates(const NgpModel& model, BakeWork* w) {

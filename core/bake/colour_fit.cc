@@ -77,7 +77,7 @@ bool SampleCodes(const BakedAsset& a, const Eigen::Vector3f& u, const int b[3], 
     const int x = cell.x(corner), y = cell.y(corner), z = cell.z(corner);
     const float w = cell.weight(corner);
     const float code = float(a.atlas[4 * BrickTexel(a, uint32_t(brick), x, y, z) + 3]) / 255.0f;
-    c->id[corner] = uint32_t(brick) * uint32_t(kLattice) + uint32_t(x + kBakeBrick * (y + kBakeBrick * z));
+    c->id[corner] = LatticeId(uint32_t(brick), cell, corner);
     c->wa[corner] = w * code;
     A += w * code;
   }
@@ -308,7 +308,7 @@ absl::Status MakeFitTargets(const NgpModel& model, int time_step, const std::vec
   FitRays(asset, cameras, options.rays, &targets->origins, &targets->dirs);
   report->candidate_rays = targets->size();
   const FitWork work = EstimateWork(model, time_step, asset, view, targets->origins, targets->dirs);
-  report->estimated_nonzeros = int64_t(work.entries);
+  report->estimated_nonzeros = targets->estimated_nonzeros = int64_t(work.entries);
   report->estimated_model_samples = int64_t(work.model_samples);
   ThinToBudget(work, options, &targets->origins, &targets->dirs);
   const int n = targets->size();
@@ -341,12 +341,13 @@ absl::Status FitBakedColoursTo(const FitTargets& targets, const BakedAsset& asse
                                std::vector<float>* rgb, std::vector<float>* view, ColourFitReport* report) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;
   if (absl::Status s = CheckColourArrays(asset, *rgb, view); !s.ok()) return s;
-  ColourFitReport& rep = *report;
+  ColourFitReport unused;
+  ColourFitReport& rep = report != nullptr ? *report : unused;
   if (targets.size() == 0 || options.iterations == 0) return absl::OkStatus();
   auto t0 = std::chrono::steady_clock::now();
   FitSystem A = BuildRows(asset, targets.origins, targets.dirs, targets.rgb, *rgb, view != nullptr,
-                          std::min<int64_t>(rep.estimated_nonzeros, options.max_nonzeros > 0 ? options.max_nonzeros
-                                                                                               : INT64_MAX));
+                          std::min<int64_t>(targets.estimated_nonzeros,
+                                            options.max_nonzeros > 0 ? options.max_nonzeros : INT64_MAX));
   if (view != nullptr && int64_t(A.view.col.size()) > options.max_view_nonzeros) {
     view->clear();
     view = nullptr;

@@ -96,6 +96,9 @@ float BakedRayWeights(const BakedAsset& asset, const Eigen::Vector3f& o, const E
 // density fit (density_fit.h) and the colour fit share.
 struct FitTargets {
   std::vector<float> origins, dirs, rgb;
+  // The colour fit's entries these rays are estimated to make (what its
+  // rows reserve).
+  long long estimated_nonzeros = 0;
   int size() const { return int(origins.size() / 3); }
 };
 
@@ -108,7 +111,8 @@ absl::Status MakeFitTargets(const NgpModel& model, int time_step, const std::vec
                             ColourFitReport* report);
 
 // The colour fit to given targets (FitBakedColours below, after its
-// targets are made). Keeps the report's target fields.
+// targets are made). Fills the report's fit fields and keeps its target
+// fields; `report` may be null.
 absl::Status FitBakedColoursTo(const FitTargets& targets, const BakedAsset& asset, const ColourFitOptions& options,
                                std::vector<float>* rgb, std::vector<float>* view, ColourFitReport* report);
 

@@ -51,7 +51,7 @@ Eigen::Vector3f MarchSamples(const BakedAsset& a, const float* codes, const floa
         float A = 0.0f;
         Eigen::Vector3f P = Eigen::Vector3f::Zero();
         for (int k = 0; k < 8; ++k) {
-          const uint32_t id = uint32_t(brick) * kLattice + uint32_t(bc.x(k) + kBakeBrick * (bc.y(k) + kBakeBrick * bc.z(k)));
+          const uint32_t id = LatticeId(uint32_t(brick), bc, k);
           const float w = bc.weight(k);
           cur.id[k] = id;
           cur.w[k] = w;
@@ -108,12 +108,8 @@ void Backward(const std::vector<Sample>& samples, const float* rgb, const Eigen:
   MergeRepeats(jacobian);
 }
 
-// The atlas texel of lattice point i (brick * 9^3 + x + 9 (y + 9 z)).
-size_t PointTexel(const BakedAsset& a, size_t i) {
-  const int local = int(i % kLattice);
-  return BrickTexel(a, uint32_t(i / kLattice), local % kBakeBrick, (local / kBakeBrick) % kBakeBrick,
-                    local / (kBakeBrick * kBakeBrick));
-}
+// The atlas texel of lattice point i.
+size_t PointTexel(const BakedAsset& a, size_t i) { return BrickTexel(a, uint32_t(i / kLattice), int(i % kLattice)); }
 
 uint32_t Hash(uint32_t a) {
   a ^= a >> 16;
@@ -241,13 +237,23 @@ std::vector<int> ChooseRays(const FitTargets& targets, int rays) {
   return chosen;
 }
 
+// The rms of per-ray squared residuals (3 channels each), summed in ray
+// order.
+double RmsOf(const std::vector<double>& sq) {
+  double sum = 0.0;
+  for (double v : sq) sum += v;
+  return sq.empty() ? 0.0 : std::sqrt(sum / (3.0 * double(sq.size())));
+}
+
 // Linearises the chosen rays' pixels at `codes`: the rows of J (rays that
-// meet no occupied block have none and are left out) and their residuals.
-// Each thread builds a contiguous share; joined in ray order.
+// meet no occupied block have none and are left out) and their residuals;
+// *rms gets the residual of every chosen ray (RaysRms at `codes`). Each
+// thread builds a contiguous share; joined in ray order.
 DensitySystem BuildSystem(const BakedAsset& a, const FitTargets& targets, const std::vector<int>& rays,
-                          const std::vector<float>& codes, const std::vector<float>& rgb) {
+                          const std::vector<float>& codes, const std::vector<float>& rgb, double* rms) {
   const int threads = omp_get_max_threads();
   std::vector<DensitySystem> part(static_cast<size_t>(threads));
+  std::vector<double> sq(rays.size());
 #pragma omp parallel num_threads(threads)
   {
     DensitySystem& mine = part[size_t(omp_get_thread_num())];
@@ -257,6 +263,7 @@ DensitySystem BuildSystem(const BakedAsset& a, const FitTargets& targets, const 
       const size_t r = size_t(rays[k]);
       const Eigen::Vector3f o(targets.origins.data() + 3 * r), d(targets.dirs.data() + 3 * r);
       const Eigen::Vector3f px = BakedRayDensityJacobian(a, codes.data(), rgb.data(), o, d, &jac);
+      sq[k] = (Eigen::Vector3f(targets.rgb.data() + 3 * r) - px).cast<double>().squaredNorm();
       if (jac.empty()) continue;
       for (const auto& [id, j] : jac) {
         if (j.cwiseAbs().maxCoeff() >= kMinDerivative) mine.entries.push_back({id, j});
@@ -273,6 +280,7 @@ DensitySystem BuildSystem(const BakedAsset& a, const FitTargets& targets, const 
     all.residual.insert(all.residual.end(), p.residual.begin(), p.residual.end());
     p = DensitySystem();
   }
+  *rms = RmsOf(sq);
   return all;
 }
 
@@ -288,9 +296,7 @@ double RaysRms(const BakedAsset& a, const FitTargets& targets, const std::vector
     const Eigen::Vector3f px = BakedRayDensityJacobian(a, codes.data(), rgb.data(), o, d, nullptr);
     sq[k] = (Eigen::Vector3f(targets.rgb.data() + 3 * r) - px).cast<double>().squaredNorm();
   }
-  double sum = 0.0;
-  for (double v : sq) sum += v;
-  return rays.empty() ? 0.0 : std::sqrt(sum / (3.0 * double(rays.size())));
+  return RmsOf(sq);
 }
 
 }  // namespace
@@ -332,10 +338,14 @@ absl::Status FitBakedDensities(const FitTargets& targets, const DensityFitOption
   std::vector<float> codes(points);
   for (size_t i = 0; i < points; ++i) codes[i] = float(asset->atlas[4 * PointTexel(*asset, i) + 3]) / 255.0f;
   const std::vector<int> rays = ChooseRays(targets, options.rays);
-  double rms = RaysRms(*asset, targets, rays, codes, rgb);
+  double rms = 0.0;
+  DensitySystem J = BuildSystem(*asset, targets, rays, codes, rgb, &rms);
   rep.rms_before = rms;
   for (int step = 0; step < options.steps; ++step) {
-    DensitySystem J = BuildSystem(*asset, targets, rays, codes, rgb);
+    if (step > 0) {
+      double same = 0.0;  // The accepted codes' rms, already known.
+      J = BuildSystem(*asset, targets, rays, codes, rgb, &same);
+    }
     J.Number(points);
     J.Transpose();
     rep.rays = J.rows();

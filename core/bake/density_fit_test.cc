@@ -44,11 +44,7 @@ BakedAsset RandomAsset(uint32_t seed, bool contracted = false) {
   return a;
 }
 
-size_t PointTexel(const BakedAsset& a, size_t i) {
-  const int local = int(i % kLattice);
-  return BrickTexel(a, uint32_t(i / kLattice), local % kBakeBrick, (local / kBakeBrick) % kBakeBrick,
-                    local / (kBakeBrick * kBakeBrick));
-}
+size_t PointTexel(const BakedAsset& a, size_t i) { return BrickTexel(a, uint32_t(i / kLattice), int(i % kLattice)); }
 
 // The asset's codes and colours as floats (colour = premultiplied / code).
 void Unpack(const BakedAsset& a, std::vector<float>* codes, std::vector<float>* rgb) {
