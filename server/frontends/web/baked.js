@@ -113,22 +113,96 @@ vec3 viewTerm(vec3 tc, vec3 d) {  // sum_k d_k (texel_k - 128) / 127, premultipl
          d.z * (texture(uView2, tc).rgb * 255.0 - 128.0) / 127.0;
 }
 
+// The march's state, shared by the step functions and main's loops.
+vec3 o, d;                // The ray, model space (unit d).
+float t, t1, T = 1.0;     // Its next sample, its end, its transmittance.
+float stp, cell, toCells, blockSize;
+int nb;
+vec3 C = vec3(0.0);
+vec3 tcMedian = vec3(-1.0);  // The median sample (format 3): where T first falls below 1/2.
+float codeMedian = 0.0;
+
+// Composites the sample at cell coordinates u of occupied block b (index
+// entry e), dt long, and moves t past it.
+void addSample(vec3 u, ivec3 b, uint e, float dt) {
+  ivec3 bo = ivec3(int(e & 1023u), int((e >> 10) & 1023u), int(e >> 20)) * 9;  // skipIndex packs it.
+  vec3 l = clamp(u - vec3(b * kBlock), 0.0, 8.0);
+  vec3 tc = (vec3(bo) + l + 0.5) / uAtlasDims;
+  vec4 s = texture(uAtlas, tc);
+#if VIEW_MODE == 1
+  s.rgb += viewTerm(tc, d);
+#endif
+  float a0 = min(s.a * s.a, kMaxAlpha);
+  float alpha = 1.0 - exp(log(1.0 - a0) * (dt / cell));
+  C += T * alpha * clamp(s.rgb / max(s.a, 1.0 / 255.0), vec3(0.0), vec3(1.0));  // Premultiplied by the code.
+  float next = T * (1.0 - alpha);
+  if (T >= 0.5 && next < 0.5) { tcMedian = tc; codeMedian = s.a; }
+  T = next;
+  t += dt;
+}
+
+// The block holding cell coordinates u, and its index entry.
+ivec3 blockAt(vec3 u) { return clamp(ivec3(floor(u / float(kBlock))), ivec3(0), ivec3(nb - 1)); }
+
+// The cube of blocks (field units) that an empty block's entry e says is
+// empty: every block within distance D - 1 of b.
+void emptyCube(ivec3 b, uint e, out vec3 lo, out vec3 hi) {
+  float D = float(e & 0xffu) - 1.0;
+  lo = (vec3(b) - D) * blockSize - uHalf;
+  hi = (vec3(b) + D + 1.0) * blockSize - uHalf;
+}
+
+// One step at x, uncontracted (an object's grid, or the inner cube of an
+// unbounded scene's): a sample, or a skip past empty blocks by whole steps.
+void cubeStep(vec3 x) {
+  vec3 u = (x + uHalf) * toCells;
+  ivec3 b = blockAt(u);
+  uint e = texelFetch(uIndex, b, 0).r;
+  if (e < 0x80000000u) {
+    addSample(u, b, e, stp);
+    return;
+  }
+  vec3 lo, hi;
+  emptyCube(b, e, lo, hi);
+#if CONTRACTED == 1
+  lo = max(lo, vec3(-1.0)); hi = min(hi, vec3(1.0));
+#endif
+  t += max(1.0, ceil((exitT(o, d, lo, hi) - t) / stp)) * stp;
+}
+
+#if CONTRACTED == 1
+// One step at x in the contracted shell (r = |x|_inf > 1): steps grow as
+// r^2; an empty cube of blocks is skipped past where the ray leaves it,
+// the next sample half a step beyond.
+void shellStep(vec3 x, float r) {
+  float dt = stp * r * r;
+  vec3 u = (contractP(x, r) + uHalf) * toCells;
+  ivec3 b = blockAt(u);
+  uint e = texelFetch(uIndex, b, 0).r;
+  if (e < 0x80000000u) {
+    addSample(u, b, e, dt);
+    return;
+  }
+  vec3 lo, hi;
+  emptyCube(b, e, lo, hi);
+  float te = min(t + shellEmptyRun(x, d, lo, hi), t1);
+  float re = infNorm(o + te * d);
+  t = max(t + dt, te + 0.5 * stp * re * re);
+}
+#endif
+
 void main() {
   vec2 px = vec2(gl_FragCoord.x, uHeight - gl_FragCoord.y);
-  vec3 d = normalize(uRot * vec3((px.x - uIntr.z) / uIntr.x, (px.y - uIntr.w) / uIntr.y, 1.0));
-  vec3 o = uOrigin;
-  float cell = 2.0 * uHalf / uRes, stp = uStepCells * cell, toCells = uRes / (2.0 * uHalf);
-  float blockSize = float(kBlock) / toCells;
-  int nb = int(uRes + 0.5) / kBlock;
-  float T = 1.0;
-  vec3 C = vec3(0.0);
-  vec3 tcMedian = vec3(-1.0);  // The median sample (format 3): where T first falls below 1/2.
-  float codeMedian = 0.0;
-  float t0, t1;
+  d = normalize(uRot * vec3((px.x - uIntr.z) / uIntr.x, (px.y - uIntr.w) / uIntr.y, 1.0));
+  o = uOrigin;
+  cell = 2.0 * uHalf / uRes; stp = uStepCells * cell; toCells = uRes / (2.0 * uHalf);
+  blockSize = float(kBlock) / toCells;
+  nb = int(uRes + 0.5) / kBlock;
+  float t0;
   float box = CONTRACTED == 1 ? 2.0 / cell : uHalf;
   bool hit = intersectBox(o, d, box, t0, t1);
   t0 = max(t0, uNear);
-  float t = t0 + 0.5 * stp;
+  t = t0 + 0.5 * stp;
   if (hit && CONTRACTED == 0) {  // An object: march only across the box of occupied blocks.
     float ta, tb;
     vec3 lo = vec3(uOccLo) * blockSize - uHalf, hi = vec3(uOccHi + 1) * blockSize - uHalf;
@@ -138,53 +212,37 @@ void main() {
       t1 = min(t1, tb + stp);
     }
   }
-  if (hit) {
-    for (int it = 0; it < kMaxSteps; ++it) {
-      if (!(t < t1) || T <= kMinT) break;
-      vec3 x = o + t * d;
-      float r = infNorm(x);
+  int it = 0;
 #if CONTRACTED == 1
-      float dt = r > 1.0 ? stp * r * r : stp;
-      vec3 u = (contractP(x, r) + uHalf) * toCells;
-#else
-      float dt = stp;
-      vec3 u = (x + uHalf) * toCells;
-#endif
-      ivec3 b = clamp(ivec3(floor(u / float(kBlock))), ivec3(0), ivec3(nb - 1));
-      uint e = texelFetch(uIndex, b, 0).r;
-      if (e >= 0x80000000u) {  // Empty, and so is every block within distance D - 1.
-        float D = float(e & 0xffu) - 1.0;
-        vec3 lo = (vec3(b) - D) * blockSize - uHalf, hi = (vec3(b) + D + 1.0) * blockSize - uHalf;
-#if CONTRACTED == 1
-        if (r <= 1.0) {
-          lo = max(lo, vec3(-1.0)); hi = min(hi, vec3(1.0));
-          t += max(1.0, ceil((exitT(o, d, lo, hi) - t) / stp)) * stp;
-        } else {  // In the shell: past the contracted cube, half a step beyond.
-          float te = min(t + shellEmptyRun(x, d, lo, hi), t1);
-          float re = infNorm(o + te * d);
-          t = max(t + dt, te + 0.5 * stp * re * re);
-        }
-#else
-        t += max(1.0, ceil((exitT(o, d, lo, hi) - t) / stp)) * stp;
-#endif
-        continue;
-      }
-      ivec3 bo = ivec3(int(e & 1023u), int((e >> 10) & 1023u), int(e >> 20)) * 9;  // skipIndex packs it.
-      vec3 l = clamp(u - vec3(b * kBlock), 0.0, 8.0);
-      vec3 tc = (vec3(bo) + l + 0.5) / uAtlasDims;
-      vec4 s = texture(uAtlas, tc);
-#if VIEW_MODE == 1
-      s.rgb += viewTerm(tc, d);
-#endif
-      float a0 = min(s.a * s.a, kMaxAlpha);
-      float alpha = 1.0 - exp(log(1.0 - a0) * (dt / cell));
-      C += T * alpha * clamp(s.rgb / max(s.a, 1.0 / 255.0), vec3(0.0), vec3(1.0));  // Premultiplied by the code.
-      float next = T * (1.0 - alpha);
-      if (T >= 0.5 && next < 0.5) { tcMedian = tc; codeMedian = s.a; }
-      T = next;
-      t += dt;
-    }
+  // The same samples as one loop that asks at each whether it is in the
+  // inner cube, in three loops: the shell before the cube (a camera outside
+  // it), the cube, the shell beyond (a line meets a cube in one interval).
+  // Software WebGL2 runs every instruction of a loop body on every step, so
+  // the cube's steps must not carry the shell's code.
+  for (; hit && it < kMaxSteps; ++it) {
+    if (!(t < t1) || T <= kMinT) break;
+    vec3 x = o + t * d;
+    float r = infNorm(x);
+    if (r <= 1.0) break;
+    shellStep(x, r);
   }
+  for (; hit && it < kMaxSteps; ++it) {
+    if (!(t < t1) || T <= kMinT) break;
+    vec3 x = o + t * d;
+    if (infNorm(x) > 1.0) break;
+    cubeStep(x);
+  }
+  for (; hit && it < kMaxSteps; ++it) {
+    if (!(t < t1) || T <= kMinT) break;
+    vec3 x = o + t * d;
+    shellStep(x, infNorm(x));
+  }
+#else
+  for (; hit && it < kMaxSteps; ++it) {
+    if (!(t < t1) || T <= kMinT) break;
+    cubeStep(o + t * d);
+  }
+#endif
 #if VIEW_MODE == 2
   if (tcMedian.x >= 0.0) C += (1.0 - T) * viewTerm(tcMedian, d) / max(codeMedian, 1.0 / 255.0);
 #endif
