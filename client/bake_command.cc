@@ -107,8 +107,7 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
                                                {"sample", BakedViewTerm::kPerSample}}))
       ->capture_default_str();
   c->add_option("--step-cells", a->bake.step_cells,
-                "Ray step in cells at the base resolution, a multiple of 1/32 in [0.5, 2] (finer derived grids keep its "
-                "length)")
+                "Ray step in cells of the baked grid (derived finer grids too), a multiple of 1/32 in [0.5, 2]")
       ->check(CLI::Range(0.5f, 2.0f))
       ->capture_default_str();
   c->add_option("--fit-iters", a->bake.fit.iterations, "Colour-fit solver iterations")->capture_default_str();

@@ -32,9 +32,10 @@
 //     texture reads per pixel instead of three per sample.
 //
 // Rays step `step_cells` cells, a multiple of 1/32 in [0.5, 2] (1 for
-// assets baked now at their base resolution, R/512 on the finer grids of
-// a derived resolution, so that a step stays one base cell long; 0.5 for
-// assets before format 3), as the manifest's "step" says.
+// assets baked now, at any resolution; R/512 on the finer grids of a
+// derived resolution from sessions 45-73, so that a step stayed one 512th
+// of the box long; 0.5 for assets before format 3), as the manifest's
+// "step" says.
 //
 // Files (a folder; SaveBakedAsset / LoadBakedAsset): manifest.json (the
 // fields below; format 1 diffuse, 2 or 3 with the view term), index.bin.gz

@@ -625,9 +625,8 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
   if (options.resolution == 0 && model.contracted()) {
     const int finer = DerivedResolution(base, bytes, options.max_asset_bytes);
     if (finer > base) {
-      // Steps stay as long as the base grid's: the finer lattice sharpens
-      // what a sample reads, at the same samples per ray.
-      a.step_cells = std::min(2.0f, RoundBakedStep(options.step_cells * float(finer) / float(base)));
+      // Steps of the finer grid's own cells (a.step_cells as set above):
+      // longer ones skip across the thin structures the finer grid holds.
       BakeGrid(model, t, cameras, options, finer, uint64_t(budget), &w, &kept, &rgb, &rep);
     }
   }
