@@ -173,7 +173,9 @@ void cubeStep(vec3 x) {
 #if CONTRACTED == 1
 // One step at x in the contracted shell (r = |x|_inf > 1): steps grow as
 // r^2; an empty cube of blocks is skipped past where the ray leaves it,
-// the next sample half a step beyond.
+// the next sample half a step beyond. Its first lines repeat cubeStep's on
+// purpose: one function for both, returning the empty cube through out
+// parameters, drew 4-9 % slower in software WebGL2 (session 74).
 void shellStep(vec3 x, float r) {
   float dt = stp * r * r;
   vec3 u = (contractP(x, r) + uHalf) * toCells;
