@@ -33,7 +33,7 @@
 //
 // Rays step `step_cells` cells, a multiple of 1/32 in [0.5, 2] (1 for
 // assets baked now, at any resolution; R/512 on the finer grids of a
-// derived resolution from sessions 45-73, so that a step stayed one 512th
+// derived resolution in sessions 49-73, so that a step stayed one 512th
 // of the box long; 0.5 for assets before format 3), as the manifest's
 // "step" says.
 //
