@@ -76,6 +76,10 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
   c->add_option("--visibility-rays", a->bake.visibility_rays,
                 "Training-camera rays that decide which blocks are kept (a strided grid; every border pixel too)")
       ->capture_default_str();
+  c->add_flag("--in-between-views,!--training-views-only", a->bake.in_between_views,
+              "Visibility rays also from a camera halfway between each training camera and its nearest neighbour "
+              "(default), or from the training cameras only")
+      ->capture_default_str();
   c->add_option("--min-block-weight", a->bake.min_block_weight,
                 "Keep a block when some training ray puts at least this much weight in it")
       ->capture_default_str();

@@ -138,6 +138,7 @@ absl::Status ApplyBake(const nlohmann::json& g, ServerOptions* o) {
     else if (k == "resolution") s = Get(*it, "bake.resolution", &o->bake.resolution);
     else if (k == "min_block_weight") s = Get(*it, "bake.min_block_weight", &o->bake.min_block_weight);
     else if (k == "visibility_rays") s = Get(*it, "bake.visibility_rays", &o->bake.visibility_rays);
+    else if (k == "in_between_views") s = Get(*it, "bake.in_between_views", &o->bake.in_between_views);
     else if (k == "fit_rays") s = Get(*it, "bake.fit_rays", &o->bake.fit.rays);
     else if (k == "fit_max_entries") s = Get(*it, "bake.fit_max_entries", &o->bake.fit.max_nonzeros);
     else if (k == "fit_max_model_samples") s = Get(*it, "bake.fit_max_model_samples", &o->bake.fit.max_model_samples);

@@ -147,7 +147,8 @@ struct ServerOptions {
   // version is viewable the moment it is deployed; other time steps are
   // baked on their first request (GET /api/asset) and kept beside the
   // version. A failed bake never stops a publish. Config object "bake":
-  // on_publish, resolution, min_block_weight, visibility_rays, fit_rays,
+  // on_publish, resolution, min_block_weight, visibility_rays,
+  // in_between_views, fit_rays,
   // fit_max_entries, fit_max_model_samples, density_fit_rays (0 = off),
   // max_asset_bytes, max_object_asset_bytes.
   bool bake_on_publish = true;

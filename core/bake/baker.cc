@@ -14,6 +14,7 @@
 #include "core/bake/colour_fit.h"
 #include "core/field/field.h"
 #include "core/io/gzip.h"
+#include "Eigen/Geometry"
 
 namespace clnerf {
 namespace {
@@ -537,7 +538,12 @@ uint64_t BakeGrid(const NgpModel& model, int t, const std::vector<Camera>& camer
   rep->candidate_seconds += Since(t0);
   const auto t1 = std::chrono::steady_clock::now();
   LazyDensity density(model, t, w);
-  Visibility(cameras, options, &density, w, &w->max_w, &w->dir, &rep->visibility_rays);
+  std::vector<Camera> views = cameras;
+  if (options.in_between_views) {
+    const std::vector<Camera> more = InBetweenCameras(cameras);
+    views.insert(views.end(), more.begin(), more.end());
+  }
+  Visibility(views, options, &density, w, &w->max_w, &w->dir, &rep->visibility_rays);
   rep->evaluated_blocks = density.evaluated();
   rep->visibility_seconds += Since(t1);
   // A ray leaves in a block of a finer grid than the kind's default a
@@ -564,6 +570,29 @@ int DerivedResolution(int resolution, uint64_t bytes, int64_t budget) {
 }
 
 }  // namespace
+
+std::vector<Camera> InBetweenCameras(const std::vector<Camera>& cameras) {
+  std::vector<Camera> out;
+  for (size_t i = 0; i < cameras.size(); ++i) {
+    const Eigen::Vector3f pi = cameras[i].position();
+    size_t best = i;
+    float best_d = INFINITY;
+    for (size_t j = 0; j < cameras.size(); ++j) {
+      const float dd = (cameras[j].position() - pi).squaredNorm();
+      if (j != i && dd > 0.0f && dd < best_d) {
+        best_d = dd;
+        best = j;
+      }
+    }
+    const Eigen::Matrix3f ri = cameras[i].c2w.leftCols<3>(), rj = cameras[best].c2w.leftCols<3>();
+    if (best == i || std::abs(ri.determinant() - 1.0f) > 1e-3f || std::abs(rj.determinant() - 1.0f) > 1e-3f) continue;
+    Camera v = cameras[i];
+    v.c2w.leftCols<3>() = Eigen::Quaternionf(ri).slerp(0.5f, Eigen::Quaternionf(rj)).toRotationMatrix();
+    v.c2w.col(3) = 0.5f * (pi + cameras[best].position());
+    out.push_back(v);
+  }
+  return out;
+}
 
 absl::Status BakeOptions::Validate() const {
   if (resolution != 0 && (resolution < 32 || resolution > 2048 || resolution % 32 != 0)) {

@@ -1,6 +1,7 @@
 #include "core/bake/baker.h"
 
 #include <algorithm>
+#include <cmath>
 
 #include "core/bake/baked_renderer.h"
 #include "core/data/image.h"
@@ -8,6 +9,7 @@
 #include "core/render/metrics.h"
 #include "core/render/renderer.h"
 #include "core/train/fit.h"
+#include "Eigen/Geometry"
 #include "gtest/gtest.h"
 
 namespace clnerf {
@@ -102,6 +104,7 @@ TEST(BakerTest, VisibilityMarchesEveryBorderPixel) {
   BakeOptions o;
   o.resolution = 64;
   o.fit.rays = 0;
+  o.in_between_views = false;  // The training cameras' rays alone, counted below.
   o.visibility_rays = int(t.cameras.size()) * 4;  // A stride of half the image: a 2 x 2 grid per photo.
   BakeReport rep;
   ASSERT_TRUE(BakeModel(*t.model, -1, t.cameras, o, &rep).ok());
@@ -315,6 +318,40 @@ TEST(BakerTest, BadRequestsAreRefused) {
   o = BakeOptions();
   o.step_cells = 0.25f;
   EXPECT_EQ(BakeModel(*t.model, -1, t.cameras, o, nullptr).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+// Each camera gets one halfway to its nearest neighbour: centre midway,
+// rotation halfway; none for a lone or coincident camera or an improper
+// rotation.
+TEST(InBetweenCamerasTest, HalfwayToEachNearestNeighbour) {
+  auto cam = [](float x, float yaw_deg) {
+    Camera c;
+    c.intrinsics.width = 8;
+    c.intrinsics.height = 6;
+    c.intrinsics.fx = c.intrinsics.fy = 10.0f;
+    c.c2w.leftCols<3>() = Eigen::AngleAxisf(yaw_deg * float(M_PI) / 180.0f, Eigen::Vector3f::UnitY()).toRotationMatrix();
+    c.c2w.col(3) = Eigen::Vector3f(x, 0.0f, 0.0f);
+    return c;
+  };
+  // Cameras at x = 0, 1, 3 turned 0, 40, 90 degrees: the nearest pairs are
+  // (0, 1), (1, 0), (3, 1).
+  const std::vector<Camera> cams = {cam(0, 0), cam(1, 40), cam(3, 90)};
+  const std::vector<Camera> mid = InBetweenCameras(cams);
+  ASSERT_EQ(mid.size(), 3u);
+  const float want_x[3] = {0.5f, 0.5f, 2.0f}, want_yaw[3] = {20.0f, 20.0f, 65.0f};
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_NEAR(mid[size_t(i)].position().x(), want_x[i], 1e-6f) << i;
+    EXPECT_NEAR(mid[size_t(i)].position().tail<2>().norm(), 0.0f, 1e-6f) << i;
+    const Eigen::Matrix3f r = mid[size_t(i)].c2w.leftCols<3>();
+    const Eigen::Matrix3f want = cam(0, want_yaw[i]).c2w.leftCols<3>();
+    EXPECT_LT((r - want).norm(), 1e-5f) << i;
+    EXPECT_EQ(mid[size_t(i)].intrinsics.width, 8);
+  }
+  EXPECT_TRUE(InBetweenCameras({cam(0, 0)}).empty());
+  EXPECT_TRUE(InBetweenCameras({cam(1, 0), cam(1, 30)}).empty());  // Coincident: no distinct neighbour.
+  Camera mirrored = cam(1, 0);
+  mirrored.c2w.col(0) *= -1.0f;
+  EXPECT_EQ(InBetweenCameras({cam(0, 0), mirrored}).size(), 0u);
 }
 
 }  // namespace
