@@ -422,6 +422,15 @@ uint64_t EstimatedStoredBytes(const BakedAsset& a) {
   return uint64_t(total);
 }
 
+// The asset's stored bytes exactly: its files as SaveBakedAsset writes
+// them (0 if it cannot be serialised; the bake's own checks report that).
+uint64_t ExactStoredBytes(const BakedAsset& a) {
+  absl::StatusOr<std::vector<std::pair<std::string, std::string>>> files = SerializeBakedAsset(a);
+  uint64_t n = 0;
+  for (size_t k = 0; files.ok() && k < files->size(); ++k) n += (*files)[k].second.size();
+  return n;
+}
+
 // The grid an asset is baked at unless a resolution is given: 256 for an
 // object, 512 for an unbounded scene (a derived finer grid starts there).
 int DefaultResolution(bool contracted) { return contracted ? 512 : 256; }
@@ -668,7 +677,14 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
   // at most kMaxRebakes times.
   constexpr int kMaxRebakes = 3;
   double stage4_budget = double(budget);
-  while (s.ok() && budget > 0 && rep.stored_bytes > budget && rep.over_budget_rebakes < kMaxRebakes) {
+  while (s.ok() && budget > 0 && rep.over_budget_rebakes < kMaxRebakes) {
+    // The estimate compresses a quarter of the atlas and guesses the
+    // index: within 10 % of the budget the asset is measured whole (a
+    // procedural room: estimated 11.82 MB, stored 12.23 against 12).
+    if (rep.stored_bytes <= budget && rep.stored_bytes >= budget - budget / 10) {
+      rep.stored_bytes = int64_t(ExactStoredBytes(a));
+    }
+    if (rep.stored_bytes <= budget) break;
     ++rep.over_budget_rebakes;
     stage4_budget *= double(budget) / double(rep.stored_bytes);
     ColourGrid(model, t, uint64_t(stage4_budget), &w, &kept, &rgb, &rep);

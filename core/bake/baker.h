@@ -116,7 +116,9 @@ struct BakeReport {
   // unbounded scenes), which a derived resolution is chosen from.
   long long base_resolution_bytes = 0;
   // The stored asset's estimated bytes before and after the view term's
-  // dead zone (0 = not estimated: no budget), and whether it applied.
+  // dead zone (0 = not estimated: no budget), and whether it applied; the
+  // second is measured exactly when the estimate is within 10 % of the
+  // budget.
   long long estimated_bytes = 0;
   long long stored_bytes = 0;
   bool view_dead_zone = false;

@@ -246,7 +246,10 @@ TEST(BakerTest, ADownloadBudgetKeepsTheMostSeenBlocks) {
   for (const auto& f : *files) bytes += f.first == "manifest.json" ? 0 : f.second.size();
   std::printf("budget %lld bytes: %zu bytes stored (%zu without), %d of %d blocks\n", (long long)o.max_object_asset_bytes,
               bytes, full_bytes, rep.kept_blocks, rep.visible_blocks);
-  EXPECT_LE(double(bytes), 1.1 * double(o.max_object_asset_bytes));
+  // Near the budget the stored bytes are measured whole (the estimate
+  // samples a quarter of the atlas): the files fit it.
+  EXPECT_LE(bytes, size_t(o.max_object_asset_bytes));
+  EXPECT_LE(rep.stored_bytes, o.max_object_asset_bytes);
   // Every kept block was kept without the budget too, and the asset still
   // shows the object.
   for (size_t i = 0; i < half->index.size(); ++i) {
