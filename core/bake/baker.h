@@ -5,9 +5,10 @@
 //  1. Candidate blocks: the 8^3-cell blocks that overlap occupied cells of
 //     the model's occupancy grid.
 //  2. Density at the 9^3 lattice points of every candidate block that a
-//     training ray of stage 3 reaches (computed as the first one does).
-//  3. Visibility: rays from the training cameras (a strided subset of their
-//     pixels) march the baked densities exactly as the renderer will; a
+//     ray of stage 3 reaches (computed as the first one does).
+//  3. Visibility: rays from the training cameras and from cameras halfway
+//     between neighbouring ones (a strided subset of their pixels) march
+//     the baked densities exactly as the renderer will; a
 //     block is kept when some ray deposits at least `min_block_weight` of
 //     its weight in it, and the rays' weighted mean direction in the block
 //     is recorded.
