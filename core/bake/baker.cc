@@ -227,10 +227,14 @@ std::vector<std::pair<int, int>> VisibilityPixels(int W, int H, int stride, size
 // Stage 3: training rays march the density codes; per candidate, the most
 // weight one ray left in it and the weighted sum of those rays' directions
 // (the same on every run: max and integer sums do not depend on order).
-void Visibility(const std::vector<Camera>& cameras, const BakeOptions& o, LazyDensity* density, BakeWork* w,
-                std::vector<float>* max_w, std::vector<Eigen::Vector3f>* dir, long long* rays_marched) {
+void Visibility(const std::vector<Camera>& cameras, size_t num_training, const BakeOptions& o, LazyDensity* density,
+                BakeWork* w, std::vector<float>* max_w, std::vector<Eigen::Vector3f>* dir, long long* rays_marched) {
+  // The stride gives the first num_training cameras (the training ones)
+  // about o.visibility_rays; the rest (in-between cameras) march as densely.
   double pixels = 0;
-  for (const Camera& c : cameras) pixels += double(c.intrinsics.width) * c.intrinsics.height;
+  for (size_t k = 0; k < std::min(num_training, cameras.size()); ++k) {
+    pixels += double(cameras[k].intrinsics.width) * cameras[k].intrinsics.height;
+  }
   const int stride = std::max(1, int(std::ceil(std::sqrt(pixels / double(o.visibility_rays)))));
   const size_t n = w->blocks.size();
   max_w->assign(n, 0.0f);
@@ -552,7 +556,7 @@ uint64_t BakeGrid(const NgpModel& model, int t, const std::vector<Camera>& camer
     const std::vector<Camera> more = InBetweenCameras(cameras);
     views.insert(views.end(), more.begin(), more.end());
   }
-  Visibility(views, options, &density, w, &w->max_w, &w->dir, &rep->visibility_rays);
+  Visibility(views, cameras.size(), options, &density, w, &w->max_w, &w->dir, &rep->visibility_rays);
   rep->evaluated_blocks = density.evaluated();
   rep->visibility_seconds += Since(t1);
   // A ray leaves in a block of a finer grid than the kind's default a

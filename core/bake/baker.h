@@ -52,7 +52,7 @@ struct BakeOptions {
   // 768); on session 73's model flower_4 at 1024 is +0.61 dB over 768.
   int resolution = 0;
   // Training-camera rays marched for visibility: pixels on a stride that
-  // gives about this many over all cameras, plus every border pixel of
+  // gives about this many over the training cameras, plus every border pixel of
   // each photo (lego_100: 280 K rays in all, beer_2: 347 K).
   int visibility_rays = 1 << 18;
   // The visibility rays also come from one camera halfway between each
@@ -60,9 +60,11 @@ struct BakeOptions {
   // viewer sees moving along the capture: where the model's geometry
   // differs between neighbouring views (a textureless wall drawn at two
   // depths), blocks no training ray reaches but such a viewer does are
-  // kept. A procedural room: 30.78 -> 32.58 dB (bake 30.8 -> 11.7 s); the
-  // four shared captures within 0.02 dB, the same size (docs/baking.md,
-  // session 74). The rays are shared out over all of them.
+  // kept. A procedural room: 30.78 -> 32.08 dB (bake 30.8 -> 23.4 s); a
+  // procedural forward-facing scene and the four shared captures within
+  // 0.07 dB (docs/baking.md, session 74). They march on the training
+  // cameras' stride: visibility_rays counts the training cameras' rays,
+  // and these add about as many.
   bool in_between_views = true;
   // A block is kept when some training ray deposits at least this much of
   // its weight in it. 0.1 against 0.01: assets 8-46 % smaller for at most
