@@ -270,6 +270,11 @@ inline size_t BrickTexel(const BakedAsset& a, uint32_t brick, int local) {
   return BrickTexel(a, brick, local % kBakeBrick, (local / kBakeBrick) % kBakeBrick, local / (kBakeBrick * kBakeBrick));
 }
 
+// The atlas texel of lattice point `id` (numbered as LatticeId numbers it).
+inline size_t LatticeTexel(const BakedAsset& a, uint32_t id) {
+  return BrickTexel(a, id / uint32_t(kBrickLattice), int(id % uint32_t(kBrickLattice)));
+}
+
 // Trilinear RGBA (0..255 per channel) of a 9^3 RGBA8 lattice `texel(x, y,
 // z, c)` at local coordinates l in [0, 8]^3.
 template <class Texel>

@@ -19,7 +19,6 @@
 namespace clnerf {
 namespace {
 
-constexpr int kLattice = kBakeBrick * kBakeBrick * kBakeBrick;  // Points per brick.
 // View-dependent codes within this many steps of zero are written as zero
 // when the asset would otherwise exceed its download budget
 // (WriteWithinBudget): lego_100's asset 4.33 -> 3.88 MB for 0.11 dB (2:
@@ -42,7 +41,7 @@ struct BakeWork {
   BakedAsset asset;             // Geometry so far; arrays filled at the end.
   std::vector<int32_t> slot;    // Per block: candidate slot, or -1.
   std::vector<int> blocks;      // Candidate slot -> block.
-  std::vector<uint8_t> code;    // kLattice density codes per candidate.
+  std::vector<uint8_t> code;    // kBrickLattice density codes per candidate.
   // Stage 3's results on this grid, which stage 4 starts from (and starts
   // from again when the fitted asset is over its budget).
   std::vector<float> max_w;            // Per candidate: the most a training ray weighs it.
@@ -101,15 +100,15 @@ uint8_t DensityCode(float sigma, float cell) {
 // occupancy grid is occupied, as the model's own march samples (the field's
 // faint values in cells it skips never show).
 void BlockDensity(const NgpModel& model, const FieldEvaluator& field, int t, int s, BakeWork* w) {
-  std::vector<float> pts(3 * size_t(kLattice)), sigma(kLattice);
-  for (int i = 0; i < kLattice; ++i) {
+  std::vector<float> pts(3 * size_t(kBrickLattice)), sigma(kBrickLattice);
+  for (int i = 0; i < kBrickLattice; ++i) {
     const Eigen::Vector3f q = LatticePoint(w->asset, w->blocks[size_t(s)], i);
     std::copy(q.data(), q.data() + 3, pts.data() + 3 * size_t(i));
   }
-  field.DensityAt(pts.data(), kLattice, t, sigma.data());
+  field.DensityAt(pts.data(), kBrickLattice, t, sigma.data());
   const OccupancyGrid& occ = model.occupancy();
-  uint8_t* code = w->code.data() + size_t(s) * kLattice;
-  for (int j = 0; j < kLattice; ++j) {
+  uint8_t* code = w->code.data() + size_t(s) * kBrickLattice;
+  for (int j = 0; j < kBrickLattice; ++j) {
     const bool on = occ.Occupied(Eigen::Map<const Eigen::Vector3f>(pts.data() + 3 * size_t(j)));
     code[j] = on ? DensityCode(sigma[size_t(j)], w->asset.cell()) : 0;
   }
@@ -123,7 +122,7 @@ class LazyDensity {
  public:
   LazyDensity(const NgpModel& model, int t, BakeWork* w)
       : model_(model), field_(model), t_(t), w_(w), state_(w->blocks.size()) {
-    w->code.assign(w->blocks.size() * kLattice, 0);
+    w->code.assign(w->blocks.size() * kBrickLattice, 0);
   }
   // Candidate s's codes, computed on first use. Thread-safe.
   const uint8_t* Codes(int s) {
@@ -138,7 +137,7 @@ class LazyDensity {
         while (st.load(std::memory_order_acquire) != kDone) std::this_thread::yield();
       }
     }
-    return w_->code.data() + size_t(s) * kLattice;
+    return w_->code.data() + size_t(s) * kBrickLattice;
   }
   int evaluated() const { return evaluated_.load(); }
 
@@ -278,8 +277,8 @@ void Visibility(const std::vector<Camera>& cameras, size_t num_training, const B
 // in the brick) has density. The others are written as 0, which renders
 // the same and compresses far better than the field's colours in empty
 // space.
-std::vector<uint8_t> ColourUsed(const uint8_t* code) {  // kLattice codes.
-  std::vector<uint8_t> used(kLattice, 0);
+std::vector<uint8_t> ColourUsed(const uint8_t* code) {  // kBrickLattice codes.
+  std::vector<uint8_t> used(kBrickLattice, 0);
   for (int z = 0; z < kBakeBrick; ++z) {
     for (int y = 0; y < kBakeBrick; ++y) {
       for (int x = 0; x < kBakeBrick; ++x) {
@@ -310,8 +309,8 @@ void PackCodes(const std::vector<int>& kept, BakeWork* w) {
   a.index.assign(size_t(nb) * nb * nb, 0);
   for (int k = 0; k < n; ++k) {
     a.index[size_t(w->blocks[kept[k]])] = uint32_t(k + 1);
-    const uint8_t* code = w->code.data() + size_t(kept[k]) * kLattice;
-    for (int i = 0; i < kLattice; ++i) a.atlas[4 * BrickTexel(a, k, i) + 3] = code[i];
+    const uint8_t* code = w->code.data() + size_t(kept[k]) * kBrickLattice;
+    for (int i = 0; i < kBrickLattice; ++i) a.atlas[4 * BrickTexel(a, k, i) + 3] = code[i];
   }
 }
 
@@ -322,30 +321,30 @@ void BakeColour(const NgpModel& model, int t, const std::vector<int>& kept, cons
   PackCodes(kept, w);
   const BakedAsset& a = w->asset;
   const int n = int(kept.size());
-  rgb->assign(3 * size_t(kLattice) * size_t(n), 0.0f);
+  rgb->assign(3 * size_t(kBrickLattice) * size_t(n), 0.0f);
   const FieldEvaluator field(model);
 #pragma omp parallel
   {
     FieldContext fc;
-    const std::vector<int> seg = {0, kLattice};
-    std::vector<int> all(kLattice);  // Every lattice point reaches the colour MLP.
-    for (int i = 0; i < kLattice; ++i) all[i] = i;
+    const std::vector<int> seg = {0, kBrickLattice};
+    std::vector<int> all(kBrickLattice);  // Every lattice point reaches the colour MLP.
+    for (int i = 0; i < kBrickLattice; ++i) all[i] = i;
 #pragma omp for schedule(dynamic)
     for (int k = 0; k < n; ++k) {
       const int s = kept[k];
       Eigen::Vector3f d = dir[s];
       d = d.norm() > 0 ? d.normalized() : Eigen::Vector3f(0, 0, 1);
       field.SetRays(1, d.data(), nullptr, t, &fc);
-      field.ResizeSamples(kLattice, &fc);
-      for (int i = 0; i < kLattice; ++i) {
+      field.ResizeSamples(kBrickLattice, &fc);
+      for (int i = 0; i < kBrickLattice; ++i) {
         const Eigen::Vector3f g = field.GridInputFromFieldSpace(LatticePoint(a, w->blocks[s], i));
         std::copy(g.data(), g.data() + 3, fc.pos.data() + 3 * size_t(i));
       }
-      field.Density(kLattice, seg.data(), nullptr, 1, &fc);
-      field.Select(all.data(), kLattice, /*for_backward=*/false, &fc);
-      field.Colour(kLattice, seg.data(), nullptr, 1, &fc);
-      for (int i = 0; i < kLattice; ++i) {
-        for (int c = 0; c < 3; ++c) (*rgb)[3 * (size_t(k) * kLattice + size_t(i)) + c] = std::clamp(fc.ws.rgb(c, i), 0.0f, 1.0f);
+      field.Density(kBrickLattice, seg.data(), nullptr, 1, &fc);
+      field.Select(all.data(), kBrickLattice, /*for_backward=*/false, &fc);
+      field.Colour(kBrickLattice, seg.data(), nullptr, 1, &fc);
+      for (int i = 0; i < kBrickLattice; ++i) {
+        for (int c = 0; c < 3; ++c) (*rgb)[3 * (size_t(k) * kBrickLattice + size_t(i)) + c] = std::clamp(fc.ws.rgb(c, i), 0.0f, 1.0f);
       }
     }
   }
@@ -362,21 +361,21 @@ void WriteColours(const std::vector<float>& rgb, const std::vector<float>& view,
   if (!view.empty()) a->view.assign(3 * plane, 0);
 #pragma omp parallel for schedule(dynamic)
   for (int k = 0; k < n; ++k) {
-    uint8_t code[kLattice];
-    for (int i = 0; i < kLattice; ++i) code[i] = a->atlas[4 * BrickTexel(*a, k, i) + 3];
+    uint8_t code[kBrickLattice];
+    for (int i = 0; i < kBrickLattice; ++i) code[i] = a->atlas[4 * BrickTexel(*a, k, i) + 3];
     const std::vector<uint8_t> used = ColourUsed(code);
-    for (int i = 0; i < kLattice; ++i) {
+    for (int i = 0; i < kBrickLattice; ++i) {
       uint8_t* px = a->atlas.data() + 4 * BrickTexel(*a, k, i);
       const float s = float(code[i]) / 255.0f;
       for (int c = 0; c < 3; ++c) {
-        const float v = rgb[3 * (size_t(k) * kLattice + size_t(i)) + c];
+        const float v = rgb[3 * (size_t(k) * kBrickLattice + size_t(i)) + c];
         px[c] = used[i] ? uint8_t(std::lround(255.0f * s * std::clamp(v, 0.0f, 1.0f))) : 0;
       }
       if (view.empty()) continue;
       const size_t at = 4 * BrickTexel(*a, k, i);
       for (int kk = 0; kk < 3; ++kk) {
         for (int c = 0; c < 3; ++c) {
-          const float h = used[i] ? s * std::clamp(view[9 * (size_t(k) * kLattice + size_t(i)) + 3 * kk + c], -1.0f, 1.0f) : 0;
+          const float h = used[i] ? s * std::clamp(view[9 * (size_t(k) * kBrickLattice + size_t(i)) + 3 * kk + c], -1.0f, 1.0f) : 0;
           long q = std::lround(127.0f * h);
           if (dead_zone && std::abs(q) <= kViewDeadZone) q = 0;
           a->view[size_t(kk) * plane + at + size_t(c)] = uint8_t(128 + q);
@@ -511,7 +510,7 @@ uint64_t ColourWithinBudget(const NgpModel& model, int t, uint64_t budget, const
     std::vector<float> next_rgb;
     for (int k : order) {
       next.push_back((*kept)[size_t(k)]);
-      next_rgb.insert(next_rgb.end(), rgb->begin() + 3 * kLattice * size_t(k), rgb->begin() + 3 * kLattice * size_t(k + 1));
+      next_rgb.insert(next_rgb.end(), rgb->begin() + 3 * kBrickLattice * size_t(k), rgb->begin() + 3 * kBrickLattice * size_t(k + 1));
     }
     *kept = std::move(next);
     *rgb = std::move(next_rgb);

@@ -15,7 +15,6 @@
 namespace clnerf {
 namespace {
 
-constexpr int kLattice = kBakeBrick * kBakeBrick * kBakeBrick;
 
 double Since(std::chrono::steady_clock::time_point t0) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
@@ -286,7 +285,7 @@ absl::Status ColourFitOptions::Validate() const {
 namespace {
 
 absl::Status CheckColourArrays(const BakedAsset& asset, const std::vector<float>& rgb, const std::vector<float>* view) {
-  if (rgb.size() != size_t(3 * kLattice) * size_t(asset.num_bricks()) ||
+  if (rgb.size() != size_t(3 * kBrickLattice) * size_t(asset.num_bricks()) ||
       (view != nullptr && view->size() != 3 * rgb.size())) {
     return absl::InvalidArgumentError("bake: colour array does not match the atlas");
   }

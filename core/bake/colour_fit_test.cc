@@ -9,7 +9,6 @@
 namespace clnerf {
 namespace {
 
-constexpr int kLattice = kBakeBrick * kBakeBrick * kBakeBrick;
 
 // A 32^3 grid over [-1, 1]^3 with `blocks` random occupied blocks around
 // the centre, random density codes and premultiplied colours, and (with
@@ -56,11 +55,7 @@ BakedAsset RandomAsset(int blocks, bool view, uint32_t seed) {
 // Colour c0 and view term H of lattice point j, as the atlas stores them
 // (divided back by the density code).
 void PointColour(const BakedAsset& a, uint32_t j, Eigen::Vector3f* c0, Eigen::Matrix3f* H) {
-  const uint32_t brick = j / kLattice, local = j % kLattice;
-  const std::array<int, 3> t = a.atlas_texels();
-  const size_t x = size_t(brick % uint32_t(a.bricks[0])) * kBakeBrick + local % kBakeBrick;
-  const size_t y = (local / kBakeBrick) % kBakeBrick, z = local / (kBakeBrick * kBakeBrick);
-  const size_t texel = 4 * (x + size_t(t[0]) * (y + size_t(t[1]) * z));
+  const size_t texel = 4 * LatticeTexel(a, j);
   const float s = float(a.atlas[texel + 3]) / 255.0f;
   for (int c = 0; c < 3; ++c) (*c0)[c] = float(a.atlas[texel + size_t(c)]) / 255.0f / s;
   H->setZero();
@@ -135,13 +130,10 @@ TEST(ColourFitTest, RayWeightsAreThePixelsDerivativesByCentralDifferences) {
   std::vector<std::pair<uint32_t, float>> w;
   BakedRayWeights(a, o, d, &w);
   ASSERT_GT(w.size(), 8u);
-  const std::array<int, 3> t = a.atlas_texels();
   int checked = 0;
   for (size_t k = 0; k < w.size(); k += w.size() / 6) {
-    const uint32_t j = w[k].first, brick = j / kLattice, local = j % kLattice;
-    const size_t x = size_t(brick % uint32_t(a.bricks[0])) * kBakeBrick + local % kBakeBrick;
-    const size_t y = (local / kBakeBrick) % kBakeBrick, z = local / (kBakeBrick * kBakeBrick);
-    uint8_t* px = a.atlas.data() + 4 * (x + size_t(t[0]) * (y + size_t(t[1]) * z));
+    const uint32_t j = w[k].first;
+    uint8_t* px = a.atlas.data() + 4 * LatticeTexel(a, j);
     const int code = px[3];
     if (code < 20 || px[0] < 10 || px[0] > 245) continue;  // Room for +-h without clipping the byte.
     const int step = 8;  // Bytes of premultiplied colour: h = step / code in colour units.
@@ -174,13 +166,9 @@ TEST(ColourFitTest, MedianViewWeightsAreThePixelsDerivativesByCentralDifferences
     BakedRayWeights(a, o, d, &w, &vw);
   }
   ASSERT_GE(vw.size(), 4u);
-  const std::array<int, 3> t = a.atlas_texels();
   int checked = 0;
   for (const auto& [j, v] : vw) {
-    const uint32_t brick = j / kLattice, local = j % kLattice;
-    const size_t x = size_t(brick % uint32_t(a.bricks[0])) * kBakeBrick + local % kBakeBrick;
-    const size_t y = (local / kBakeBrick) % kBakeBrick, z = local / (kBakeBrick * kBakeBrick);
-    const size_t texel = 4 * (x + size_t(t[0]) * (y + size_t(t[1]) * z));
+    const size_t texel = 4 * LatticeTexel(a, j);
     const int code = a.atlas[texel + 3];
     uint8_t* hx = a.view.data() + texel;  // H's x column, red: the pixel moves by d_x times it.
     if (code < 20 || *hx < 20 || *hx > 235) continue;

@@ -12,7 +12,6 @@
 namespace clnerf {
 namespace {
 
-constexpr int kLattice = kBakeBrick * kBakeBrick * kBakeBrick;
 
 // Derivatives smaller than this (in every channel) are left out of J.
 constexpr float kMinDerivative = 1e-5f;
@@ -107,9 +106,6 @@ void Backward(const std::vector<Sample>& samples, const float* rgb, const Eigen:
   }
   MergeRepeats(jacobian);
 }
-
-// The atlas texel of lattice point i.
-size_t PointTexel(const BakedAsset& a, size_t i) { return BrickTexel(a, uint32_t(i / kLattice), int(i % kLattice)); }
 
 uint32_t Hash(uint32_t a) {
   a ^= a >> 16;
@@ -327,7 +323,7 @@ absl::Status DensityFitOptions::Validate() const {
 absl::Status FitBakedDensities(const FitTargets& targets, const DensityFitOptions& options,
                                const std::vector<float>& rgb, BakedAsset* asset, DensityFitReport* report) {
   if (absl::Status s = options.Validate(); !s.ok()) return s;
-  const size_t points = size_t(kLattice) * size_t(asset->num_bricks());
+  const size_t points = size_t(kBrickLattice) * size_t(asset->num_bricks());
   if (rgb.size() != 3 * points) return absl::InvalidArgumentError("bake: colour array does not match the atlas");
   DensityFitReport rep;
   const auto t0 = std::chrono::steady_clock::now();
@@ -336,7 +332,7 @@ absl::Status FitBakedDensities(const FitTargets& targets, const DensityFitOption
     return absl::OkStatus();
   }
   std::vector<float> codes(points);
-  for (size_t i = 0; i < points; ++i) codes[i] = float(asset->atlas[4 * PointTexel(*asset, i) + 3]) / 255.0f;
+  for (size_t i = 0; i < points; ++i) codes[i] = float(asset->atlas[4 * LatticeTexel(*asset, uint32_t(i)) + 3]) / 255.0f;
   const std::vector<int> rays = ChooseRays(targets, options.rays);
   double rms = 0.0;
   DensitySystem J = BuildSystem(*asset, targets, rays, codes, rgb, &rms);
@@ -365,7 +361,7 @@ absl::Status FitBakedDensities(const FitTargets& targets, const DensityFitOption
     ++rep.accepted_steps;
   }
   rep.rms_after = rms;
-  for (size_t i = 0; i < points; ++i) asset->atlas[4 * PointTexel(*asset, i) + 3] = uint8_t(std::lround(255.0f * codes[i]));
+  for (size_t i = 0; i < points; ++i) asset->atlas[4 * LatticeTexel(*asset, uint32_t(i)) + 3] = uint8_t(std::lround(255.0f * codes[i]));
   rep.seconds = Since(t0);
   if (report != nullptr) *report = rep;
   return absl::OkStatus();

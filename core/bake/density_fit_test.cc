@@ -10,7 +10,6 @@ namespace clnerf {
 namespace density_fit_test {  // Its own names: the bake tests build as one unity file.
 namespace {
 
-constexpr int kLattice = kBakeBrick * kBakeBrick * kBakeBrick;
 
 // A 32^3 grid over [-1, 1]^3 with 8 occupied blocks around the centre (or,
 // `contracted`, over the contracted cube with the 8 blocks of its positive
@@ -44,15 +43,13 @@ BakedAsset RandomAsset(uint32_t seed, bool contracted = false) {
   return a;
 }
 
-size_t PointTexel(const BakedAsset& a, size_t i) { return BrickTexel(a, uint32_t(i / kLattice), int(i % kLattice)); }
-
 // The asset's codes and colours as floats (colour = premultiplied / code).
 void Unpack(const BakedAsset& a, std::vector<float>* codes, std::vector<float>* rgb) {
-  const size_t points = size_t(kLattice) * size_t(a.num_bricks());
+  const size_t points = size_t(kBrickLattice) * size_t(a.num_bricks());
   codes->resize(points);
   rgb->resize(3 * points);
   for (size_t i = 0; i < points; ++i) {
-    const uint8_t* px = a.atlas.data() + 4 * PointTexel(a, i);
+    const uint8_t* px = a.atlas.data() + 4 * LatticeTexel(a, uint32_t(i));
     (*codes)[i] = float(px[3]) / 255.0f;
     for (int c = 0; c < 3; ++c) (*rgb)[3 * i + size_t(c)] = px[3] > 0 ? float(px[c]) / float(px[3]) : 0.0f;
   }
@@ -158,12 +155,12 @@ TEST(DensityFitTest, RecoversDisturbedCodesFromTheirRenders) {
   }
   BakedAsset a = truth;
   for (size_t i = 0; i < true_codes.size(); ++i) {
-    const float scale = (i / kLattice) % 2 == 0 ? 0.6f : 1.4f;
-    a.atlas[4 * PointTexel(a, i) + 3] = uint8_t(std::lround(std::min(255.0f, 255.0f * true_codes[i] * scale)));
+    const float scale = (i / kBrickLattice) % 2 == 0 ? 0.6f : 1.4f;
+    a.atlas[4 * LatticeTexel(a, uint32_t(i)) + 3] = uint8_t(std::lround(std::min(255.0f, 255.0f * true_codes[i] * scale)));
   }
   const auto code_error = [&](const BakedAsset& x) {
     double sum = 0;
-    for (size_t i = 0; i < true_codes.size(); ++i) sum += std::abs(x.atlas[4 * PointTexel(x, i) + 3] / 255.0 - true_codes[i]);
+    for (size_t i = 0; i < true_codes.size(); ++i) sum += std::abs(x.atlas[4 * LatticeTexel(x, uint32_t(i)) + 3] / 255.0 - true_codes[i]);
     return sum / double(true_codes.size());
   };
   const double before = code_error(a);
