@@ -344,7 +344,9 @@ void BakeColour(const NgpModel& model, int t, const std::vector<int>& kept, cons
       field.Select(all.data(), kBrickLattice, /*for_backward=*/false, &fc);
       field.Colour(kBrickLattice, seg.data(), nullptr, 1, &fc);
       for (int i = 0; i < kBrickLattice; ++i) {
-        for (int c = 0; c < 3; ++c) (*rgb)[3 * (size_t(k) * kBrickLattice + size_t(i)) + c] = std::clamp(fc.ws.rgb(c, i), 0.0f, 1.0f);
+        for (int c = 0; c < 3; ++c) {
+          (*rgb)[3 * (size_t(k) * kBrickLattice + size_t(i)) + c] = std::clamp(fc.ws.rgb(c, i), 0.0f, 1.0f);
+        }
       }
     }
   }
@@ -375,7 +377,8 @@ void WriteColours(const std::vector<float>& rgb, const std::vector<float>& view,
       const size_t at = 4 * BrickTexel(*a, k, i);
       for (int kk = 0; kk < 3; ++kk) {
         for (int c = 0; c < 3; ++c) {
-          const float h = used[i] ? s * std::clamp(view[9 * (size_t(k) * kBrickLattice + size_t(i)) + 3 * kk + c], -1.0f, 1.0f) : 0;
+          const float h =
+              used[i] ? s * std::clamp(view[9 * (size_t(k) * kBrickLattice + size_t(i)) + 3 * kk + c], -1.0f, 1.0f) : 0;
           long q = std::lround(127.0f * h);
           if (dead_zone && std::abs(q) <= kViewDeadZone) q = 0;
           a->view[size_t(kk) * plane + at + size_t(c)] = uint8_t(128 + q);
@@ -510,7 +513,8 @@ uint64_t ColourWithinBudget(const NgpModel& model, int t, uint64_t budget, const
     std::vector<float> next_rgb;
     for (int k : order) {
       next.push_back((*kept)[size_t(k)]);
-      next_rgb.insert(next_rgb.end(), rgb->begin() + 3 * kBrickLattice * size_t(k), rgb->begin() + 3 * kBrickLattice * size_t(k + 1));
+      next_rgb.insert(next_rgb.end(), rgb->begin() + 3 * kBrickLattice * size_t(k),
+                      rgb->begin() + 3 * kBrickLattice * size_t(k + 1));
     }
     *kept = std::move(next);
     *rgb = std::move(next_rgb);

@@ -332,7 +332,9 @@ absl::Status FitBakedDensities(const FitTargets& targets, const DensityFitOption
     return absl::OkStatus();
   }
   std::vector<float> codes(points);
-  for (size_t i = 0; i < points; ++i) codes[i] = float(asset->atlas[4 * LatticeTexel(*asset, uint32_t(i)) + 3]) / 255.0f;
+  for (size_t i = 0; i < points; ++i) {
+    codes[i] = float(asset->atlas[4 * LatticeTexel(*asset, uint32_t(i)) + 3]) / 255.0f;
+  }
   const std::vector<int> rays = ChooseRays(targets, options.rays);
   double rms = 0.0;
   DensitySystem J = BuildSystem(*asset, targets, rays, codes, rgb, &rms);
@@ -361,7 +363,9 @@ absl::Status FitBakedDensities(const FitTargets& targets, const DensityFitOption
     ++rep.accepted_steps;
   }
   rep.rms_after = rms;
-  for (size_t i = 0; i < points; ++i) asset->atlas[4 * LatticeTexel(*asset, uint32_t(i)) + 3] = uint8_t(std::lround(255.0f * codes[i]));
+  for (size_t i = 0; i < points; ++i) {
+    asset->atlas[4 * LatticeTexel(*asset, uint32_t(i)) + 3] = uint8_t(std::lround(255.0f * codes[i]));
+  }
   rep.seconds = Since(t0);
   if (report != nullptr) *report = rep;
   return absl::OkStatus();

@@ -156,11 +156,14 @@ TEST(DensityFitTest, RecoversDisturbedCodesFromTheirRenders) {
   BakedAsset a = truth;
   for (size_t i = 0; i < true_codes.size(); ++i) {
     const float scale = (i / kBrickLattice) % 2 == 0 ? 0.6f : 1.4f;
-    a.atlas[4 * LatticeTexel(a, uint32_t(i)) + 3] = uint8_t(std::lround(std::min(255.0f, 255.0f * true_codes[i] * scale)));
+    a.atlas[4 * LatticeTexel(a, uint32_t(i)) + 3] =
+        uint8_t(std::lround(std::min(255.0f, 255.0f * true_codes[i] * scale)));
   }
   const auto code_error = [&](const BakedAsset& x) {
     double sum = 0;
-    for (size_t i = 0; i < true_codes.size(); ++i) sum += std::abs(x.atlas[4 * LatticeTexel(x, uint32_t(i)) + 3] / 255.0 - true_codes[i]);
+    for (size_t i = 0; i < true_codes.size(); ++i) {
+      sum += std::abs(x.atlas[4 * LatticeTexel(x, uint32_t(i)) + 3] / 255.0 - true_codes[i]);
+    }
     return sum / double(true_codes.size());
   };
   const double before = code_error(a);
