@@ -18,9 +18,12 @@ TEST(ServerOptionsTest, DefaultsAreValidAndConfigOverrides) {
   EXPECT_TRUE(o.Validate().ok());
   // The bake's budgets: an unbounded scene's and an object's.
   EXPECT_EQ(o.bake.max_object_asset_bytes, 4'000'000);
+  EXPECT_TRUE(o.bake.in_between_views);
   ASSERT_TRUE(ApplyConfigJson(R"({"bake": {"max_asset_bytes": 9000000, "max_object_asset_bytes": 2000000,
-                                           "fit_max_entries": 40000000, "density_fit_rays": 65536}})", &o).ok());
+                                           "fit_max_entries": 40000000, "density_fit_rays": 65536,
+                                           "in_between_views": false}})", &o).ok());
   EXPECT_EQ(o.bake.density_fit.rays, 65536);
+  EXPECT_FALSE(o.bake.in_between_views);
   EXPECT_EQ(o.bake.max_asset_bytes, 9'000'000);
   EXPECT_EQ(o.bake.max_object_asset_bytes, 2'000'000);
   EXPECT_EQ(o.bake.fit.max_nonzeros, 40'000'000);
