@@ -34,6 +34,8 @@ double Since(std::chrono::steady_clock::time_point t0) {
 // than its 768^3 asset could show: 1024^3 gave its test views 27.34 ->
 // 27.95 dB at 4.7 -> 9.5 MB, the same bake time (17-18 s) and browser frame.
 constexpr int kMaxDerivedResolution = 1024;
+// The coarsest: the inner cube then has 128 cells per axis.
+constexpr int kMinDerivedResolution = 256;
 
 // What the stages share: the grid (an asset's geometry fields), the
 // candidate blocks and their lattice values.
@@ -574,18 +576,21 @@ uint64_t BakeGrid(const NgpModel& model, int t, const std::vector<Camera>& camer
   return ColourGrid(model, t, budget, w, kept, rgb, rep);
 }
 
-// The grid for an unbounded scene at the default resolution: the finest
-// (a multiple of 32, up to kMaxDerivedResolution) whose download, scaled
-// from `bytes` at `resolution` by the surface area (R^2), stays within 70 %
-// of the budget.
+}  // namespace
+
 int DerivedResolution(int resolution, uint64_t bytes, int64_t budget) {
   if (bytes == 0 || budget <= 0) return resolution;
   const double scale = std::sqrt(0.7 * double(budget) / double(bytes));
+  if (bytes > uint64_t(budget)) {
+    // Coarser rather than drop blocks: a procedural room (15.8 MB at 512,
+    // 12 MB budget) lost 37 % of its blocks and 2 dB on every view that way;
+    // 352^3 keeps them all (docs/baking.md, session 75).
+    const double r = std::max(double(resolution) * scale, double(kMinDerivedResolution));
+    return std::min(resolution, int(r) / 32 * 32);
+  }
   const double r = std::clamp(double(resolution) * scale, double(resolution), double(kMaxDerivedResolution));
   return std::max(resolution, int(r) / 32 * 32);
 }
-
-}  // namespace
 
 std::vector<Camera> InBetweenCameras(const std::vector<Camera>& cameras) {
   std::vector<Camera> out;
@@ -668,11 +673,11 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
   const uint64_t bytes = BakeGrid(model, t, cameras, options, base, uint64_t(budget), &w, &kept, &rgb, &rep);
   rep.base_resolution_bytes = int64_t(bytes);
   if (options.resolution == 0 && model.contracted()) {
-    const int finer = DerivedResolution(base, bytes, options.max_asset_bytes);
-    if (finer > base) {
-      // Steps of the finer grid's own cells (a.step_cells as set above):
-      // longer ones skip across the thin structures the finer grid holds.
-      BakeGrid(model, t, cameras, options, finer, uint64_t(budget), &w, &kept, &rgb, &rep);
+    const int derived = DerivedResolution(base, bytes, options.max_asset_bytes);
+    if (derived != base) {
+      // Steps of the derived grid's own cells (a.step_cells as set above):
+      // longer ones skip across the thin structures a finer grid holds.
+      BakeGrid(model, t, cameras, options, derived, uint64_t(budget), &w, &kept, &rgb, &rep);
     }
   }
   absl::Status s = FitAndWrite(model, t, cameras, options, budget, &w, &rgb, &rep);

@@ -50,6 +50,9 @@ struct BakeOptions {
   // +0.48 dB; beer_2, over the budget at 512, stays). The cap was 768 while
   // the models were blurrier (session 49: flower_4 at 960 and 1024 below
   // 768); on session 73's model flower_4 at 1024 is +0.61 dB over 768.
+  // Where the download at 512 is over the budget, the coarser grid (down to
+  // 256) whose scaled download stays within 70 % of it, rather than drop
+  // blocks (a procedural room: 15.8 MB at 512 -> 352, 32.08 -> 34.06 dB).
   int resolution = 0;
   // Training-camera rays marched for visibility: pixels on a stride that
   // gives about this many over the training cameras, plus every border pixel of
@@ -136,9 +139,6 @@ struct BakeReport {
   double candidate_seconds = 0, visibility_seconds = 0, colour_seconds = 0, fit_seconds = 0, total_seconds = 0;
 };
 
-// Bakes `time_step` (-1 = the latest) of `model`. `cameras` are the training
-// cameras in world space (visibility); INVALID_ARGUMENT when there are none
-// or the options are bad.
 // One camera halfway between each of `cameras` and its nearest neighbour
 // (BakeOptions::in_between_views): centre midway, rotation halfway
 // (slerp), that camera's intrinsics and time step. A camera with no
@@ -146,6 +146,17 @@ struct BakeReport {
 // function.
 std::vector<Camera> InBetweenCameras(const std::vector<Camera>& cameras);
 
+// The derived grid of an unbounded scene (BakeOptions::resolution = 0) from
+// the estimated download `bytes` of its grid at `resolution`: the finest
+// multiple of 32 (up to 1024) whose download, scaled by the surface area
+// (R^2), stays within 70 % of `budget`, never coarser than `resolution`
+// unless `bytes` is over the budget (then down to 256). `bytes` or
+// `budget` 0: `resolution`.
+int DerivedResolution(int resolution, uint64_t bytes, int64_t budget);
+
+// Bakes `time_step` (-1 = the latest) of `model`. `cameras` are the training
+// cameras in world space (visibility); INVALID_ARGUMENT when there are none
+// or the options are bad.
 absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const std::vector<Camera>& cameras,
                                      const BakeOptions& options, BakeReport* report = nullptr);
 

@@ -358,4 +358,17 @@ TEST(InBetweenCamerasTest, HalfwayToEachNearestNeighbour) {
 }
 
 }  // namespace
+TEST(DerivedResolutionTest, FinerWithinTheBudgetCoarserOverIt) {
+  const int64_t budget = 12'000'000;
+  // 70 % of the budget is 8.4 MB; the download scales with R^2.
+  EXPECT_EQ(DerivedResolution(512, 2'100'000, budget), 1024);  // 4x the room: capped.
+  EXPECT_EQ(DerivedResolution(512, 4'200'000, budget), 704);   // 512 * sqrt(2) = 724.
+  EXPECT_EQ(DerivedResolution(512, 10'000'000, budget), 512);  // Within the budget, over 70 %.
+  EXPECT_EQ(DerivedResolution(512, 12'000'000, budget), 512);
+  EXPECT_EQ(DerivedResolution(512, 15'800'000, budget), 352);  // 512 * sqrt(8.4 / 15.8) = 373.
+  EXPECT_EQ(DerivedResolution(512, 80'000'000, budget), 256);  // Floored.
+  EXPECT_EQ(DerivedResolution(512, 0, budget), 512);           // Not estimated.
+  EXPECT_EQ(DerivedResolution(512, 15'800'000, 0), 512);       // No budget.
+}
+
 }  // namespace clnerf
