@@ -10,7 +10,9 @@ loopback, and checks in Debian's chromium (SwiftShader WebGL2):
   * its frame at that camera matches the reference render: mean absolute
     difference under MAX_MEAN_DIFF of 255 (the two march the same samples;
     what differs is float rounding and the GPU's 8-bit filter weights);
-  * dragging changes the frame;
+  * dragging changes the frame; while it moves, slow frames are drawn with
+    fewer pixels (movingms) and the still camera whole again; a frame at
+    half scale matches the reference render at half size;
   * the same on an unbounded scene (the demo's backdrop, baked), and on a
     synthetic unbounded asset with content all through the contracted
     shell, seen from inside the inner cube and from out in the shell;
@@ -110,6 +112,22 @@ def load(driver, url):
         fail(f"the page could not show the asset: {err}")
 
 
+def moving_frames(driver):
+    """A 3 s drag at the page's default moving-frame budget: the mean
+    milliseconds and scale of its frames after the first ten (the scale
+    settles by then)."""
+    canvas = driver.find_element(By.ID, "view")
+    chain = ActionChains(driver).move_to_element(canvas).click_and_hold()
+    for k in range(60):
+        chain = chain.move_by_offset(2 if k % 40 < 20 else -2, 0).pause(0.05)
+    chain.release().perform()
+    ms = driver.execute_script("return window.clnerfBaked.movingMs;")[10:]
+    scales = driver.execute_script("return window.clnerfBaked.scales;")[10:]
+    if not ms:
+        return {"frames": 0, "ms": float("nan"), "scale": float("nan")}
+    return {"frames": len(ms), "ms": sum(ms) / len(ms), "scale": sum(scales) / len(scales)}
+
+
 def time_assets(args):
     """Frame times of existing baked folders at their first stored view, with
     the page and renderer from --web (not the copies beside the asset)."""
@@ -129,11 +147,14 @@ def time_assets(args):
             for (w, h) in ((400, 300), (800, 600)):
                 load(driver, f"{base}?w={w}&h={h}")
                 timing[f"{w}x{h}"] = driver.execute_script("return window.clnerfBaked.timeFrames(10);")
+                timing[f"{w}x{h}_moving"] = moving_frames(driver)
             srv.shutdown()
             shutil.rmtree(work, ignore_errors=True)
             results[asset] = timing
             print(f"{asset}: software WebGL2 frame {timing['400x300']:.1f} ms at 400x300, "
-                  f"{timing['800x600']:.1f} ms at 800x600 (its first stored view)")
+                  f"{timing['800x600']:.1f} ms at 800x600 (its first stored view); while dragging "
+                  + ", ".join(f"{k[:-7]} {v['ms']:.1f} ms at scale {v['scale']:.2f}"
+                              for k, v in timing.items() if k.endswith("_moving")))
     finally:
         driver.quit()
     print(json.dumps({"baked_browser_assets": results}))
@@ -170,6 +191,48 @@ def check_fractional_step(args, driver, work, env, cam):
     print(f"WebGL2 frame with 1.25-cell steps against its reference render: mean |diff| {diff:.3f} / 255")
     if diff > MAX_MEAN_DIFF:
         fail(f"with 1.25-cell steps the WebGL2 frame differs from the reference render by {diff:.2f}")
+
+
+def check_moving_frames(args, driver, env, base, asset, cam):
+    """Frames while the camera moves: with a 1 ms budget every moving frame
+    after the first is drawn at a smaller scale, and 150 ms after the drag
+    the still camera is drawn whole, back where it started (the drag goes
+    right and back), as the reference render shows it. A frame at half scale
+    is the reference render at half size (its intrinsics scaled)."""
+    W, H, pose, focal = cam
+    _, _, ref = read_png_rgba(f"{args.out}/reference.png")
+    load(driver, f"{base}?w={W}&h={H}&pose={pose}&focal={focal:.5f}&movingms=1")
+    canvas = driver.find_element(By.ID, "view")
+    chain = ActionChains(driver).move_to_element(canvas).click_and_hold()
+    for dx in (10, 10, 10, 10, -10, -10, -10, -10):
+        chain = chain.move_by_offset(dx, 0).pause(0.05)
+    chain.release().perform()
+    wait_for("the still frame", lambda: driver.execute_script(
+        "const s = window.clnerfBaked; return s.scales.length > 1 && s.scale === 1;"), timeout=30)
+    scales = driver.execute_script("return window.clnerfBaked.scales;")
+    print(f"moving frames at a 1 ms budget: scales {scales}")
+    if min(scales[1:]) >= 1:
+        fail(f"moving frames over their budget were not drawn smaller: scales {scales}")
+    still = page_pixels(driver)
+    if len(still) != W * H * 4:
+        fail(f"the still frame has {len(still) // 4} pixels, not {W}x{H}")
+    diff = mean_abs_diff(still, ref)
+    print(f"still frame after the drag against the reference render: mean |diff| {diff:.3f} / 255")
+    if diff > MAX_MEAN_DIFF:
+        fail(f"the still frame after a drag differs from the reference render by {diff:.2f}")
+    w, h = W // 2, H // 2
+    run_client(args.client, ["render", "--model", asset, "--pose", pose, "--width", str(w), "--height", str(h),
+                             "--focal", f"{focal / 2:.5f}", "--out", f"{args.out}/reference_half.png"], env,
+               "reference render at half size")
+    _, _, ref_half = read_png_rgba(f"{args.out}/reference_half.png")
+    driver.execute_script("window.clnerfBaked.drawAt(0.5);")
+    half = page_pixels(driver)
+    if len(half) != w * h * 4:
+        fail(f"a frame at scale 0.5 has {len(half) // 4} pixels, not {w}x{h}")
+    diff = mean_abs_diff(half, ref_half)
+    print(f"frame at scale 0.5 against the reference render at {w}x{h}: mean |diff| {diff:.3f} / 255")
+    if diff > MAX_MEAN_DIFF:
+        fail(f"a frame at scale 0.5 differs from the reference render at half size by {diff:.2f}")
 
 
 def check_unbounded(args, driver, work, env):
@@ -344,6 +407,7 @@ def main():
         if mean_abs_diff(moved, got) < 1.0:
             fail("dragging did not change the frame")
         driver.save_screenshot(f"{args.out}/baked.png")
+        check_moving_frames(args, driver, env, base, asset, (W, H, pose, focal))
         check_fractional_step(args, driver, work, env, (W, H, pose, focal))
         check_unbounded(args, driver, work, env)
         errors = [e for e in driver.get_log("browser") if e.get("level") == "SEVERE"]

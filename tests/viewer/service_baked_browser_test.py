@@ -7,7 +7,9 @@ of the procedural changing scene with the real CLI (each publish bakes its
 latest time step), opens the viewer with frames=baked and checks:
   * the first frame is the baked asset, drawn by the page (the badge says
     "baked"), and not blank;
-  * dragging changes the frame and every frame meanwhile is baked;
+  * dragging changes the frame and every frame meanwhile is baked; with a
+    1 ms budget (bakedms=1) moving frames are drawn smaller, and the still
+    camera whole (400x300);
   * the time slider loads the other time step's asset (baked on request)
     and the image changes;
   * the server rendered nothing at all: /metrics counts no render, only
@@ -72,7 +74,7 @@ def main():
             run_client(args.client, ["upload", f"{work}/scans/scan_00{t}", "--pose-frame", "place", "--watch"], env,
                        f"upload of scan {t}")
         driver = start_chromium(software_webgl=True, script_timeout=120)
-        driver.get(f"http://127.0.0.1:{server.http}/#frames=baked&res=400x300")
+        driver.get(f"http://127.0.0.1:{server.http}/#frames=baked&res=400x300&bakedms=1")
         if not driver.execute_script("return window.clnerfViewer.bakedSupported;"):
             fail("the page found no WebGL2 in Chromium with SwiftShader")
 
@@ -103,7 +105,14 @@ def main():
         if mean_abs_diff(moved, first) < 1.0:
             fail("dragging did not change the frame")
         print(f"drag: {len(drag)} baked frames, {sum(f['ms'] for f in drag) / len(drag):.0f} ms each in "
-              "software WebGL2", flush=True)
+              f"software WebGL2, scales {[f['scale'] for f in drag]}", flush=True)
+        # With a 1 ms budget (bakedms=1) moving frames shrink; the still
+        # camera is drawn whole.
+        if min(f["scale"] for f in drag) >= 1:
+            fail(f"moving baked frames over their budget were not drawn smaller: {drag[:4]}")
+        wait_for("the still baked frame drawn whole", lambda: (shown(driver) or {}).get("scale") == 1)
+        if (shown(driver)["w"], shown(driver)["h"]) != (400, 300):
+            fail(f"the still baked frame is {shown(driver)['w']}x{shown(driver)['h']}, not 400x300")
 
         # 3. The time slider: time step 0's asset (baked on request), another image.
         before = canvas_pixels(driver)

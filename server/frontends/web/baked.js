@@ -10,6 +10,9 @@
 // Usage: const r = new BakedRenderer(canvas); await r.load(baseUrl);
 //        r.draw(camera)   // camera: {c2w: 12 numbers (3x4, OpenCV, world),
 //                         //          fx, fy, cx, cy} for the canvas size.
+// A page that moves the camera keeps its frames quick with a FrameScaler
+// (below): fewer pixels while moving where frames are slow, all of them
+// once the camera is still.
 "use strict";
 
 const BAKED_VS = `#version 300 es
@@ -484,6 +487,13 @@ class BakedRenderer {
     gl.drawArrays(gl.TRIANGLES, 0, 3);
   }
 
+  // Waits until the last draw is done (a one-pixel read), so a page can time
+  // its frames.
+  finish() {
+    const gl = this.gl, px = new Uint8Array(4);
+    gl.readPixels(0, 0, 1, 1, gl.RGBA, gl.UNSIGNED_BYTE, px);
+  }
+
   // Milliseconds per frame over `n` draws of `cam` (each finished with a
   // one-pixel read, so the GPU's work is counted).
   timeFrames(cam, n) {
@@ -505,6 +515,32 @@ class BakedRenderer {
     gl.readPixels(0, 0, W, H, gl.RGBA, gl.UNSIGNED_BYTE, buf);
     for (let y = 0; y < H; ++y) out.set(buf.subarray((H - 1 - y) * W * 4, (H - y) * W * 4), y * W * 4);
     return out;
+  }
+}
+
+// The share of a canvas's width and height to draw while the camera moves,
+// so that moving frames take about targetMs: a frame's time goes with its
+// pixels, so each timed moving frame at scale s that took ms moves the
+// scale halfway towards s * sqrt(targetMs / ms), in steps of 1/16, within
+// [minScale, 1]. A still camera is drawn whole (scale 1). Software WebGL2
+// (a laptop whose GPU the browser does not use) draws fox_8's 400x300 in
+// ~150 ms on 2 cores: moving frames there are drawn at about half size
+// and shown stretched; a GPU's stay whole. Not thread-safe (one page).
+class FrameScaler {
+  constructor(targetMs = 50, minScale = 0.25) {
+    this.targetMs = targetMs;
+    this.minScale = minScale;
+    this.scale = 1;
+  }
+
+  // The scale of the next frame.
+  next(moving) { return moving ? this.scale : 1; }
+
+  // A moving frame drawn at scale s took ms milliseconds.
+  report(s, ms) {
+    const want = s * Math.sqrt(this.targetMs / Math.max(ms, 0.1));
+    const next = Math.round(16 * 0.5 * (this.scale + want)) / 16;
+    this.scale = Math.min(1, Math.max(this.minScale, next));
   }
 }
 

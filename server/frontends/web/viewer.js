@@ -18,7 +18,10 @@
 // (frames=auto, the default). frames=baked never asks the server for a
 // frame; frames=server never uses the asset. While an asset loads, or when
 // a version cannot be baked, the panel shows server frames as before. The
-// badge says which it shows: "baked" or "exact".
+// badge says which it shows: "baked" or "exact". Where baked frames are
+// slow (software WebGL2), moving ones are drawn with fewer pixels to stay
+// near BAKED_MOVING_MS (baked.js FrameScaler; #bakedms=N sets it), shown stretched,
+// and the still camera's whole (frames=baked) or exact (frames=auto).
 'use strict';
 
 (() => {
@@ -26,6 +29,7 @@
   const SETTLE_MS = 120;          // The camera counts as still this long after the last move.
   const CACHE_FRAMES = 48;        // Full-resolution frames kept for instant flips.
   const MIN_PREVIEW_W = 48;
+  const BAKED_MOVING_MS = 50;     // A moving baked frame's default budget (#bakedms).
 
   const $ = (id) => document.getElementById(id);
   const sub = (a, b) => [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
@@ -57,6 +61,7 @@
     keys: new Set(),
     token: '',
     frameMode: 'auto',    // auto | baked | server (see above).
+    bakedMovingMs: BAKED_MOVING_MS,
     frames: [],           // Recent frames, for the status line and tests.
     bakedLoads: [],       // {key, ms, error}: asset loads, for tests.
     httpErrors: [],       // Responses >= 500 and network failures.
@@ -352,7 +357,8 @@
     if (!p.baked) {
       const canvas = document.createElement('canvas');
       try {
-        p.baked = { canvas, renderer: new BakedRenderer(canvas), key: '', loading: '', failed: {} };
+        p.baked = { canvas, renderer: new BakedRenderer(canvas), key: '', loading: '', failed: {},
+          scaler: new FrameScaler(state.bakedMovingMs) };
       } catch (e) {
         state.bakedLoads.push({ key: want, error: String(e) });
         return null;
@@ -396,11 +402,15 @@
       p.bakedScheduled = false;
       const want = p.bakedWant;
       if (!want || (p.shown && p.shown.full && p.shown.key === want.key)) return;
-      const [W, H] = state.res, cv = p.baked.canvas;
-      if (cv.width !== W || cv.height !== H) { cv.width = W; cv.height = H; }
+      // Fewer pixels while moving where frames are slow; whole when still.
+      const [W, H] = state.res, cv = p.baked.canvas, still = !moving();
+      const scale = p.baked.scaler.next(!still);
+      const w = Math.max(1, Math.round(W * scale)), h = Math.max(1, Math.round(H * scale));
+      if (cv.width !== w || cv.height !== h) { cv.width = w; cv.height = h; }
       const t0 = performance.now();
       try {
-        want.renderer.draw(bakedCamera(W, H));
+        want.renderer.draw(bakedCamera(w, h));
+        want.renderer.finish();
       } catch (e) {
         p.baked.failed[p.baked.key] = String(e.message || e);
         p.baked.key = '';
@@ -408,11 +418,12 @@
         return;
       }
       const ms = performance.now() - t0;
+      if (!still) p.baked.scaler.report(scale, ms);
       const old = p.shown;
       if (old && old.bmp && !old.full && !old.baked && old.bmp.close) old.bmp.close();
-      p.shown = { bmp: cv, baked: true, full: false, key: want.key, w: W, h: H, t: p.effectiveTime(),
+      p.shown = { bmp: cv, baked: true, full: false, key: want.key, w, h, scale, t: p.effectiveTime(),
         v: p.effectiveVersion(), renderMs: ms };
-      state.frames.push({ panel: p.name, baked: true, full: false, w: W, h: H, t: p.shown.t, v: p.shown.v,
+      state.frames.push({ panel: p.name, baked: true, full: false, w, h, scale, t: p.shown.t, v: p.shown.v,
         at: performance.now(), ms, renderMs: ms });
       if (state.frames.length > 400) state.frames.splice(0, 200);
       showMessage(p, '');
@@ -437,7 +448,8 @@
         }
         return;
       }
-      if (!p.shown || p.shown.key !== fullKey) drawBaked(p, baked, fullKey);
+      const partial = p.shown && p.shown.baked && p.shown.scale < 1 && !moving();
+      if (!p.shown || p.shown.key !== fullKey || partial) drawBaked(p, baked, fullKey);
       if (p.inflight && (!exact || p.inflight.key !== fullKey)) { p.inflight.abort.abort(); p.inflight = null; }
       if (exact && !p.inflight && !(p.shown && p.shown.full && p.shown.key === fullKey)) {
         fetchFrame(p, W, H, fullKey, true, fullKey);
@@ -823,6 +835,7 @@
     const q = new URLSearchParams({ eye: fmt(c.eye), target: fmt(c.target), up: fmt(c.up), fov: c.fov.toFixed(2),
       res: state.res.join('x'), mode: state.mode });
     if (state.frameMode !== 'auto') q.set('frames', state.frameMode);
+    if (state.bakedMovingMs !== BAKED_MOVING_MS) q.set('bakedms', String(state.bakedMovingMs));
     if (state.place) q.set('place', state.place);
     const put = (p, k) => {
       if (p.version) q.set('v' + k, String(p.version));
@@ -859,6 +872,8 @@
       if (t !== null && Number.isInteger(Number(t)) && Number(t) >= 0) p.time = Number(t);
     }
     if (['auto', 'baked', 'server'].includes(q.get('frames'))) state.frameMode = q.get('frames');
+    const bakedMs = Number(q.get('bakedms'));
+    if (q.has('bakedms') && bakedMs > 0 && bakedMs <= 10000) state.bakedMovingMs = bakedMs;
     $('frames').value = state.frameMode;
     const sw = Number(q.get('swipe'));
     if (sw >= 0 && sw <= 1 && q.has('swipe')) state.swipe = sw;
@@ -895,7 +910,7 @@
     get scene() { return state.scene; },
     shown(name) {
       const s = panels[name].shown;
-      return s && { full: s.full, baked: !!s.baked, w: s.w, h: s.h, t: s.t, v: s.v };
+      return s && { full: s.full, baked: !!s.baked, w: s.w, h: s.h, scale: s.scale, t: s.t, v: s.v };
     },
     get bakedSupported() { return bakedSupported; },
     get bakedLoads() { return state.bakedLoads; },
