@@ -27,6 +27,7 @@ void main() { gl_Position = vec4(aPos, 0.0, 1.0); }`;
 const BAKED_FS = `#version 300 es
 #define VIEW_MODE 0
 #define CONTRACTED 0
+#define STEP_ONE 0
 precision highp float;
 precision highp int;
 precision highp usampler3D;
@@ -126,8 +127,10 @@ vec3 tcMedian = vec3(-1.0);  // The median sample (format 3): where T first fall
 float codeMedian = 0.0;
 
 // Composites the sample at cell coordinates u of occupied block b (index
-// entry e), dt long, and moves t past it.
-void addSample(vec3 u, ivec3 b, uint e, float dt) {
+// entry e), dt long, and moves t past it. cube: a step of the grid's own
+// cells (dt = stp), whose opacity with STEP_ONE (one-cell steps) is the
+// texel's own, with no exp or log (a constant at each call).
+void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube) {
   ivec3 bo = ivec3(int(e & 1023u), int((e >> 10) & 1023u), int(e >> 20)) * 9;  // skipIndex packs it.
   vec3 l = clamp(u - vec3(b * kBlock), 0.0, 8.0);
   vec3 tc = (vec3(bo) + l + 0.5) / uAtlasDims;
@@ -136,7 +139,11 @@ void addSample(vec3 u, ivec3 b, uint e, float dt) {
   s.rgb += viewTerm(tc, d);
 #endif
   float a0 = min(s.a * s.a, kMaxAlpha);
+#if STEP_ONE == 1
+  float alpha = cube ? a0 : 1.0 - exp(log(1.0 - a0) * (dt / cell));
+#else
   float alpha = 1.0 - exp(log(1.0 - a0) * (dt / cell));
+#endif
   C += T * alpha * clamp(s.rgb / max(s.a, 1.0 / 255.0), vec3(0.0), vec3(1.0));  // Premultiplied by the code.
   float next = T * (1.0 - alpha);
   if (T >= 0.5 && next < 0.5) { tcMedian = tc; codeMedian = s.a; }
@@ -162,7 +169,7 @@ void cubeStep(vec3 x) {
   ivec3 b = blockAt(u);
   uint e = texelFetch(uIndex, b, 0).r;
   if (e < 0x80000000u) {
-    addSample(u, b, e, stp);
+    addSample(u, b, e, stp, true);
     return;
   }
   vec3 lo, hi;
@@ -185,7 +192,7 @@ void shellStep(vec3 x, float r) {
   ivec3 b = blockAt(u);
   uint e = texelFetch(uIndex, b, 0).r;
   if (e < 0x80000000u) {
-    addSample(u, b, e, dt);
+    addSample(u, b, e, dt, false);
     return;
   }
   vec3 lo, hi;
@@ -349,14 +356,15 @@ class BakedRenderer {
   // The program for a view mode and kind (built once each; both are
   // #defines, so the shader carries no branch for them), with its uniform
   // locations.
-  program(viewMode, contracted) {
-    const key = `${viewMode}/${contracted ? 1 : 0}`;
+  program(viewMode, contracted, stepOne) {
+    const key = `${viewMode}/${contracted ? 1 : 0}/${stepOne ? 1 : 0}`;
     if (this.programs[key]) return this.programs[key];
     const gl = this.gl, p = gl.createProgram();
     gl.attachShader(p, this.compile(gl.VERTEX_SHADER, BAKED_VS));
     gl.attachShader(p, this.compile(gl.FRAGMENT_SHADER,
                                     BAKED_FS.replace("#define VIEW_MODE 0", `#define VIEW_MODE ${viewMode}`)
-                                        .replace("#define CONTRACTED 0", `#define CONTRACTED ${contracted ? 1 : 0}`)));
+                                        .replace("#define CONTRACTED 0", `#define CONTRACTED ${contracted ? 1 : 0}`)
+                                        .replace("#define STEP_ONE 0", `#define STEP_ONE ${stepOne ? 1 : 0}`)));
     gl.bindAttribLocation(p, 0, "aPos");
     gl.linkProgram(p);
     if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error("link: " + gl.getProgramInfoLog(p));
@@ -396,7 +404,7 @@ class BakedRenderer {
       this.programs = {};
     }
     const viewMode = !view ? 0 : m.format === 2 ? 1 : 2;
-    this.program(viewMode, m.kind === "unbounded");  // Built now, so a shader error fails the load.
+    this.program(viewMode, m.kind === "unbounded", steps === 1);  // Built now, so a shader error fails the load.
     for (const t of [this.indexTex, this.atlasTex, ...(this.viewTex || [])]) if (t) gl.deleteTexture(t);
     this.viewTex = [];
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
@@ -459,7 +467,8 @@ class BakedRenderer {
   }
 
   draw(cam) {
-    const gl = this.gl, m = this.manifest, prog = this.program(this.viewMode, m.kind === "unbounded"), p = prog.p;
+    const gl = this.gl, m = this.manifest, stepOne = this.stepCells === 1;
+    const prog = this.program(this.viewMode, m.kind === "unbounded", stepOne), p = prog.p;
     const W = this.canvas.width, H = this.canvas.height;
     const {rot, o} = this.modelCamera(cam.c2w);
     gl.viewport(0, 0, W, H);

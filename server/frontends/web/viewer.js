@@ -20,8 +20,9 @@
 // a version cannot be baked, the panel shows server frames as before. The
 // badge says which it shows: "baked" or "exact". Where baked frames are
 // slow (software WebGL2), moving ones are drawn with fewer pixels to stay
-// near BAKED_MOVING_MS (baked.js FrameScaler; #bakedms=N sets it), shown stretched,
-// and the still camera's whole (frames=baked) or exact (frames=auto).
+// near BAKED_MOVING_MS (baked.js FrameScaler; #bakedms=N sets it) and shown
+// stretched; a still camera's frame is drawn whole (and, with frames=auto,
+// then fetched exact).
 'use strict';
 
 (() => {
