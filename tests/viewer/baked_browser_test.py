@@ -213,26 +213,25 @@ def check_moving_frames(args, driver, env, base, asset, cam):
     print(f"moving frames at a 1 ms budget: scales {scales}")
     if min(scales[1:]) >= 1:
         fail(f"moving frames over their budget were not drawn smaller: scales {scales}")
-    still = page_pixels(driver)
-    if len(still) != W * H * 4:
-        fail(f"the still frame has {len(still) // 4} pixels, not {W}x{H}")
-    diff = mean_abs_diff(still, ref)
-    print(f"still frame after the drag against the reference render: mean |diff| {diff:.3f} / 255")
-    if diff > MAX_MEAN_DIFF:
-        fail(f"the still frame after a drag differs from the reference render by {diff:.2f}")
+    check_page_frame(driver, ref, W, H, "the still frame after a drag")
     w, h = W // 2, H // 2
     run_client(args.client, ["render", "--model", asset, "--pose", pose, "--width", str(w), "--height", str(h),
                              "--focal", f"{focal / 2:.5f}", "--out", f"{args.out}/reference_half.png"], env,
                "reference render at half size")
     _, _, ref_half = read_png_rgba(f"{args.out}/reference_half.png")
     driver.execute_script("window.clnerfBaked.drawAt(0.5);")
-    half = page_pixels(driver)
-    if len(half) != w * h * 4:
-        fail(f"a frame at scale 0.5 has {len(half) // 4} pixels, not {w}x{h}")
-    diff = mean_abs_diff(half, ref_half)
-    print(f"frame at scale 0.5 against the reference render at {w}x{h}: mean |diff| {diff:.3f} / 255")
+    check_page_frame(driver, ref_half, w, h, "a frame at scale 0.5")
+
+
+def check_page_frame(driver, ref, w, h, what):
+    """The page's canvas is w x h and within MAX_MEAN_DIFF of `ref`."""
+    got = page_pixels(driver)
+    if len(got) != w * h * 4:
+        fail(f"{what} has {len(got) // 4} pixels, not {w}x{h}")
+    diff = mean_abs_diff(got, ref)
+    print(f"{what} against the reference render at {w}x{h}: mean |diff| {diff:.3f} / 255")
     if diff > MAX_MEAN_DIFF:
-        fail(f"a frame at scale 0.5 differs from the reference render at half size by {diff:.2f}")
+        fail(f"{what} differs from the reference render by {diff:.2f}")
 
 
 def check_unbounded(args, driver, work, env):
