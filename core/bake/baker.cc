@@ -34,8 +34,6 @@ double Since(std::chrono::steady_clock::time_point t0) {
 // than its 768^3 asset could show: 1024^3 gave its test views 27.34 ->
 // 27.95 dB at 4.7 -> 9.5 MB, the same bake time (17-18 s) and browser frame.
 constexpr int kMaxDerivedResolution = 1024;
-// The coarsest: the inner cube then has 128 cells per axis.
-constexpr int kMinDerivedResolution = 256;
 
 // What the stages share: the grid (an asset's geometry fields), the
 // candidate blocks and their lattice values.
@@ -578,17 +576,19 @@ uint64_t BakeGrid(const NgpModel& model, int t, const std::vector<Camera>& camer
 
 }  // namespace
 
-int DerivedResolution(int resolution, uint64_t bytes, int64_t budget) {
+int DerivedResolution(int resolution, uint64_t bytes, int64_t budget, int finest) {
   if (bytes == 0 || budget <= 0) return resolution;
   const double scale = std::sqrt(0.7 * double(budget) / double(bytes));
   if (bytes > uint64_t(budget)) {
     // Coarser rather than drop blocks: a procedural room (15.8 MB at 512,
-    // 12 MB budget) lost 37 % of its blocks and 2 dB on every view that way;
-    // 352^3 keeps them all (docs/baking.md, session 75).
-    const double r = std::max(double(resolution) * scale, double(kMinDerivedResolution));
+    // 12 MB budget) lost 37 % of its blocks and 2 dB on every view that way
+    // (352^3 keeps them all), lego_100 with a 2 MB budget 14.4 dB (192^3
+    // keeps them all for 0.06 dB; docs/baking.md, session 75).
+    const int coarsest = std::max(32, resolution / 2 / 32 * 32);
+    const double r = std::max(double(resolution) * scale, double(coarsest));
     return std::min(resolution, int(r) / 32 * 32);
   }
-  const double r = std::clamp(double(resolution) * scale, double(resolution), double(kMaxDerivedResolution));
+  const double r = std::clamp(double(resolution) * scale, double(resolution), double(std::max(finest, resolution)));
   return std::max(resolution, int(r) / 32 * 32);
 }
 
@@ -672,8 +672,9 @@ absl::StatusOr<BakedAsset> BakeModel(const NgpModel& model, int time_step, const
   const int64_t budget = AssetBudget(options, a.contracted);
   const uint64_t bytes = BakeGrid(model, t, cameras, options, base, uint64_t(budget), &w, &kept, &rgb, &rep);
   rep.base_resolution_bytes = int64_t(bytes);
-  if (options.resolution == 0 && model.contracted()) {
-    const int derived = DerivedResolution(base, bytes, options.max_asset_bytes);
+  if (options.resolution == 0) {
+    // Objects only ever go coarser: lego_100 at 512^3 is 0.41 dB below 256^3.
+    const int derived = DerivedResolution(base, bytes, budget, model.contracted() ? kMaxDerivedResolution : base);
     if (derived != base) {
       // Steps of the derived grid's own cells (a.step_cells as set above):
       // longer ones skip across the thin structures a finer grid holds.

@@ -50,9 +50,11 @@ struct BakeOptions {
   // +0.48 dB; beer_2, over the budget at 512, stays). The cap was 768 while
   // the models were blurrier (session 49: flower_4 at 960 and 1024 below
   // 768); on session 73's model flower_4 at 1024 is +0.61 dB over 768.
-  // Where the download at 512 is over the budget, the coarser grid (down to
-  // 256) whose scaled download stays within 70 % of it, rather than drop
-  // blocks (a procedural room: 15.8 MB at 512 -> 352, 32.08 -> 34.06 dB).
+  // Where the download at the default (512, or 256 for objects) is over the
+  // budget, the coarser grid (down to half of it) whose scaled download
+  // stays within 70 % of it, rather than drop blocks (a procedural room:
+  // 15.8 MB at 512 -> 352, 32.08 -> 34.06 dB; lego_100 with a 2 MB budget:
+  // 256 -> 192 instead of dropping blocks, 17.03 -> 31.38 dB).
   int resolution = 0;
   // Training-camera rays marched for visibility: pixels on a stride that
   // gives about this many over the training cameras, plus every border pixel of
@@ -146,13 +148,14 @@ struct BakeReport {
 // function.
 std::vector<Camera> InBetweenCameras(const std::vector<Camera>& cameras);
 
-// The derived grid of an unbounded scene (BakeOptions::resolution = 0) from
-// the estimated download `bytes` of its grid at `resolution`: the finest
-// multiple of 32 (up to 1024) whose download, scaled by the surface area
-// (R^2), stays within 70 % of `budget`, never coarser than `resolution`
-// unless `bytes` is over the budget (then down to 256). `bytes` or
-// `budget` 0: `resolution`.
-int DerivedResolution(int resolution, uint64_t bytes, int64_t budget);
+// The derived grid (BakeOptions::resolution = 0) from the estimated
+// download `bytes` of the grid at `resolution` (the kind's default): the
+// finest multiple of 32 whose download, scaled by the surface area (R^2),
+// stays within 70 % of `budget`, up to `finest` (1024 for unbounded
+// scenes, `resolution` for objects), and never coarser than `resolution`
+// unless `bytes` is over the budget (then down to half of it). `bytes` or
+// `budget` 0: `resolution`. Pure function.
+int DerivedResolution(int resolution, uint64_t bytes, int64_t budget, int finest);
 
 // Bakes `time_step` (-1 = the latest) of `model`. `cameras` are the training
 // cameras in world space (visibility); INVALID_ARGUMENT when there are none

@@ -361,14 +361,19 @@ TEST(InBetweenCamerasTest, HalfwayToEachNearestNeighbour) {
 TEST(DerivedResolutionTest, FinerWithinTheBudgetCoarserOverIt) {
   const int64_t budget = 12'000'000;
   // 70 % of the budget is 8.4 MB; the download scales with R^2.
-  EXPECT_EQ(DerivedResolution(512, 2'100'000, budget), 1024);  // 4x the room: capped.
-  EXPECT_EQ(DerivedResolution(512, 4'200'000, budget), 704);   // 512 * sqrt(2) = 724.
-  EXPECT_EQ(DerivedResolution(512, 10'000'000, budget), 512);  // Within the budget, over 70 %.
-  EXPECT_EQ(DerivedResolution(512, 12'000'000, budget), 512);
-  EXPECT_EQ(DerivedResolution(512, 15'800'000, budget), 352);  // 512 * sqrt(8.4 / 15.8) = 373.
-  EXPECT_EQ(DerivedResolution(512, 80'000'000, budget), 256);  // Floored.
-  EXPECT_EQ(DerivedResolution(512, 0, budget), 512);           // Not estimated.
-  EXPECT_EQ(DerivedResolution(512, 15'800'000, 0), 512);       // No budget.
+  EXPECT_EQ(DerivedResolution(512, 2'100'000, budget, 1024), 1024);  // 4x the room: capped.
+  EXPECT_EQ(DerivedResolution(512, 4'200'000, budget, 1024), 704);   // 512 * sqrt(2) = 724.
+  EXPECT_EQ(DerivedResolution(512, 10'000'000, budget, 1024), 512);  // Within the budget, over 70 %.
+  EXPECT_EQ(DerivedResolution(512, 12'000'000, budget, 1024), 512);
+  EXPECT_EQ(DerivedResolution(512, 15'800'000, budget, 1024), 352);  // 512 * sqrt(8.4 / 15.8) = 373.
+  EXPECT_EQ(DerivedResolution(512, 80'000'000, budget, 1024), 256);  // Floored at half.
+  EXPECT_EQ(DerivedResolution(512, 0, budget, 1024), 512);           // Not estimated.
+  EXPECT_EQ(DerivedResolution(512, 15'800'000, 0, 1024), 512);       // No budget.
+  // Objects (finest = their default) only go coarser.
+  EXPECT_EQ(DerivedResolution(256, 1'000'000, 4'000'000, 256), 256);
+  EXPECT_EQ(DerivedResolution(256, 3'300'000, 2'000'000, 256), 160);  // 256 * sqrt(1.4 / 3.3) = 167.
+  EXPECT_EQ(DerivedResolution(256, 4'500'000, 4'000'000, 256), 192);  // 256 * sqrt(2.8 / 4.5) = 202.
+  EXPECT_EQ(DerivedResolution(256, 50'000'000, 4'000'000, 256), 128);  // Floored at half.
 }
 
 }  // namespace clnerf
