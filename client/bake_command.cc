@@ -84,8 +84,9 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
                 "Keep a block when some training ray puts at least this much weight in it")
       ->capture_default_str();
   c->add_option("--max-asset-bytes", a->bake.max_asset_bytes,
-                "Download budget of an unbounded scene: drop the least-seen blocks until the asset compresses to "
-                "about this, and round the faintest view-dependent codes to none if still over (0 = none)")
+                "Download budget of an unbounded scene: a derived grid over it is baked coarser; then the least-seen "
+                "blocks are dropped until the asset compresses to about this, and the faintest view-dependent codes "
+                "rounded to none if still over (0 = none)")
       ->capture_default_str();
   c->add_option("--max-object-asset-bytes", a->bake.max_object_asset_bytes,
                 "The same for a bounded (object) scene (0 = none)")

@@ -97,7 +97,8 @@ struct BakeOptions {
   // cells: flower_4 at 1024^3 27.95 dB with 2-cell steps, 28.41 with one,
   // for 30 -> 51 steps per ray; docs/baking.md, session 74).
   float step_cells = 1.0f;
-  // Download budget in bytes for an unbounded scene (0 = none): before the
+  // Download budget in bytes for an unbounded scene (0 = none). A derived
+  // grid over it is baked coarser (`resolution`); then, before the
   // colour fit, while the kept blocks' first-guess colours compress (gzip
   // level 1, ~10 % above the stored level 6, about what the fit adds) to
   // more than this, the blocks the training rays weigh least are dropped;
@@ -107,8 +108,9 @@ struct BakeOptions {
   // 0.11 dB).
   int64_t max_asset_bytes = 12'000'000;
   // The same for a bounded (object) scene: objects are small (lego_100's
-  // asset: 3.9 MB at 256^3). A finer object grid (`resolution`) needs it
-  // raised, or its least-seen blocks are dropped to fit.
+  // asset: 3.3 MB at 256^3). A derived object grid over it is baked coarser
+  // (down to 128^3); an explicit finer one (`resolution`) needs it raised,
+  // or its least-seen blocks are dropped to fit.
   int64_t max_object_asset_bytes = 4'000'000;
   absl::Status Validate() const;
 };
