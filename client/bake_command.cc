@@ -70,8 +70,8 @@ CLI::App* BindBake(CLI::App* parent, BakeArgs* a) {
   c->add_option("--data", a->data, "The capture the model was trained on (its training cameras decide what is kept)");
   c->add_option("--time-step", a->time_step, "Time step to bake (-1 = latest)")->capture_default_str();
   c->add_option("--resolution", a->bake.resolution,
-                "Cells per axis over the field space, a multiple of 32 (0 = derived: 256 objects; 512 unbounded, "
-                "finer up to 1024 where the download budget allows, coarser down to 256 where 512 is over it)")
+                "Cells per axis over the field space, a multiple of 32 (0 = derived: 256 objects, 512 unbounded; "
+                "unbounded finer up to 1024 where the download budget allows; coarser down to half where it is over)")
       ->capture_default_str();
   c->add_option("--visibility-rays", a->bake.visibility_rays,
                 "Training-camera rays that decide which blocks are kept (a strided grid; every border pixel too)")

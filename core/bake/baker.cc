@@ -582,8 +582,8 @@ int DerivedResolution(int resolution, uint64_t bytes, int64_t budget, int finest
   if (bytes > uint64_t(budget)) {
     // Coarser rather than drop blocks: a procedural room (15.8 MB at 512,
     // 12 MB budget) lost 37 % of its blocks and 2 dB on every view that way
-    // (352^3 keeps them all), lego_100 with a 2 MB budget 14.4 dB (192^3
-    // keeps them all for 0.06 dB; docs/baking.md, session 75).
+    // (352^3 keeps them all), lego_100 with a 2 MB budget scored 17.03 dB
+    // (160^3 keeps them all: 31.00; docs/baking.md, session 75).
     const int coarsest = std::max(32, resolution / 2 / 32 * 32);
     const double r = std::max(double(resolution) * scale, double(coarsest));
     return std::min(resolution, int(r) / 32 * 32);

@@ -54,7 +54,7 @@ struct BakeOptions {
   // budget, the coarser grid (down to half of it) whose scaled download
   // stays within 70 % of it, rather than drop blocks (a procedural room:
   // 15.8 MB at 512 -> 352, 32.08 -> 34.06 dB; lego_100 with a 2 MB budget:
-  // 256 -> 192 instead of dropping blocks, 17.03 -> 31.38 dB).
+  // 256 -> 160 instead of dropping blocks, 17.03 -> 31.00 dB).
   int resolution = 0;
   // Training-camera rays marched for visibility: pixels on a stride that
   // gives about this many over the training cameras, plus every border pixel of
