@@ -58,6 +58,18 @@ const Trained& TrainTiny(bool backdrop) {
   return *cache[backdrop];
 }
 
+// The bytes of the asset's files as SaveBakedAsset writes them: its arrays,
+// and its manifest too when `with_manifest`.
+size_t StoredBytes(const BakedAsset& a, bool with_manifest = false) {
+  absl::StatusOr<std::vector<std::pair<std::string, std::string>>> files = SerializeBakedAsset(a);
+  EXPECT_TRUE(files.ok()) << files.status();
+  size_t bytes = 0;
+  for (size_t k = 0; files.ok() && k < files->size(); ++k) {
+    if (with_manifest || (*files)[k].first != "manifest.json") bytes += (*files)[k].second.size();
+  }
+  return bytes;
+}
+
 // PSNR of the baked asset's reference render against the model's own render
 // of `cameras` (default: every 6th training camera).
 double BakedAgainstModel(const BakedAsset& asset, const Trained& t, std::vector<Camera> cameras = {}) {
@@ -229,10 +241,7 @@ TEST(BakerTest, ADownloadBudgetKeepsTheMostSeenBlocks) {
   absl::StatusOr<BakedAsset> full = BakeModel(*t.model, -1, t.cameras, o, &full_rep);
   ASSERT_TRUE(full.ok()) << full.status();
   EXPECT_EQ(full_rep.kept_blocks, full_rep.visible_blocks);
-  absl::StatusOr<std::vector<std::pair<std::string, std::string>>> files = SerializeBakedAsset(*full);
-  ASSERT_TRUE(files.ok());
-  size_t full_bytes = 0;
-  for (const auto& f : *files) full_bytes += f.first == "manifest.json" ? 0 : f.second.size();
+  const size_t full_bytes = StoredBytes(*full);
   o.max_object_asset_bytes = int64_t(full_bytes / 2);
   BakeReport rep;
   absl::StatusOr<BakedAsset> half = BakeModel(*t.model, -1, t.cameras, o, &rep);
@@ -240,10 +249,7 @@ TEST(BakerTest, ADownloadBudgetKeepsTheMostSeenBlocks) {
   EXPECT_EQ(rep.visible_blocks, full_rep.visible_blocks);
   EXPECT_LT(rep.kept_blocks, rep.visible_blocks);
   EXPECT_EQ(half->num_bricks(), rep.kept_blocks);
-  files = SerializeBakedAsset(*half);
-  ASSERT_TRUE(files.ok());
-  size_t bytes = 0;
-  for (const auto& f : *files) bytes += f.first == "manifest.json" ? 0 : f.second.size();
+  const size_t bytes = StoredBytes(*half);
   std::printf("budget %lld bytes: %zu bytes stored (%zu without), %d of %d blocks\n", (long long)o.max_object_asset_bytes,
               bytes, full_bytes, rep.kept_blocks, rep.visible_blocks);
   // Near the budget the stored bytes are measured whole (the estimate
@@ -266,26 +272,19 @@ TEST(BakerTest, ADownloadBudgetKeepsTheMostSeenBlocks) {
 // 31.00 against 17.03 dB).
 TEST(BakerTest, ADerivedGridOverItsBudgetIsCoarserNotHoled) {
   const Trained& t = TrainTiny(false);
-  auto stored = [](const BakedAsset& a) {
-    size_t bytes = 0;
-    absl::StatusOr<std::vector<std::pair<std::string, std::string>>> files = SerializeBakedAsset(a);
-    EXPECT_TRUE(files.ok());
-    for (const auto& f : *files) bytes += f.first == "manifest.json" ? 0 : f.second.size();
-    return bytes;
-  };
   BakeOptions o;
   o.max_object_asset_bytes = 0;
   absl::StatusOr<BakedAsset> whole = BakeModel(*t.model, -1, t.cameras, o);
   ASSERT_TRUE(whole.ok()) << whole.status();
   ASSERT_EQ(whole->resolution, 256);  // The object default.
-  o.max_object_asset_bytes = int64_t(stored(*whole) / 2);
+  o.max_object_asset_bytes = int64_t(StoredBytes(*whole) / 2);
   BakeReport rep;
   absl::StatusOr<BakedAsset> coarse = BakeModel(*t.model, -1, t.cameras, o, &rep);
   ASSERT_TRUE(coarse.ok()) << coarse.status();
   EXPECT_LT(coarse->resolution, 256);
   EXPECT_GE(coarse->resolution, 128);
   EXPECT_EQ(rep.kept_blocks, rep.visible_blocks);
-  EXPECT_LE(stored(*coarse), size_t(o.max_object_asset_bytes));
+  EXPECT_LE(StoredBytes(*coarse), size_t(o.max_object_asset_bytes));
   o.resolution = 256;  // The same budget on the default grid: blocks dropped.
   BakeReport dropped_rep;
   absl::StatusOr<BakedAsset> dropped = BakeModel(*t.model, -1, t.cameras, o, &dropped_rep);
@@ -324,14 +323,7 @@ TEST(BakerTest, TheViewTermsDeadZoneAppliesOnlyOverTheBudget) {
   EXPECT_TRUE(tight.view_dead_zone);
   EXPECT_EQ(tight.kept_blocks, roomy.kept_blocks);
   EXPECT_EQ(one_step(*zoned), 0);
-  auto stored = [](const BakedAsset& a) {
-    size_t bytes = 0;
-    absl::StatusOr<std::vector<std::pair<std::string, std::string>>> files = SerializeBakedAsset(a);
-    EXPECT_TRUE(files.ok());
-    for (const auto& f : *files) bytes += f.second.size();
-    return bytes;
-  };
-  EXPECT_LT(stored(*zoned), stored(*kept));
+  EXPECT_LT(StoredBytes(*zoned, /*with_manifest=*/true), StoredBytes(*kept, /*with_manifest=*/true));
 }
 
 TEST(BakerTest, BadRequestsAreRefused) {

@@ -408,17 +408,15 @@
       const scale = p.baked.scaler.next(!still);
       const w = Math.max(1, Math.round(W * scale)), h = Math.max(1, Math.round(H * scale));
       if (cv.width !== w || cv.height !== h) { cv.width = w; cv.height = h; }
-      const t0 = performance.now();
+      let ms;
       try {
-        want.renderer.draw(bakedCamera(w, h));
-        want.renderer.finish();
+        ms = want.renderer.drawTimed(bakedCamera(w, h));
       } catch (e) {
         p.baked.failed[p.baked.key] = String(e.message || e);
         p.baked.key = '';
         requestAll();
         return;
       }
-      const ms = performance.now() - t0;
       if (!still) p.baked.scaler.report(scale, ms);
       const old = p.shown;
       if (old && old.bmp && !old.full && !old.baked && old.bmp.close) old.bmp.close();
