@@ -25,6 +25,7 @@
 #include "core/render/evaluate.h"
 #include "core/train/fit.h"
 #include "core/data/procedural_scene.h"
+#include "core/field/bf16_mlp.h"
 #include "core/render/renderer.h"
 #include "nlohmann/json.hpp"
 #include "spdlog/spdlog.h"
@@ -212,6 +213,8 @@ CLI::App* BindEval(CLI::App* parent, EvalArgs* a) {
   c->add_option("--min-transmittance", a->eval.render.min_transmittance,
                 "Stop rays once their transmittance falls to this (the rest takes the colour they saw)")
       ->capture_default_str();
+  c->add_flag("!--float-mlp", a->eval.render.bf16_mlp,
+              "Run the MLPs in float even where the CPU has AMX tiles (bfloat16 is the default there)");
   BindThreadsFlag(c, &a->threads);
   BindDatasetFlags(c, &a->dataset);
   return c;
@@ -239,10 +242,12 @@ int RunEval(const EvalArgs& a) {
   j["model_bytes"] = ck->model.num_bytes();
   j["file_bytes"] = ck->num_bytes;
   j["split"] = a.split;
+  const bool bf16 = a.eval.render.bf16_mlp && Bf16TilesAvailable();
+  j["mlp"] = bf16 ? "bf16-amx" : "float";
   std::printf("%s: PSNR %.2f dB (colour-corrected %.2f), SSIM %.4f, speckle %.4f, blur %.4f over %zu images, "
-              "%.1f ms/image\n",
+              "%.1f ms/image (%s MLPs)\n",
               a.split.c_str(), ev->psnr, ev->psnr_cc, ev->ssim, ev->speckle, ev->blur, ev->views.size(),
-              ev->mean_render_seconds * 1e3);
+              ev->mean_render_seconds * 1e3, bf16 ? "bfloat16 AMX" : "float");
   if (absl::Status s = WriteJson(a.json, j); !s.ok()) return Fail(s);
   return 0;
 }

@@ -9,10 +9,23 @@
 
 namespace clnerf {
 
-FieldEvaluator::FieldEvaluator(const NgpModel& model)
+namespace {
+// bias[j] = the column of sample j's segment (Bf16Mlp's per-sample biases).
+const float* const* SegmentColumns(const float* cols, int rows, const int* seg, int nseg, int n) {
+  thread_local std::vector<const float*> bias;
+  bias.assign(std::max(n, seg[nseg]), nullptr);
+  for (int k = 0; k < nseg; ++k) {
+    for (int j = seg[k]; j < seg[k + 1]; ++j) bias[j] = cols + size_t(k) * rows;
+  }
+  return bias.data();
+}
+}  // namespace
+
+FieldEvaluator::FieldEvaluator(const NgpModel& model, bool bf16_mlp)
     : model_(model), contracted_(model.kind() == SceneKind::kUnbounded), bound_(model.bound()) {
   model.network().StepBiases(model.params().mlp.data(), model.params().emb.data(), model.num_time_steps(),
                              &geo_bias_, &app_bias_);
+  if (bf16_mlp && Bf16TilesAvailable()) bf16_ = std::make_shared<const Bf16Mlp>(model.network(), model.params().mlp.data());
 }
 
 Eigen::Vector3f FieldEvaluator::GridInputFromFieldSpace(const Eigen::Vector3f& q) const {
@@ -63,7 +76,12 @@ void FieldEvaluator::Density(int m, const int* seg, const int* seg_ray, int nseg
     const int t = ctx->ray_step[seg_ray ? seg_ray[k] : k];
     std::copy(geo_bias_.col(t).data(), geo_bias_.col(t).data() + Hd, ctx->seg_geo.data() + size_t(Hd) * k);
   }
-  net.DensityForward(model_.params().mlp.data(), ctx->feat.data(), m, seg, nseg, ctx->seg_geo.data(), &ctx->ws);
+  if (bf16_ != nullptr) {
+    const float* const* bias = net.options().geo_dim() > 0 ? SegmentColumns(ctx->seg_geo.data(), Hd, seg, nseg, m) : nullptr;
+    bf16_->Density(ctx->feat.data(), m, bias, ctx->ws.h.data());
+  } else {
+    net.DensityForward(model_.params().mlp.data(), ctx->feat.data(), m, seg, nseg, ctx->seg_geo.data(), &ctx->ws);
+  }
   for (int j = 0; j < m; ++j) ctx->sigma[j] = TruncExp(ctx->ws.h(0, j));
 }
 
@@ -90,6 +108,10 @@ void FieldEvaluator::Colour(int mk, const int* seg, const int* seg_ray, int nseg
     const int r = seg_ray ? seg_ray[k] : k;
     std::copy(&ctx->ray_colour_bias[size_t(Hc) * r], &ctx->ray_colour_bias[size_t(Hc) * r] + Hc,
               ctx->seg_col.data() + size_t(Hc) * k);
+  }
+  if (bf16_ != nullptr) {
+    bf16_->Colour(ctx->ws.h.data(), mk, SegmentColumns(ctx->seg_col.data(), Hc, seg, nseg, mk), ctx->ws.rgb.data());
+    return;
   }
   model_.network().ColourForward(model_.params().mlp.data(), mk, seg, nseg, ctx->seg_col.data(), &ctx->ws);
 }

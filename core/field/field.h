@@ -25,8 +25,10 @@
 #ifndef CLNERF_CORE_FIELD_FIELD_H_
 #define CLNERF_CORE_FIELD_FIELD_H_
 
+#include <memory>
 #include <vector>
 
+#include "core/field/bf16_mlp.h"
 #include "core/field/ngp_model.h"
 #include "Eigen/Core"
 
@@ -53,7 +55,15 @@ struct FieldContext {
 
 class FieldEvaluator {
  public:
-  explicit FieldEvaluator(const NgpModel& model);
+  // bf16_mlp: for inference only (renders, bakes), run the MLPs in
+  // bfloat16 on AMX tiles where the CPU has them (bf16_mlp.h; else float,
+  // as without it). Density then fills ctx->ws.h but not the hidden
+  // activations, so Select(..., for_backward = true) and Backward need an
+  // evaluator built without it (the trainer's).
+  explicit FieldEvaluator(const NgpModel& model, bool bf16_mlp = false);
+
+  // Whether the MLPs run in bfloat16 tiles.
+  bool bf16_mlp() const { return bf16_ != nullptr; }
 
   const NgpModel& model() const { return model_; }
 
@@ -112,6 +122,7 @@ class FieldEvaluator {
   Eigen::MatrixXf geo_bias_;  // Hd x T: geometry embedding's first-layer product per step.
   Eigen::MatrixXf app_bias_;  // Hc x T.
   const float* level_weights_ = nullptr;
+  std::shared_ptr<const Bf16Mlp> bf16_;  // Null: float MLPs.
   // Multiplies each level's features of m samples (Dg x m) by its weight.
   void ScaleLevels(int m, float* feat) const;
 };

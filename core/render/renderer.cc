@@ -232,7 +232,7 @@ long long RenderBlock(const FieldEvaluator& field, const float* origins, const f
 long long RenderRays(const NgpModel& model, const float* origins, const float* dirs, int n, int time_step,
                      const RenderOptions& options, float* rgb, float* opacity, float* depth) {
   const int t = time_step < 0 ? model.num_time_steps() - 1 : std::min(time_step, model.num_time_steps() - 1);
-  const FieldEvaluator field(model);
+  const FieldEvaluator field(model, options.bf16_mlp);
   // Proposal blocks evaluate all their samples at once: keep them small
   // enough for the activations to stay in cache.
   const int block = model.uses_proposals() ? std::min(options.block_rays, 128) : options.block_rays;

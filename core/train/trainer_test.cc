@@ -588,6 +588,7 @@ TEST(FieldCallersTest, TrainerAndRendererAgreeOnEveryRay) {
     RenderOptions ro;
     ro.min_weight = 0.0f;  // Colour every sample, as training does.
     ro.min_transmittance = kMinTransmittance;  // And stop where training does.
+    ro.bf16_mlp = false;                       // With float MLPs, as training runs them.
     ro.threads = 1;
     for (int i = 0; i < batch.size(); ++i) {
       float rgb[3];
