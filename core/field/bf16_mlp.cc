@@ -6,6 +6,7 @@
 #include <cstring>
 #include <utility>
 
+#include "Eigen/Core"
 #include "core/field/dense_layer.h"
 #include "core/field/sh_encoding.h"
 
@@ -129,19 +130,32 @@ struct Sink {
   int out_rows = 0;
 };
 
-void Epilogue(const float* acc0, const float* acc1, int g, int r0, int count, const float* const* bias,
-              const Sink& sink) {
-  const __mmask16 m = __mmask16(count >= 16 ? 0xffffu : (1u << count) - 1u);
+__mmask16 FirstLanes(int count) { return __mmask16(count >= 16 ? 0xffffu : count <= 0 ? 0u : (1u << count) - 1u); }
+
+// Blocks b0 and b0 + 1 (acc: group 0's and group 1's tiles of block b0,
+// then of b0 + 1; rows past the layer's outputs are 0, their weights
+// being 0) of g samples: plus bias, then into the next layer's rows as
+// bfloat16 through the ReLU (32 values, a missing second block as 0s), or
+// into the float output as they are.
+void Epilogue(float (*acc)[256], int g, int r0, int rows, const float* const* bias, const Sink& sink) {
+  const __mmask16 m0 = FirstLanes(rows - r0), m1 = FirstLanes(rows - r0 - 16);
   for (int s = 0; s < g; ++s) {
-    __m512 v = _mm512_load_ps((s < 16 ? acc0 : acc1) + 16 * (s % 16));
+    const int row = 16 * (s % 16), grp = s / 16;
+    __m512 v0 = _mm512_load_ps(acc[grp] + row);
+    __m512 v1 = m1 ? _mm512_load_ps(acc[2 + grp] + row) : _mm512_setzero_ps();
     const float* b = bias != nullptr ? bias[s] : nullptr;
-    if (b != nullptr) v = _mm512_add_ps(v, _mm512_maskz_loadu_ps(m, b + r0));
+    if (b != nullptr) {
+      v0 = _mm512_add_ps(v0, _mm512_maskz_loadu_ps(m0, b + r0));
+      v1 = _mm512_add_ps(v1, _mm512_maskz_loadu_ps(m1, b + r0 + 16));
+    }
     if (sink.next != nullptr) {
-      v = _mm512_maskz_max_ps(m, v, _mm512_setzero_ps());  // ReLU; zero past the layer's rows.
-      _mm256_storeu_si256(reinterpret_cast<__m256i*>(sink.next + size_t(s) * sink.next_width + r0),
-                          (__m256i)_mm512_cvtneps_pbh(v));
+      // ReLU on the bfloat16 bits: a negative value's sign bit makes it a negative int16.
+      const __m512i h = _mm512_max_epi16((__m512i)_mm512_cvtne2ps_pbh(v1, v0), _mm512_setzero_si512());
+      _mm512_storeu_si512(sink.next + size_t(s) * sink.next_width + r0, h);
     } else {
-      _mm512_mask_storeu_ps(sink.out + size_t(s) * sink.out_rows + r0, m, v);
+      float* o = sink.out + size_t(s) * sink.out_rows + r0;
+      _mm512_mask_storeu_ps(o, m0, v0);
+      if (m1) _mm512_mask_storeu_ps(o + 16, m1, v1);
     }
   }
 }
@@ -152,20 +166,27 @@ void TileLayer(const Bf16Weights& W, const uint16_t* in, int width, int g, const
   alignas(64) float acc[4][256];
   const size_t stride = size_t(width) * sizeof(uint16_t);
   const uint16_t* in1 = in + size_t(16) * width;
-  const int blocks = W.row_blocks();
+  const int blocks = W.row_blocks(), chunks = W.col_chunks();
+  if (chunks == 1) {  // The inputs stay in tiles 0-1 for every block.
+    _tile_loadd(0, in, stride);
+    _tile_loadd(1, in1, stride);
+  }
   for (int b0 = 0; b0 < blocks; b0 += 2) {
-    const int b1 = std::min(b0 + 1, blocks - 1);
+    const bool two = b0 + 1 < blocks;
     _tile_zero(4);
     _tile_zero(5);
     _tile_zero(6);
     _tile_zero(7);
-    for (int c = 0; c < W.col_chunks(); ++c) {
-      _tile_loadd(0, in + c * 32, stride);
-      _tile_loadd(1, in1 + c * 32, stride);
+    for (int c = 0; c < chunks; ++c) {
+      if (chunks > 1) {
+        _tile_loadd(0, in + c * 32, stride);
+        _tile_loadd(1, in1 + c * 32, stride);
+      }
       _tile_loadd(2, W.tile(b0, c), 64);
-      _tile_loadd(3, W.tile(b1, c), 64);
       _tile_dpbf16ps(4, 0, 2);
       _tile_dpbf16ps(5, 1, 2);
+      if (!two) continue;
+      _tile_loadd(3, W.tile(b0 + 1, c), 64);
       _tile_dpbf16ps(6, 0, 3);
       _tile_dpbf16ps(7, 1, 3);
     }
@@ -173,22 +194,20 @@ void TileLayer(const Bf16Weights& W, const uint16_t* in, int width, int g, const
     _tile_stored(5, acc[1], 64);
     _tile_stored(6, acc[2], 64);
     _tile_stored(7, acc[3], 64);
-    for (int k = 0; k < (b1 > b0 ? 2 : 1); ++k) {
-      const int r0 = (b0 + k) * 16;
-      Epilogue(acc[2 * k], acc[2 * k + 1], g, r0, std::min(16, W.rows() - r0), bias, sink);
-    }
-  }
-  // A layer of at most 16 outputs in a 32-wide chunk: the rest of the chunk is 0.
-  if (sink.next != nullptr && blocks % 2 == 1) {
-    for (int s = 0; s < g; ++s) std::memset(sink.next + size_t(s) * sink.next_width + blocks * 16, 0, 32);
+    Epilogue(acc, g, b0 * 16, W.rows(), bias, sink);
   }
 }
 
+// The chain over n samples in slabs of kSlab: each layer runs over the
+// whole slab before the next starts, so a tile load of a layer's inputs
+// does not wait on the stores that just wrote them (a slab's activations,
+// 2 x 128 x 64 bfloat16, stay in L1).
 void TileChain(const std::vector<Bf16Weights>& chain, const float* in, int n, const float* const* bias, float* out) {
+  constexpr int kSlab = 128;
   int width = 0;
   for (const Bf16Weights& W : chain) width = std::max(width, W.col_chunks() * 32);
   thread_local std::vector<uint16_t> buf;
-  buf.assign(size_t(2) * kGroup * width, 0);  // Rows past a group's samples stay 0.
+  buf.assign(size_t(2) * kSlab * width, 0);  // Rows past the samples stay 0.
   TileConfig cfg;
   for (int t = 0; t < 8; ++t) {
     cfg.rows[t] = 16;
@@ -196,21 +215,25 @@ void TileChain(const std::vector<Bf16Weights>& chain, const float* in, int n, co
   }
   _tile_loadconfig(&cfg);
   const int in_dim = chain.front().cols(), out_rows = chain.back().rows();
-  for (int j0 = 0; j0 < n; j0 += kGroup) {
-    const int g = std::min(kGroup, n - j0);
+  for (int j0 = 0; j0 < n; j0 += kSlab) {
+    const int slab = std::min(kSlab, n - j0);
     uint16_t* cur = buf.data();
-    uint16_t* nxt = cur + size_t(kGroup) * width;
-    ConvertInputs(in + size_t(j0) * in_dim, in_dim, g, width, cur);
+    uint16_t* nxt = cur + size_t(kSlab) * width;
+    ConvertInputs(in + size_t(j0) * in_dim, in_dim, slab, width, cur);
     for (size_t l = 0; l < chain.size(); ++l) {
-      Sink sink;
-      if (l + 1 < chain.size()) {
-        sink.next = nxt;
-        sink.next_width = width;
-      } else {
-        sink.out = out + size_t(j0) * out_rows;
-        sink.out_rows = out_rows;
+      const bool last = l + 1 == chain.size();
+      for (int g0 = 0; g0 < slab; g0 += kGroup) {
+        Sink sink;
+        if (!last) {
+          sink.next = nxt + size_t(g0) * width;
+          sink.next_width = width;
+        } else {
+          sink.out = out + size_t(j0 + g0) * out_rows;
+          sink.out_rows = out_rows;
+        }
+        const float* const* b = l == 0 && bias != nullptr ? bias + j0 + g0 : nullptr;
+        TileLayer(chain[l], cur + size_t(g0) * width, width, std::min(kGroup, slab - g0), b, sink);
       }
-      TileLayer(chain[l], cur, width, g, l == 0 && bias != nullptr ? bias + j0 : nullptr, sink);
       std::swap(cur, nxt);
     }
   }
@@ -255,7 +278,8 @@ void Bf16Mlp::Density(const float* feat, int n, const float* const* bias, float*
 
 void Bf16Mlp::Colour(const float* h, int n, const float* const* bias, float* rgb) const {
   Run(colour_, h, n, bias, rgb);
-  for (size_t i = 0; i < size_t(3) * n; ++i) rgb[i] = 1.0f / (1.0f + std::exp(-rgb[i]));
+  Eigen::Map<Eigen::ArrayXf> a(rgb, 3 * Eigen::Index(n));
+  a = (1.0f + (-a).exp()).inverse();  // Vectorised, as ColourForward's.
 }
 
 }  // namespace clnerf
