@@ -120,9 +120,8 @@ void ConvertInputs(const float* in, int dim, int g, int width, uint16_t* rows) {
   }
 }
 
-// Where a layer's 32 samples x 16 outputs (acc: two 16 x 16 tiles, a row
-// per sample) go: the next layer's bfloat16 rows (ReLU), or the float
-// output (no activation). bias: the group's first per-sample bias, or null.
+// Where a layer's outputs for a group of samples go: the next layer's
+// bfloat16 rows (through the ReLU), or the float output (no activation).
 struct Sink {
   uint16_t* next = nullptr;  // Rows of next_width values, or null for the output.
   int next_width = 0;
