@@ -5,8 +5,8 @@
 // MLPs in half precision the same way. The point is speed on a CPU with
 // Intel's AMX tile unit, which multiplies a 16 x 32 by a 32 x 16 bfloat16
 // matrix in one instruction (on a 2-core Xeon, 1,040 G products/s against
-// 86 G for float AVX-512 FMAs): the layers of 32 samples run fused, their
-// activations never leaving the L1 cache.
+// 86 G for float AVX-512 FMAs): samples go through the layers in slabs of
+// 128, their activations never leaving the L1 cache.
 //
 // Only for inference (the renderer's field, RenderOptions::bf16_mlp):
 // training's forward and backward passes stay in float, so the gradients
@@ -14,11 +14,11 @@
 // move by less than 0.01 dB (docs/render_cost.md, session 76).
 //
 // Without the tile unit (AMD CPUs, a build that does not target AMX, a
-// kernel that refuses the tile state, or CLNERF_NO_AMX=1 in the
-// environment, e.g. under valgrind, which does not know the instructions)
-// the same rounded function is computed with float kernels (slower than
-// plain float: FieldEvaluator then keeps float), so tests check the same
-// numbers on every machine.
+// kernel that refuses the tile state, valgrind, whose CPU has none, or
+// CLNERF_NO_AMX=1 in the environment) the same rounded function is
+// computed with float kernels, up to summation order (slower than plain
+// float: FieldEvaluator then keeps float), so the tests check the function
+// on every machine and the tile kernel where the CPU has it.
 //
 // Thread-safety: immutable after construction; Density and Colour may run
 // on many threads at once (each keeps its own tile state and scratch).

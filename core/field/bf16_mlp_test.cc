@@ -3,7 +3,9 @@
 // everywhere; bfloat16 rounding itself; the tile layout.
 #include "core/field/bf16_mlp.h"
 
+#include <algorithm>
 #include <cmath>
+#include <string>
 #include <limits>
 #include <random>
 #include <thread>
@@ -51,34 +53,114 @@ TEST(Bf16WeightsTest, TilesHoldInputPairsPerOutput) {
   EXPECT_EQ(p.rounded()[size_t(7) * rows + 3], W[size_t(7) * ldw + 3]);
 }
 
-// The network's widths (and odd ones: a partial block, a partial chunk).
+// The network's widths and odd ones: partial blocks and chunks, a deeper
+// density MLP, no embeddings (no density bias).
 struct Bf16Shape {
   const char* name;
-  int grid_dim, density_hidden, colour_hidden, colour_layers;
+  int grid_dim, density_hidden, density_layers, colour_hidden, colour_layers;
+  bool embeddings;
 };
 
 NetworkOptions Bf16OptionsOf(const Bf16Shape& s) {
   NetworkOptions o;
   o.density_hidden = s.density_hidden;
+  o.density_hidden_layers = s.density_layers;
   o.colour_hidden = s.colour_hidden;
   o.colour_hidden_layers = s.colour_layers;
+  o.use_embeddings = s.embeddings;
   return o;
 }
 
-// The float network's h and rgb for n samples in segments of 7 (per-ray
-// biases from random SH directions and the embeddings of step 0), and the
-// magnitude each output's error is bounded by: the network run on
-// absolute values of weights, inputs and biases.
+const Bf16Shape kShapes[] = {{"default", 32, 64, 1, 64, 2, true},
+                             {"odd", 24, 40, 1, 20, 1, true},
+                             {"deep", 32, 48, 2, 64, 2, true},
+                             {"no-embed", 16, 16, 1, 16, 2, false}};
+
+// One layer of an MLP as the network lays it out (column-major, leading
+// dimension ld).
+struct LayerRef {
+  const float* W;
+  int rows, cols, ld;
+};
+
+// What an MLP's outputs should be, per sample (rows x n, column per sample):
+// `emulated`, the function Bf16Mlp computes (weights and layer inputs
+// rounded to bfloat16, sums in double, hidden activations through the ReLU
+// and rounded to bfloat16); `last_mag`, the last layer on the absolute
+// values of its rounded weights and inputs (how far one bfloat16 step in
+// every input moves an output, times 2^8); `abs_mag`, the whole MLP on
+// absolute values of its weights, inputs and biases (bounds the error
+// against float).
+struct MlpRef {
+  std::vector<double> emulated, last_mag, abs_mag;
+};
+
+MlpRef EmulateMlp(const std::vector<LayerRef>& layers, const float* in, int n, const float* const* bias) {
+  MlpRef r;
+  const int out_rows = layers.back().rows;
+  for (int j = 0; j < n; ++j) {
+    std::vector<double> x(in + size_t(j) * layers[0].cols, in + size_t(j + 1) * layers[0].cols), ax(x);
+    for (double& v : x) v = FromBf16(ToBf16(float(v)));
+    for (double& v : ax) v = std::abs(v);
+    for (size_t l = 0; l < layers.size(); ++l) {
+      const LayerRef& L = layers[l];
+      const bool last = l + 1 == layers.size();
+      std::vector<double> y(L.rows), ay(L.rows), my(L.rows);
+      for (int o = 0; o < L.rows; ++o) {
+        const float b = l == 0 && bias != nullptr && bias[j] != nullptr ? bias[j][o] : 0.0f;
+        double sum = b, abs_sum = std::abs(b), mag = std::abs(b);
+        for (int c = 0; c < L.cols; ++c) {
+          const double w = FromBf16(ToBf16(L.W[size_t(c) * L.ld + o]));
+          sum += w * x[c];
+          mag += std::abs(w * x[c]);
+          abs_sum += std::abs(L.W[size_t(c) * L.ld + o]) * ax[c];
+        }
+        y[o] = last ? sum : FromBf16(ToBf16(float(std::max(sum, 0.0))));
+        ay[o] = abs_sum;
+        my[o] = mag;
+      }
+      x.swap(y);
+      ax.swap(ay);
+      if (last) r.last_mag.insert(r.last_mag.end(), my.begin(), my.end());
+    }
+    r.emulated.insert(r.emulated.end(), x.begin(), x.end());
+    r.abs_mag.insert(r.abs_mag.end(), ax.begin(), ax.end());
+  }
+  EXPECT_EQ(r.emulated.size(), size_t(out_rows) * n);
+  return r;
+}
+
+// n samples in rays of 7 over three time steps: random features, view
+// directions and embeddings (so every ray has its own first-layer biases),
+// the float network's h and rgb, and each MLP emulated.
 struct Bf16Reference {
-  std::vector<float> feat, geo_cols, col_cols, h, rgb, h_mag, pre_mag;
-  std::vector<const float*> geo_bias, col_bias;
+  std::vector<float> feat, geo_cols, col_cols, h, rgb;
+  std::vector<const float*> geo_bias, col_bias;  // Per sample; geo_bias empty without embeddings.
+  MlpRef density, colour;  // The colour MLP's are before the sigmoid, from the float h.
 };
 
 Bf16Reference MakeBf16Reference(const Network& net, const std::vector<float>& mlp, int n, uint64_t seed);
 
-TEST(Bf16MlpTest, MatchesTheFloatNetworkWithinBf16Rounding) {
-  const Bf16Shape shapes[] = {{"default", 32, 64, 64, 2}, {"odd", 24, 40, 20, 1}, {"small", 8, 16, 16, 2}};
-  for (const Bf16Shape& s : shapes) {
+double Sigmoid(double x) { return 1.0 / (1.0 + std::exp(-x)); }
+
+// Against the function it computes: every output within a bfloat16 step of
+// its last layer's inputs (2^-7 of last_mag: sums in float round a hidden
+// value to the neighbouring bfloat16 now and then), and on average within
+// 2^-12 of it (a kernel that drops one input column of 64 is off by ~2^-6).
+void ExpectEmulated(const float* got, const MlpRef& ref, bool sigmoid, const std::string& what) {
+  double diff = 0.0, mag = 0.0;
+  for (size_t i = 0; i < ref.emulated.size(); ++i) {
+    const double want = sigmoid ? Sigmoid(ref.emulated[i]) : ref.emulated[i];
+    const double d = std::abs(got[i] - want) / (sigmoid ? 0.25 : 1.0);  // The sigmoid's slope is at most 1/4.
+    ASSERT_LE(d, std::ldexp(1.0, -7) * ref.last_mag[i] + 1e-6) << what << " output " << i;
+    diff += d;
+    mag += ref.last_mag[i];
+  }
+  EXPECT_LE(diff, std::ldexp(1.0, -12) * mag) << what;
+}
+
+TEST(Bf16MlpTest, ComputesTheRoundedFunctionCloseToTheFloatNetwork) {
+  for (const Bf16Shape& s : kShapes) {
     const Network net(Bf16OptionsOf(s), s.grid_dim);
     std::vector<float> mlp(net.num_mlp_params());
     net.InitializeMlp(mlp.data(), 11);
@@ -86,47 +168,27 @@ TEST(Bf16MlpTest, MatchesTheFloatNetworkWithinBf16Rounding) {
       const Bf16Reference ref = MakeBf16Reference(net, mlp, n, 5 + n);
       for (bool tiles : {false, true}) {
         if (tiles && !Bf16TilesAvailable()) continue;
+        const std::string what = std::string(s.name) + " n=" + std::to_string(n) + (tiles ? " tiles" : " fallback");
         const Bf16Mlp bf(net, mlp.data(), tiles);
         ASSERT_EQ(bf.tiles(), tiles);
-        const int dout = net.options().density_out;
-        std::vector<float> h(size_t(dout) * n), rgb(3 * size_t(n));
-        bf.Density(ref.feat.data(), n, ref.geo_bias.data(), h.data());
+        std::vector<float> h(size_t(net.options().density_out) * n), rgb(3 * size_t(n));
+        bf.Density(ref.feat.data(), n, ref.geo_bias.empty() ? nullptr : ref.geo_bias.data(), h.data());
         bf.Colour(ref.h.data(), n, ref.col_bias.data(), rgb.data());
-        // Weights and inputs each within 2^-9 of their floats, hidden
-        // activations too: three layers' worth, bounded by 2^-6 of the
-        // magnitude (a mislaid weight is off by the magnitude itself).
+        ExpectEmulated(h.data(), ref.density, false, what + " h");
+        ExpectEmulated(rgb.data(), ref.colour, true, what + " rgb");
+        // Against float: each weight and input within 2^-9 of its float,
+        // hidden activations too, over at most four layers: within 2^-6 of
+        // the absolute network's output.
         for (size_t i = 0; i < h.size(); ++i) {
-          ASSERT_NEAR(h[i], ref.h[i], std::ldexp(1.0f, -6) * ref.h_mag[i] + 1e-6f)
-              << s.name << " n=" << n << " tiles=" << tiles << " h " << i;
+          ASSERT_NEAR(h[i], ref.h[i], std::ldexp(1.0, -6) * ref.density.abs_mag[i] + 1e-6) << what << " h " << i;
         }
         for (size_t i = 0; i < rgb.size(); ++i) {
-          ASSERT_NEAR(rgb[i], ref.rgb[i], 0.25f * std::ldexp(1.0f, -6) * ref.pre_mag[i] + 1e-6f)
-              << s.name << " n=" << n << " tiles=" << tiles << " rgb " << i;
+          ASSERT_NEAR(rgb[i], ref.rgb[i], 0.25 * std::ldexp(1.0, -6) * ref.colour.abs_mag[i] + 1e-6)
+              << what << " rgb " << i;
         }
       }
     }
   }
-}
-
-// With tiles, the two paths compute the same rounded function: they differ
-// only in summation order, and where that moves a hidden activation across
-// a rounding boundary (one bfloat16 step, 2^-8).
-TEST(Bf16MlpTest, TilesAndTheFallbackAgree) {
-  if (!Bf16TilesAvailable()) GTEST_SKIP() << "no AMX tiles on this CPU (the fallback is checked above)";
-  const Bf16Shape s = {"default", 32, 64, 64, 2};
-  const Network net(Bf16OptionsOf(s), s.grid_dim);
-  std::vector<float> mlp(net.num_mlp_params());
-  net.InitializeMlp(mlp.data(), 12);
-  const int n = 300;
-  const Bf16Reference ref = MakeBf16Reference(net, mlp, n, 9);
-  const Bf16Mlp tiles(net, mlp.data(), true), fallback(net, mlp.data(), false);
-  std::vector<float> h1(16 * n), h2(16 * n), c1(3 * n), c2(3 * n);
-  tiles.Density(ref.feat.data(), n, ref.geo_bias.data(), h1.data());
-  fallback.Density(ref.feat.data(), n, ref.geo_bias.data(), h2.data());
-  tiles.Colour(ref.h.data(), n, ref.col_bias.data(), c1.data());
-  fallback.Colour(ref.h.data(), n, ref.col_bias.data(), c2.data());
-  for (size_t i = 0; i < h1.size(); ++i) ASSERT_NEAR(h1[i], h2[i], std::ldexp(1.0f, -7) * ref.h_mag[i] + 1e-6f);
-  for (size_t i = 0; i < c1.size(); ++i) ASSERT_NEAR(c1[i], c2[i], std::ldexp(1.0f, -8) * ref.pre_mag[i] + 1e-6f);
 }
 
 // Threads share one Bf16Mlp; each gets the single-threaded result.
@@ -137,6 +199,7 @@ TEST(Bf16MlpTest, ThreadsShareOneMlp) {
   const int n = 257;
   const Bf16Reference ref = MakeBf16Reference(net, mlp, n, 4);
   const Bf16Mlp bf(net, mlp.data());
+  RecordProperty("amx_tiles", bf.tiles() ? "yes" : "no");
   std::vector<float> want(16 * n);
   bf.Density(ref.feat.data(), n, ref.geo_bias.data(), want.data());
   std::vector<std::vector<float>> got(4, std::vector<float>(16 * n));
@@ -156,14 +219,15 @@ Bf16Reference MakeBf16Reference(const Network& net, const std::vector<float>& ml
   Bf16Reference r;
   const NetworkOptions& o = net.options();
   const int Dg = net.grid_dim(), Hd = o.density_hidden, Hc = o.colour_hidden, dout = o.density_out;
+  constexpr int kSteps = 3;
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<float> u(-1.0f, 1.0f);
   r.feat.resize(size_t(Dg) * n);
   for (float& v : r.feat) v = u(rng);
-  std::vector<float> emb(net.embedding_row_size());
-  net.InitializeEmbeddings(emb.data(), 1, seed + 1);
+  std::vector<float> emb(size_t(kSteps) * net.embedding_row_size());
+  net.InitializeEmbeddings(emb.data(), kSteps, seed + 1);
   Eigen::MatrixXf geo, app;
-  net.StepBiases(mlp.data(), emb.data(), 1, &geo, &app);
+  net.StepBiases(mlp.data(), emb.data(), kSteps, &geo, &app);
   std::vector<int> seg = {0};
   while (seg.back() < n) seg.push_back(std::min(n, seg.back() + 7));
   const int nrays = int(seg.size()) - 1;
@@ -174,12 +238,12 @@ Bf16Reference MakeBf16Reference(const Network& net, const std::vector<float>& ml
     d.normalize();
     float sh[kShDim];
     ShEncode(d.x(), d.y(), d.z(), sh);
-    std::copy(geo.data(), geo.data() + Hd, r.geo_cols.data() + size_t(Hd) * k);
-    net.RayColourBias(mlp.data(), sh, app.data(), r.col_cols.data() + size_t(Hc) * k);
+    std::copy(geo.col(k % kSteps).data(), geo.col(k % kSteps).data() + Hd, r.geo_cols.data() + size_t(Hd) * k);
+    net.RayColourBias(mlp.data(), sh, app.col(k % kSteps).data(), r.col_cols.data() + size_t(Hc) * k);
   }
   for (int k = 0; k < nrays; ++k) {
     for (int j = seg[k]; j < seg[k + 1]; ++j) {
-      r.geo_bias.push_back(r.geo_cols.data() + size_t(Hd) * k);
+      if (o.geo_dim() > 0) r.geo_bias.push_back(r.geo_cols.data() + size_t(Hd) * k);
       r.col_bias.push_back(r.col_cols.data() + size_t(Hc) * k);
     }
   }
@@ -189,25 +253,16 @@ Bf16Reference MakeBf16Reference(const Network& net, const std::vector<float>& ml
   r.h.assign(ws.h.data(), ws.h.data() + size_t(dout) * n);
   net.ColourForward(mlp.data(), n, seg.data(), nrays, r.col_cols.data(), &ws);
   r.rgb.assign(ws.rgb.data(), ws.rgb.data() + 3 * size_t(n));
-  // Magnitudes: the same network on |weights|, |inputs| and |biases|.
-  std::vector<float> abs_mlp(mlp.size()), abs_feat(r.feat.size()), abs_geo(r.geo_cols.size()),
-      abs_col(r.col_cols.size());
-  auto absolute = [](const std::vector<float>& a, std::vector<float>* b) {
-    for (size_t i = 0; i < a.size(); ++i) (*b)[i] = std::abs(a[i]);
-  };
-  absolute(mlp, &abs_mlp);
-  absolute(r.feat, &abs_feat);
-  absolute(r.geo_cols, &abs_geo);
-  absolute(r.col_cols, &abs_col);
-  net.DensityForward(abs_mlp.data(), abs_feat.data(), n, seg.data(), nrays, abs_geo.data(), &ws);
-  r.h_mag.assign(ws.h.data(), ws.h.data() + size_t(dout) * n);
-  for (size_t i = 0; i < r.h.size(); ++i) ws.h.data()[i] = std::abs(r.h[i]);
-  net.ColourForward(abs_mlp.data(), n, seg.data(), nrays, abs_col.data(), &ws);
-  r.pre_mag.resize(3 * size_t(n));  // ColourForward's sigmoid undone: the magnitude before it.
-  for (size_t i = 0; i < r.pre_mag.size(); ++i) {
-    const float s = std::clamp(ws.rgb.data()[i], 1e-7f, 1.0f - 1e-7f);
-    r.pre_mag[i] = std::log(s / (1.0f - s));
-  }
+  // The two MLPs layer by layer, as Bf16Mlp packs them (first layers: the
+  // per-sample inputs' columns only; the rest comes as the bias).
+  const auto& dl = net.density_layers();
+  const auto& cl = net.colour_layers();
+  std::vector<LayerRef> density = {{mlp.data() + dl[0].offset, dl[0].rows, Dg, dl[0].rows}};
+  for (size_t k = 1; k < dl.size(); ++k) density.push_back({mlp.data() + dl[k].offset, dl[k].rows, dl[k].cols, dl[k].rows});
+  std::vector<LayerRef> colour = {{mlp.data() + cl[0].offset + size_t(kShDim) * cl[0].rows, cl[0].rows, dout, cl[0].rows}};
+  for (size_t k = 1; k < cl.size(); ++k) colour.push_back({mlp.data() + cl[k].offset, cl[k].rows, cl[k].cols, cl[k].rows});
+  r.density = EmulateMlp(density, r.feat.data(), n, r.geo_bias.empty() ? nullptr : r.geo_bias.data());
+  r.colour = EmulateMlp(colour, r.h.data(), n, r.col_bias.data());
   return r;
 }
 

@@ -3,6 +3,8 @@
 #include <omp.h>
 
 #include <algorithm>
+#include <cstdio>
+#include <cstdlib>
 
 #include "core/data/contraction.h"
 #include "core/field/sh_encoding.h"
@@ -19,13 +21,23 @@ const float* const* SegmentColumns(const float* cols, int rows, const int* seg, 
   }
   return bias.data();
 }
+
+// Backward needs the hidden activations, which the bfloat16 MLPs do not
+// keep: a caller that asks for them from such an evaluator is a bug.
+void RequireFloatMlp(bool bf16, const char* what) {
+  if (!bf16) return;
+  std::fprintf(stderr, "FieldEvaluator::%s needs an evaluator built without bf16_mlp\n", what);
+  std::abort();
+}
 }  // namespace
 
 FieldEvaluator::FieldEvaluator(const NgpModel& model, bool bf16_mlp)
     : model_(model), contracted_(model.kind() == SceneKind::kUnbounded), bound_(model.bound()) {
   model.network().StepBiases(model.params().mlp.data(), model.params().emb.data(), model.num_time_steps(),
                              &geo_bias_, &app_bias_);
-  if (bf16_mlp && Bf16TilesAvailable()) bf16_ = std::make_shared<const Bf16Mlp>(model.network(), model.params().mlp.data());
+  if (bf16_mlp && Bf16TilesAvailable()) {
+    bf16_ = std::make_shared<const Bf16Mlp>(model.network(), model.params().mlp.data());
+  }
 }
 
 Eigen::Vector3f FieldEvaluator::GridInputFromFieldSpace(const Eigen::Vector3f& q) const {
@@ -77,7 +89,8 @@ void FieldEvaluator::Density(int m, const int* seg, const int* seg_ray, int nseg
     std::copy(geo_bias_.col(t).data(), geo_bias_.col(t).data() + Hd, ctx->seg_geo.data() + size_t(Hd) * k);
   }
   if (bf16_ != nullptr) {
-    const float* const* bias = net.options().geo_dim() > 0 ? SegmentColumns(ctx->seg_geo.data(), Hd, seg, nseg, m) : nullptr;
+    const float* const* bias =
+        net.options().geo_dim() > 0 ? SegmentColumns(ctx->seg_geo.data(), Hd, seg, nseg, m) : nullptr;
     bf16_->Density(ctx->feat.data(), m, bias, ctx->ws.h.data());
   } else {
     net.DensityForward(model_.params().mlp.data(), ctx->feat.data(), m, seg, nseg, ctx->seg_geo.data(), &ctx->ws);
@@ -86,6 +99,7 @@ void FieldEvaluator::Density(int m, const int* seg, const int* seg_ray, int nseg
 }
 
 void FieldEvaluator::Select(const int* keep, int mk, bool for_backward, FieldContext* ctx) const {
+  if (for_backward) RequireFloatMlp(bf16_ != nullptr, "Select(for_backward)");
   const int Dg = model_.grid().output_dim();
   NetworkWorkspace& ws = ctx->ws;
   for (int w = 0; w < mk; ++w) {
@@ -118,6 +132,7 @@ void FieldEvaluator::Colour(int mk, const int* seg, const int* seg_ray, int nseg
 
 void FieldEvaluator::Backward(int mk, const int* seg, const int* seg_ray, int nseg, const float* d_rgb,
                               const float* d_sigma, FieldContext* ctx, float* grad_mlp, float* grad_emb) const {
+  RequireFloatMlp(bf16_ != nullptr, "Backward");
   const Network& net = model_.network();
   const int Hd = net.options().density_hidden, Hc = net.options().colour_hidden;
   const int Dg = model_.grid().output_dim();

@@ -55,11 +55,12 @@ struct FieldContext {
 
 class FieldEvaluator {
  public:
-  // bf16_mlp: for inference only (renders, bakes), run the MLPs in
-  // bfloat16 on AMX tiles where the CPU has them (bf16_mlp.h; else float,
-  // as without it). Density then fills ctx->ws.h but not the hidden
-  // activations, so Select(..., for_backward = true) and Backward need an
-  // evaluator built without it (the trainer's).
+  // bf16_mlp: for inference only (the renderer's: eval, frames, replay
+  // labels, bake targets), run the MLPs in bfloat16 on AMX tiles where the
+  // CPU has them (bf16_mlp.h; else float, as without it). Density then
+  // fills ctx->ws.h but not the hidden activations, so Select(...,
+  // for_backward = true) and Backward need an evaluator built without it
+  // (the trainer's); they abort on one built with it.
   explicit FieldEvaluator(const NgpModel& model, bool bf16_mlp = false);
 
   // Whether the MLPs run in bfloat16 tiles.

@@ -63,9 +63,9 @@ struct RenderOptions {
   // The MLPs in bfloat16 on AMX tiles where the CPU has them (Intel's
   // Sapphire Rapids and later; elsewhere float, as with false): weights and
   // layer inputs rounded to 8-bit mantissas, sums in float (bf16_mlp.h).
-  // Session 76, one 2-core Xeon, test views, float -> bfloat16: fox_8
-  // 60 -> 48 ms, flower_4 470 -> 375, beer_2 1120 -> 822, lego_100 11.3 ->
-  // 9.7; PSNR within 0.01 dB on all four.
+  // Session 76, one 2-core Xeon, test views, float -> bfloat16 (means of
+  // 2-4 runs): fox_8 61 -> 49 ms, flower_4 470 -> 375, beer_2 1122 -> 822,
+  // lego_100 11.3 -> 9.7; PSNR within 0.01 dB on all four.
   bool bf16_mlp = true;
   absl::Status Validate() const;
 };
