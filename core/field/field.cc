@@ -12,13 +12,10 @@
 namespace clnerf {
 
 namespace {
-// bias[j] = the column of sample j's segment (Bf16Mlp's per-sample biases).
+// Bf16Mlp's per-sample biases: the column of each sample's segment.
 const float* const* SegmentColumns(const float* cols, int rows, const int* seg, int nseg, int n) {
   thread_local std::vector<const float*> bias;
-  bias.assign(std::max(n, seg[nseg]), nullptr);
-  for (int k = 0; k < nseg; ++k) {
-    for (int j = seg[k]; j < seg[k + 1]; ++j) bias[j] = cols + size_t(k) * rows;
-  }
+  SegmentBiasPointers(cols, rows, seg, nseg, n, &bias);
   return bias.data();
 }
 

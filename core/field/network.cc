@@ -67,13 +67,6 @@ void Network::InitializeEmbeddings(float* emb, int rows, uint64_t seed) const {
   for (size_t i = 0; i < size_t(rows) * embedding_row_size(); ++i) emb[i] = n(rng);
 }
 
-namespace {
-inline ConstMatrixMap W(const float* mlp, const Network::Layer& l) {
-  return ConstMatrixMap(mlp + l.offset, l.rows, l.cols);
-}
-inline MatrixMap dW(float* d, const Network::Layer& l) { return MatrixMap(d + l.offset, l.rows, l.cols); }
-
-// bias[j] = the bias column of sample j's segment (for DenseForward).
 void SegmentBiasPointers(const float* bias, int rows, const int* seg, int nrays, int n,
                          std::vector<const float*>* out) {
   out->resize(n);
@@ -81,6 +74,13 @@ void SegmentBiasPointers(const float* bias, int rows, const int* seg, int nrays,
     for (int j = seg[r]; j < seg[r + 1]; ++j) (*out)[j] = bias + size_t(r) * rows;
   }
 }
+
+namespace {
+inline ConstMatrixMap W(const float* mlp, const Network::Layer& l) {
+  return ConstMatrixMap(mlp + l.offset, l.rows, l.cols);
+}
+inline MatrixMap dW(float* d, const Network::Layer& l) { return MatrixMap(d + l.offset, l.rows, l.cols); }
+
 // out = act(layer * in) on the first n columns (no bias).
 void Apply(const float* mlp, const Network::Layer& l, const Eigen::MatrixXf& in, int n, Activation act,
            Eigen::MatrixXf* out) {

@@ -125,6 +125,12 @@ class Network {
   size_t mlp_size_ = 0;
 };
 
+// (*out)[j] = the bias column (rows values; column r of `bias`) of sample
+// j's segment r, for the n samples of nrays segments (seg: nrays + 1
+// offsets): per-sample first-layer biases for DenseForward and Bf16Mlp.
+void SegmentBiasPointers(const float* bias, int rows, const int* seg, int nrays, int n,
+                         std::vector<const float*>* out);
+
 // TruncExp forward: exp(x) (clamped to avoid inf); backward uses exp(clamp(x, -15, 15)).
 inline float TruncExp(float x) { return __builtin_expf(x < 15.0f ? x : 15.0f); }
 inline float TruncExpGrad(float x) {
