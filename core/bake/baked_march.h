@@ -23,6 +23,17 @@ inline constexpr float kBakedMinTransmittance = 1.0f / 255.0f;
 inline constexpr float kBakedMaxAlpha = 0.9999f;
 // At most this many samples per ray.
 inline constexpr int kBakedMaxSteps = 4096;
+// Where little light is left the steps are longer: a sample taken while
+// the transmittance is below kBakedTail2 covers two steps, below kBakedTail4
+// four (its opacity that of the longer run at its density). The light those
+// samples add is at most T, so their coarser quadrature costs nothing seen:
+// on session 76's assets fox_8, flower_4 and beer_2 scored within 0.01 dB
+// of one-step sampling on their test views with 20, 22 and 16 % fewer steps
+// per ray (docs/baking.md, session 77).
+inline constexpr float kBakedTail2 = 0.3f;
+inline constexpr float kBakedTail4 = 0.1f;
+// The steps a sample covers at transmittance T (1, 2 or 4).
+inline int BakedTailSteps(float T) { return T < kBakedTail4 ? 4 : T < kBakedTail2 ? 2 : 1; }
 
 // The model-space interval to march; false when the ray misses the grid.
 inline bool BakedRayInterval(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d, float* t0,
@@ -109,7 +120,8 @@ inline float ShellEmptyRun(const Eigen::Vector3f& x, const Eigen::Vector3f& d, c
 // Marches ray o + t d (unit d, model space) over the grid of `a` (only its
 // geometry fields are read). sample(block, u, &rgba) returns false for an
 // empty block, else the lattice's RGBA in [0, 1] at cell coordinates u;
-// visit(block, weight, t, rgba) sees every sample's compositing weight.
+// visit(block, weight, t, rgba, dt) sees every sample's compositing weight
+// and the length it covers (model units; BakedTailSteps of a step).
 // Returns the final transmittance.
 template <class Sample, class Visit>
 float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d, Sample&& sample,
@@ -172,11 +184,12 @@ float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vec
       }
       continue;
     }
+    const float run = dt * float(BakedTailSteps(T));
     const float alpha0 = std::min(rgba[3] * rgba[3], kBakedMaxAlpha);
-    const float alpha = 1.0f - std::exp(std::log(1.0f - alpha0) * (dt / cell));
-    visit(block, T * alpha, t, rgba);
+    const float alpha = 1.0f - std::exp(std::log(1.0f - alpha0) * (run / cell));
+    visit(block, T * alpha, t, rgba, run);
     T *= 1.0f - alpha;
-    t += dt;
+    t += run;
   }
   return T;
 }

@@ -52,7 +52,7 @@ BakedRay RenderBakedRay(const BakedAsset& a, const Eigen::Vector3f& o, const Eig
         ++out.steps;
         return SampleBlock(a, u, b, d, rgba, &brick, l);
       },
-      [&](int, float w, float t, const Eigen::Vector4f& rgba) {
+      [&](int, float w, float t, const Eigen::Vector4f& rgba, float) {
         ++out.samples;
         out.rgb += w * BakedColour(rgba);
         out.depth += w * t;

@@ -25,10 +25,12 @@
 //       off the ray from the centre)
 //     else: rgba = trilinear(brick, u - 8 * block)
 //       (format 2: rgba.rgb += the view term, sum_k d_k H_k, premultiplied)
-//       alpha = 1 - exp(-(-log(1 - min(a^2, kBakedMaxAlpha))) * dt / cell)
+//       run = dt * k, k = 4 while T < 0.1, 2 while T < 0.3, else 1
+//         (BakedTailSteps: longer steps where little light is left)
+//       alpha = 1 - exp(-(-log(1 - min(a^2, kBakedMaxAlpha))) * run / cell)
 //       C += T alpha clamp(rgb / a) (the atlas's colour is premultiplied by a);
 //       the median sample is the first after which T * (1 - alpha) < 1/2
-//       T *= 1 - alpha; t += dt
+//       T *= 1 - alpha; t += run
 //   format 3: C += (1 - T) * (view term at the median sample) / its a
 //   C = clamp(C + T * background)
 //

@@ -186,7 +186,7 @@ void MarchVisibility(const Camera& cam, int x, int y, float dir_weight, LazyDens
         *rgba = Eigen::Vector4f(0, 0, 0, v / 255.0f);
         return true;
       },
-      [&](int block, float weight, float, const Eigen::Vector4f&) {
+      [&](int block, float weight, float, const Eigen::Vector4f&, float) {
         const int s = w.slot[block];
         if (s != cur) {
           flush();

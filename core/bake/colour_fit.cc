@@ -246,7 +246,7 @@ float BakedRayWeights(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen
       a, o, d, [&](int, const Eigen::Vector3f& u, const int b[3], Eigen::Vector4f* rgba) {
         return SampleCodes(a, u, b, &c, rgba);
       },
-      [&](int, float weight, float, const Eigen::Vector4f& rgba) {
+      [&](int, float weight, float, const Eigen::Vector4f& rgba, float) {
         const float s = weight / std::max(rgba[3], 1.0f / 255.0f);
         for (int k = 0; k < 8; ++k) {
           if (c.wa[k] > 0.0f) row->emplace_back(c.id[k], s * c.wa[k]);

@@ -36,7 +36,7 @@ Eigen::Vector3f MarchSamples(const BakedAsset& a, const float* codes, const floa
                              const Eigen::Vector3f& d, std::vector<Sample>* samples, float* T_end) {
   samples->clear();
   Sample cur;
-  const float step = a.step(), cell = a.cell();
+  const float cell = a.cell();
   Eigen::Vector3f pixel = Eigen::Vector3f::Zero();
   float T = 1.0f;
   const float Tf = MarchBaked(
@@ -62,10 +62,8 @@ Eigen::Vector3f MarchSamples(const BakedAsset& a, const float* codes, const floa
         *rgba << P, A;
         return true;
       },
-      [&](int, float weight, float t, const Eigen::Vector4f&) {
-        const float r = InfNorm(o + t * d);
-        const float dt = a.contracted && r > 1.0f ? step * r * r : step;
-        cur.s = dt / cell;
+      [&](int, float weight, float, const Eigen::Vector4f&, float run) {
+        cur.s = run / cell;
         cur.T = T;
         cur.alpha = T > 0.0f ? weight / T : 0.0f;
         pixel += weight * cur.raw.cwiseMax(0.0f).cwiseMin(1.0f);

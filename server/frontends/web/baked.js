@@ -21,13 +21,18 @@ void main() { gl_Position = vec4(aPos, 0.0, 1.0); }`;
 
 // VIEW_MODE (defined when the program is built for an asset): 0 no view
 // term, 1 at every sample (format 2), 2 once at the median sample (format 3).
-// CONTRACTED: 1 for an unbounded scene. Both are #defines, not uniforms:
-// software WebGL2 runs every instruction of the loop on every step, branch
-// taken or not, so an object's shader must not carry the shell's code.
+// CONTRACTED: 1 for an unbounded scene. OUTSIDE: 0 when the camera is
+// inside an unbounded scene's inner cube (no ray starts in the shell). They
+// are #defines, not uniforms: software WebGL2 (SwiftShader) runs every
+// instruction of a loop body on every step, branch taken or not, and every
+// loop's body at least once (it tests its lanes at the end), so an
+// object's shader must not carry the shell's code, nor a camera inside the
+// cube the loop for rays that start outside it.
 const BAKED_FS = `#version 300 es
 #define VIEW_MODE 0
 #define CONTRACTED 0
 #define STEP_ONE 0
+#define OUTSIDE 1
 precision highp float;
 precision highp int;
 precision highp usampler3D;
@@ -54,26 +59,26 @@ out vec4 outColor;
 const int kBlock = 8;
 const float kMinT = 1.0 / 255.0;
 const float kMaxAlpha = 0.9999;
+const float kTail2 = 0.3;  // kBakedTail2, kBakedTail4: longer steps where little light is left.
+const float kTail4 = 0.1;
 const int kMaxSteps = 4096;
 
 float infNorm(vec3 x) { return max(abs(x.x), max(abs(x.y), abs(x.z))); }
 vec3 contractP(vec3 x, float r) {  // r = infNorm(x), which the march has already.
   return r > 1.0 ? x * ((2.0 - 1.0 / r) / r) : x;
 }
+// The slab test as vector code (a loop over the axes, indexing vectors,
+// cost software WebGL2 more than the rest of a pixel's setup: lego_100
+// 20 -> 4 ms per frame with no march at all, session 77). An axis the ray
+// runs along (|d| < 1e-12) is taken as 1e-12: its slab then bounds t to
+// +-1e12 times the distance, all of it or none, as IntersectAabb skips it.
 bool intersectAabb(vec3 o, vec3 d, vec3 lo, vec3 hi, out float ta, out float tb) {
-  float a = -1e30, b = 1e30;
-  for (int k = 0; k < 3; ++k) {
-    if (abs(d[k]) < 1e-12) {
-      if (o[k] < lo[k] || o[k] > hi[k]) return false;
-      continue;
-    }
-    float inv = 1.0 / d[k];
-    float u = (lo[k] - o[k]) * inv, v = (hi[k] - o[k]) * inv;
-    a = max(a, min(u, v));
-    b = min(b, max(u, v));
-  }
-  ta = a; tb = b;
-  return b > a;
+  vec3 inv = 1.0 / mix(vec3(1e-12), d, greaterThanEqual(abs(d), vec3(1e-12)));
+  vec3 u = (lo - o) * inv, v = (hi - o) * inv;
+  vec3 near = min(u, v), far = max(u, v);
+  ta = max(near.x, max(near.y, near.z));
+  tb = min(far.x, min(far.y, far.z));
+  return tb > ta;
 }
 bool intersectBox(vec3 o, vec3 d, float b, out float t0, out float t1) {  // [-b, b]^3, ahead of o.
   return intersectAabb(o, d, vec3(-b), vec3(b), t0, t1) && t1 > max(t0, 0.0);
@@ -127,9 +132,11 @@ vec3 tcMedian = vec3(-1.0);  // The median sample (format 3): where T first fall
 float codeMedian = 0.0;
 
 // Composites the sample at cell coordinates u of occupied block b (index
-// entry e), dt long, and moves t past it. cube: a step of the grid's own
-// cells (dt = stp), whose opacity with STEP_ONE (one-cell steps) is the
-// texel's own, with no exp or log (a constant at each call).
+// entry e), dt long, and moves t past it; below transmittance kTail2 the
+// sample covers 2 steps, below kTail4 4 (BakedTailSteps). cube: a step of
+// the grid's own cells (dt = stp), whose opacity with STEP_ONE (one-cell
+// steps) is the texel's own or its square's or fourth power's complement,
+// with no exp or log (a constant at each call).
 void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube) {
   ivec3 bo = ivec3(int(e & 1023u), int((e >> 10) & 1023u), int(e >> 20)) * 9;  // skipIndex packs it.
   vec3 l = clamp(u - vec3(b * kBlock), 0.0, 8.0);
@@ -139,16 +146,18 @@ void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube) {
   s.rgb += viewTerm(tc, d);
 #endif
   float a0 = min(s.a * s.a, kMaxAlpha);
+  float run = (T < kTail4 ? 4.0 : (T < kTail2 ? 2.0 : 1.0)) * dt;
 #if STEP_ONE == 1
-  float alpha = cube ? a0 : 1.0 - exp(log(1.0 - a0) * (dt / cell));
+  float q = 1.0 - a0, q2 = q * q;
+  float alpha = cube ? 1.0 - (T < kTail4 ? q2 * q2 : (T < kTail2 ? q2 : q)) : 1.0 - exp(log(q) * (run / cell));
 #else
-  float alpha = 1.0 - exp(log(1.0 - a0) * (dt / cell));
+  float alpha = 1.0 - exp(log(1.0 - a0) * (run / cell));
 #endif
   C += T * alpha * clamp(s.rgb / max(s.a, 1.0 / 255.0), vec3(0.0), vec3(1.0));  // Premultiplied by the code.
   float next = T * (1.0 - alpha);
   if (T >= 0.5 && next < 0.5) { tcMedian = tc; codeMedian = s.a; }
   T = next;
-  t += dt;
+  t += run;
 }
 
 // The block holding cell coordinates u, and its index entry.
@@ -231,6 +240,7 @@ void main() {
   // it), the cube, the shell beyond (a line meets a cube in one interval).
   // Software WebGL2 runs every instruction of a loop body on every step, so
   // the cube's steps must not carry the shell's code.
+#if OUTSIDE == 1
   for (; hit && it < kMaxSteps; ++it) {
     if (!(t < t1) || T <= kMinT) break;
     vec3 x = o + t * d;
@@ -238,6 +248,7 @@ void main() {
     if (r <= 1.0) break;
     shellStep(x, r);
   }
+#endif
   for (; hit && it < kMaxSteps; ++it) {
     if (!(t < t1) || T <= kMinT) break;
     vec3 x = o + t * d;
@@ -356,15 +367,16 @@ class BakedRenderer {
   // The program for a view mode and kind (built once each; both are
   // #defines, so the shader carries no branch for them), with its uniform
   // locations.
-  program(viewMode, contracted, stepOne) {
-    const key = `${viewMode}/${contracted ? 1 : 0}/${stepOne ? 1 : 0}`;
+  program(viewMode, contracted, stepOne, outside = true) {
+    const key = `${viewMode}/${contracted ? 1 : 0}/${stepOne ? 1 : 0}/${outside ? 1 : 0}`;
     if (this.programs[key]) return this.programs[key];
     const gl = this.gl, p = gl.createProgram();
     gl.attachShader(p, this.compile(gl.VERTEX_SHADER, BAKED_VS));
     gl.attachShader(p, this.compile(gl.FRAGMENT_SHADER,
                                     BAKED_FS.replace("#define VIEW_MODE 0", `#define VIEW_MODE ${viewMode}`)
                                         .replace("#define CONTRACTED 0", `#define CONTRACTED ${contracted ? 1 : 0}`)
-                                        .replace("#define STEP_ONE 0", `#define STEP_ONE ${stepOne ? 1 : 0}`)));
+                                        .replace("#define STEP_ONE 0", `#define STEP_ONE ${stepOne ? 1 : 0}`)
+                                        .replace("#define OUTSIDE 1", `#define OUTSIDE ${outside ? 1 : 0}`)));
     gl.bindAttribLocation(p, 0, "aPos");
     gl.linkProgram(p);
     if (!gl.getProgramParameter(p, gl.LINK_STATUS)) throw new Error("link: " + gl.getProgramInfoLog(p));
@@ -468,9 +480,13 @@ class BakedRenderer {
 
   draw(cam) {
     const gl = this.gl, m = this.manifest, stepOne = this.stepCells === 1;
-    const prog = this.program(this.viewMode, m.kind === "unbounded", stepOne), p = prog.p;
     const W = this.canvas.width, H = this.canvas.height;
     const {rot, o} = this.modelCamera(cam.c2w);
+    // From a camera inside the inner cube every ray is in the cube, then in
+    // the shell (a line meets a cube in one interval), never in the shell
+    // first: that loop can go (0.999: clear of rounding at the faces).
+    const inside = Math.max(Math.abs(o[0]), Math.abs(o[1]), Math.abs(o[2])) < 0.999;
+    const prog = this.program(this.viewMode, m.kind === "unbounded", stepOne, !inside), p = prog.p;
     gl.viewport(0, 0, W, H);
     gl.useProgram(p);
     gl.bindVertexArray(this.vao);
