@@ -416,7 +416,9 @@ class BakedRenderer {
       this.programs = {};
     }
     const viewMode = !view ? 0 : m.format === 2 ? 1 : 2;
-    this.program(viewMode, m.kind === "unbounded", steps === 1);  // Built now, so a shader error fails the load.
+    // Built now, so a shader error fails the load and no frame waits for one.
+    this.program(viewMode, m.kind === "unbounded", steps === 1);
+    if (m.kind === "unbounded") this.program(viewMode, true, steps === 1, false);
     for (const t of [this.indexTex, this.atlasTex, ...(this.viewTex || [])]) if (t) gl.deleteTexture(t);
     this.viewTex = [];
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
