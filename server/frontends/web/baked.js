@@ -146,10 +146,10 @@ void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube) {
   s.rgb += viewTerm(tc, d);
 #endif
   float a0 = min(s.a * s.a, kMaxAlpha);
-  float run = (T < kTail4 ? 4.0 : (T < kTail2 ? 2.0 : 1.0)) * dt;
+  float k = T < kTail4 ? 4.0 : (T < kTail2 ? 2.0 : 1.0), run = k * dt;
 #if STEP_ONE == 1
   float q = 1.0 - a0, q2 = q * q;
-  float alpha = cube ? 1.0 - (T < kTail4 ? q2 * q2 : (T < kTail2 ? q2 : q)) : 1.0 - exp(log(q) * (run / cell));
+  float alpha = cube ? 1.0 - (k == 4.0 ? q2 * q2 : (k == 2.0 ? q2 : q)) : 1.0 - exp(log(q) * (run / cell));
 #else
   float alpha = 1.0 - exp(log(1.0 - a0) * (run / cell));
 #endif
@@ -364,9 +364,9 @@ class BakedRenderer {
     return s;
   }
 
-  // The program for a view mode and kind (built once each; both are
-  // #defines, so the shader carries no branch for them), with its uniform
-  // locations.
+  // The program for a view mode, kind, step and camera side (built once
+  // each; all are #defines, so the shader carries no branch for them), with
+  // its uniform locations. `outside` matters for unbounded scenes only.
   program(viewMode, contracted, stepOne, outside = true) {
     const key = `${viewMode}/${contracted ? 1 : 0}/${stepOne ? 1 : 0}/${outside ? 1 : 0}`;
     if (this.programs[key]) return this.programs[key];
@@ -487,8 +487,9 @@ class BakedRenderer {
     // From a camera inside the inner cube every ray is in the cube, then in
     // the shell (a line meets a cube in one interval), never in the shell
     // first: that loop can go (0.999: clear of rounding at the faces).
-    const inside = Math.max(Math.abs(o[0]), Math.abs(o[1]), Math.abs(o[2])) < 0.999;
-    const prog = this.program(this.viewMode, m.kind === "unbounded", stepOne, !inside), p = prog.p;
+    const unbounded = m.kind === "unbounded";
+    const inside = unbounded && Math.max(Math.abs(o[0]), Math.abs(o[1]), Math.abs(o[2])) < 0.999;
+    const prog = this.program(this.viewMode, unbounded, stepOne, !inside), p = prog.p;
     gl.viewport(0, 0, W, H);
     gl.useProgram(p);
     gl.bindVertexArray(this.vao);
