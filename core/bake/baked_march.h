@@ -11,6 +11,7 @@
 #include <cmath>
 
 #include "core/bake/baked_asset.h"
+#include "core/bake/skip_codes.h"
 #include "core/data/contraction.h"
 #include "core/field/ray_marcher.h"
 #include "Eigen/Core"
@@ -65,13 +66,21 @@ inline bool IntersectAabb(const Eigen::Vector3f& o, const Eigen::Vector3f& d, co
   return b > a;
 }
 
-// Model-space t at which a ray leaves the box [lo, hi] it is in.
-inline float BakedExitT(const Eigen::Vector3f& o, const Eigen::Vector3f& d, const Eigen::Vector3f& lo,
-                        const Eigen::Vector3f& hi) {
+// The reciprocals of a ray direction's components that BakedExitT uses:
+// 1 / d_k where |d_k| > 1e-12, else 0 (an axis the ray does not move along).
+inline Eigen::Vector3f BakedInverseDirection(const Eigen::Vector3f& d) {
+  Eigen::Vector3f inv;
+  for (int k = 0; k < 3; ++k) inv[k] = std::abs(d[k]) > 1e-12f ? 1.0f / d[k] : 0.0f;
+  return inv;
+}
+
+// Model-space t at which a ray leaves the box [lo, hi] it is in (inv_d:
+// BakedInverseDirection(d); multiplications, as the shader does them).
+inline float BakedExitT(const Eigen::Vector3f& o, const Eigen::Vector3f& d, const Eigen::Vector3f& inv_d,
+                        const Eigen::Vector3f& lo, const Eigen::Vector3f& hi) {
   float t = 1e30f;
   for (int k = 0; k < 3; ++k) {
-    if (d[k] > 1e-12f) t = std::min(t, (hi[k] - o[k]) / d[k]);
-    if (d[k] < -1e-12f) t = std::min(t, (lo[k] - o[k]) / d[k]);
+    if (inv_d[k] != 0.0f) t = std::min(t, ((d[k] > 0.0f ? hi[k] : lo[k]) - o[k]) * inv_d[k]);
   }
   return t;
 }
@@ -122,14 +131,25 @@ inline float ShellEmptyRun(const Eigen::Vector3f& x, const Eigen::Vector3f& d, c
 // empty block, else the lattice's RGBA in [0, 1] at cell coordinates u;
 // visit(block, weight, t, rgba, dt) sees every sample's compositing weight
 // and the length it covers (model units; BakedTailSteps of a step).
-// Returns the final transmittance.
+// skip_codes: the red channel of a sample with no density is an empty-space
+// code (skip_codes.h; the asset's atlas as stored), and the march jumps by
+// it over samples with no density, which are then not visited; the samples
+// that add to the ray are the same. Returns the final transmittance.
 template <class Sample, class Visit>
 float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d, Sample&& sample,
-                 Visit&& visit) {
+                 Visit&& visit, bool skip_codes = false) {
   float t0 = 0, t1 = 0, T = 1.0f;
   if (!BakedRayInterval(a, o, d, &t0, &t1)) return T;
+  // Jumps by codes stay in the inner cube of an unbounded scene (the shell's
+  // samples are not on its lattice): they stop at the first lattice point
+  // of their phase at or past where the ray leaves it.
+  float cube_exit = 1e30f, cube_entry = 0.0f;
+  if (a.contracted && !IntersectBox(o, d, 1.0f, &cube_entry, &cube_exit)) cube_exit = -1e30f;
+  const float skip_scale = 1.0f / (a.step_cells * InfNorm(d));  // Cells of a code to steps.
+  const Eigen::Vector3f inv_d = BakedInverseDirection(d);
   const int nb = a.blocks_per_axis();
   const float step = a.step(), cell = a.cell(), B = a.half_size, to_cells = float(a.resolution) / (2.0f * B);
+  const float inv_step = 1.0f / step;
   const float block_size = float(kBakeBlock) / to_cells;  // Field units.
   float t = t0 + 0.5f * step;
   if (!a.contracted && !a.block_distance.empty()) {
@@ -173,7 +193,7 @@ float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vec
           lo = lo.cwiseMax(-1.0f);
           hi = hi.cwiseMin(1.0f);
         }
-        t += std::max(1.0f, std::ceil((BakedExitT(o, d, lo, hi) - t) / step)) * step;
+        t += std::max(1.0f, std::ceil((BakedExitT(o, d, inv_d, lo, hi) - t) * inv_step)) * step;
       } else {
         // In the shell the cube is one in contracted space: the ray is
         // inside it for ShellEmptyRun at least; the next sample is half a
@@ -182,6 +202,13 @@ float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vec
         const float re = InfNorm(o + te * d);
         t = std::max(t + dt, te + 0.5f * step * re * re);
       }
+      continue;
+    }
+    if (skip_codes && rgba[3] == 0.0f && (!a.contracted || r <= 1.0f)) {
+      const int k = BakedTailSteps(T);
+      int m = BakedCodeSteps(rgba[0], skip_scale, k);
+      if (a.contracted) m = std::min(m, k * std::max(1, int(std::ceil((cube_exit - t) * inv_step * (1.0f / float(k))))));
+      t += float(m) * step;
       continue;
     }
     const float run = dt * float(BakedTailSteps(T));

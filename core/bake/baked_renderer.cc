@@ -61,7 +61,8 @@ BakedRay RenderBakedRay(const BakedAsset& a, const Eigen::Vector3f& o, const Eig
           std::copy(l, l + 3, median_l);
           median_code = rgba[3];
         }
-      });
+      },
+      /*skip_codes=*/true);
   if (a.view_dependent() && a.view_term == BakedViewTerm::kAtMedian && median_brick >= 0) {
     out.rgb += (1.0f - T) * ViewTerm(a, median_brick, median_l, d) / std::max(median_code, 1.0f / 255.0f);
   }

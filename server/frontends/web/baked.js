@@ -51,7 +51,7 @@ uniform float uHalf;      // B.
 uniform float uRes;       // R.
 uniform float uNear;
 uniform vec3 uBg;
-uniform vec3 uAtlasDims;
+uniform vec3 uInvAtlasDims;  // 1 / the atlas's size in texels.
 uniform ivec3 uOccLo;      // An object's box of occupied blocks (lo > hi: none).
 uniform ivec3 uOccHi;
 out vec4 outColor;
@@ -83,9 +83,10 @@ bool intersectAabb(vec3 o, vec3 d, vec3 lo, vec3 hi, out float ta, out float tb)
 bool intersectBox(vec3 o, vec3 d, float b, out float t0, out float t1) {  // [-b, b]^3, ahead of o.
   return intersectAabb(o, d, vec3(-b), vec3(b), t0, t1) && t1 > max(t0, 0.0);
 }
-float exitT(vec3 o, vec3 d, vec3 lo, vec3 hi) {  // BakedExitT, as vector code.
-  bvec3 moving = greaterThan(abs(d), vec3(1e-12));
-  vec3 e = mix(vec3(1e30), (mix(lo, hi, greaterThan(d, vec3(0.0))) - o) / mix(vec3(1.0), d, moving), moving);
+// BakedExitT, as vector code; invD = 1 / d on the axes the ray moves along
+// (|d| > 1e-12), else 0.
+float exitT(vec3 o, vec3 d, vec3 invD, vec3 lo, vec3 hi) {
+  vec3 e = mix(vec3(1e30), (mix(lo, hi, greaterThan(d, vec3(0.0))) - o) * invD, notEqual(invD, vec3(0.0)));
   return min(e.x, min(e.y, e.z));
 }
 
@@ -125,7 +126,10 @@ vec3 viewTerm(vec3 tc, vec3 d) {  // sum_k d_k (texel_k - 128) / 127, premultipl
 // The march's state, shared by the step functions and main's loops.
 vec3 o, d;                // The ray, model space (unit d).
 float t, t1, T = 1.0;     // Its next sample, its end, its transmittance.
-float stp, cell, toCells, blockSize;
+float stp, invStp, cell, toCells, blockSize;
+vec3 invD;                // BakedExitT's reciprocals of d.
+float skipScale;          // 1 / (uStepCells |d|_inf): cells of a code to steps along the ray.
+float tCube = 1e30;       // Where the ray leaves an unbounded scene's inner cube.
 int nb;
 vec3 C = vec3(0.0);
 vec3 tcMedian = vec3(-1.0);  // The median sample (format 3): where T first falls below 1/2.
@@ -140,13 +144,14 @@ float codeMedian = 0.0;
 void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube) {
   ivec3 bo = ivec3(int(e & 1023u), int((e >> 10) & 1023u), int(e >> 20)) * 9;  // skipIndex packs it.
   vec3 l = clamp(u - vec3(b * kBlock), 0.0, 8.0);
-  vec3 tc = (vec3(bo) + l + 0.5) / uAtlasDims;
+  vec3 tc = (vec3(bo) + l + 0.5) * uInvAtlasDims;
   vec4 s = texture(uAtlas, tc);
 #if VIEW_MODE == 1
   s.rgb += viewTerm(tc, d);
 #endif
   float a0 = min(s.a * s.a, kMaxAlpha);
-  float k = T < kTail4 ? 4.0 : (T < kTail2 ? 2.0 : 1.0), run = k * dt;
+  float k = T < kTail4 ? 4.0 : (T < kTail2 ? 2.0 : 1.0), kInv = T < kTail4 ? 0.25 : (T < kTail2 ? 0.5 : 1.0);
+  float run = k * dt;
 #if STEP_ONE == 1
   float q = 1.0 - a0, q2 = q * q;
   float alpha = cube ? 1.0 - (k == 4.0 ? q2 * q2 : (k == 2.0 ? q2 : q)) : 1.0 - exp(log(q) * (run / cell));
@@ -156,12 +161,20 @@ void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube) {
   C += T * alpha * clamp(s.rgb / max(s.a, 1.0 / 255.0), vec3(0.0), vec3(1.0));  // Premultiplied by the code.
   float next = T * (1.0 - alpha);
   if (T >= 0.5 && next < 0.5) { tcMedian = tc; codeMedian = s.a; }
+  if (cube) {
+    // No density here: red is the empty-space code (BakedCodeSteps, skip_codes.h),
+    // a jump by a multiple of k steps that passes only samples with none,
+    // and stays in an unbounded scene's inner cube.
+    float reach = (s.r * 255.0 - 2.0) * skipScale;
+    float m = min(k * (floor(max(reach, 0.0) * kInv) + 1.0), k * max(1.0, ceil((tCube - t) * invStp * kInv)));
+    run = s.a == 0.0 ? m * dt : run;
+  }
   T = next;
   t += run;
 }
 
 // The block holding cell coordinates u, and its index entry.
-ivec3 blockAt(vec3 u) { return clamp(ivec3(floor(u / float(kBlock))), ivec3(0), ivec3(nb - 1)); }
+ivec3 blockAt(vec3 u) { return clamp(ivec3(floor(u * (1.0 / float(kBlock)))), ivec3(0), ivec3(nb - 1)); }
 
 // The cube of blocks (field units) that an empty block's entry e says is
 // empty: every block within distance D - 1 of b.
@@ -186,7 +199,7 @@ void cubeStep(vec3 x) {
 #if CONTRACTED == 1
   lo = max(lo, vec3(-1.0)); hi = min(hi, vec3(1.0));
 #endif
-  t += max(1.0, ceil((exitT(o, d, lo, hi) - t) / stp)) * stp;
+  t += max(1.0, ceil((exitT(o, d, invD, lo, hi) - t) * invStp)) * stp;
 }
 
 #if CONTRACTED == 1
@@ -217,11 +230,18 @@ void main() {
   d = normalize(uRot * vec3((px.x - uIntr.z) / uIntr.x, (px.y - uIntr.w) / uIntr.y, 1.0));
   o = uOrigin;
   cell = 2.0 * uHalf / uRes; stp = uStepCells * cell; toCells = uRes / (2.0 * uHalf);
+  invStp = 1.0 / stp;
+  invD = mix(vec3(0.0), 1.0 / d, greaterThan(abs(d), vec3(1e-12)));
   blockSize = float(kBlock) / toCells;
   nb = int(uRes + 0.5) / kBlock;
   float t0;
   float box = CONTRACTED == 1 ? 2.0 / cell : uHalf;
   bool hit = intersectBox(o, d, box, t0, t1);
+  skipScale = 1.0 / (uStepCells * infNorm(d));
+#if CONTRACTED == 1
+  float tc0;
+  if (!intersectAabb(o, d, vec3(-1.0), vec3(1.0), tc0, tCube)) tCube = -1e30;
+#endif
   t0 = max(t0, uNear);
   t = t0 + 0.5 * stp;
   if (hit && CONTRACTED == 0) {  // An object: march only across the box of occupied blocks.
@@ -509,7 +529,7 @@ class BakedRenderer {
     gl.uniform1f(u("uRes"), m.resolution);
     gl.uniform1f(u("uNear"), m.near);
     gl.uniform3fv(u("uBg"), m.background);
-    gl.uniform3fv(u("uAtlasDims"), this.dims);
+    gl.uniform3fv(u("uInvAtlasDims"), this.dims.map((v) => 1 / v));
     gl.uniform3iv(u("uOccLo"), this.occ.lo);
     gl.uniform3iv(u("uOccHi"), this.occ.hi);
     gl.drawArrays(gl.TRIANGLES, 0, 3);
