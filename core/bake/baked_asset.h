@@ -46,7 +46,11 @@
 // Renderers skip empty space by `block_distance` (derived, not stored): for
 // each block the chessboard distance, in blocks, to the nearest occupied
 // one, so a ray in an empty block with distance D jumps past the (2D - 1)^3
-// blocks around it, which are all empty.
+// blocks around it, which are all empty. Inside occupied blocks, a lattice
+// point with no density (a = 0, so no colour) may carry in its red channel
+// its chessboard distance in cells to the nearest point with density
+// (skip_codes.h; assets baked since session 78), by which renderers jump
+// over samples with none; red 0 there means no code.
 //
 // A value type without locking: concurrent const use is safe.
 #ifndef CLNERF_CORE_BAKE_BAKED_ASSET_H_

@@ -25,6 +25,11 @@
 //       off the ray from the centre)
 //     else: rgba = trilinear(brick, u - 8 * block)
 //       (format 2: rgba.rgb += the view term, sum_k d_k H_k, premultiplied)
+//       a = 0 in the model box or inner cube: t advances by m steps, m =
+//         BakedCodeSteps of the red channel (an empty-space code,
+//         skip_codes.h; k if none), a multiple of k below, clipped to the
+//         first multiple of k at or past the inner cube's exit; the
+//         samples it passes have no density either
 //       run = dt * k, k = 4 while T < 0.1, 2 while T < 0.3, else 1
 //         (BakedTailSteps: longer steps where little light is left)
 //       alpha = 1 - exp(-(-log(1 - min(a^2, kBakedMaxAlpha))) * run / cell)
@@ -56,13 +61,13 @@ struct BakedRay {
   Eigen::Vector3f rgb = Eigen::Vector3f::Zero();
   float opacity = 0.0f;
   float depth = 0.0f;   // Expected distance (model units).
-  int samples = 0;      // Brick lookups (samples in occupied blocks).
+  int samples = 0;      // Samples composited (those with density: samples with none add nothing).
   int steps = 0;        // March iterations, empty blocks included: the shader's loop count.
 };
 BakedRay RenderBakedRay(const BakedAsset& asset, const Eigen::Vector3f& o, const Eigen::Vector3f& d);
 
 // A full image for a world-space camera (its distortion honoured, as the
-// model's renderer does). RenderedView::samples counts brick lookups and
+// model's renderer does). RenderedView::samples counts samples composited and
 // RenderedView::steps the march's iterations.
 absl::StatusOr<RenderedView> RenderBakedView(const BakedAsset& asset, const Camera& world_camera,
                                              const BakedRenderOptions& options = {});

@@ -1,7 +1,8 @@
 // clnerf baked-asset renderer: draws a BakedAsset (core/bake/baked_asset.h)
 // with WebGL2 on the visitor's own GPU. The fragment shader marches exactly
 // the samples of the C++ reference renderer (core/bake/baked_renderer.h):
-// same interval, same step lattice, same empty-space skips (the chessboard
+// same interval, same step lattice, same empty-space skips (the empty-space
+// codes in the red channel of lattice points with no density, and the chessboard
 // distance of each empty block to the nearest occupied one, computed here
 // at load as ComputeBlockDistances does), same trilinear lattice,
 // compositing and view-dependent term, so `clnerf render --model DIR` shows
@@ -118,9 +119,9 @@ float shellEmptyRun(vec3 x, vec3 d, vec3 lo, vec3 hi) {
 }
 
 vec3 viewTerm(vec3 tc, vec3 d) {  // sum_k d_k (texel_k - 128) / 127, premultiplied like the colour.
-  return d.x * (texture(uView0, tc).rgb * 255.0 - 128.0) / 127.0 +
-         d.y * (texture(uView1, tc).rgb * 255.0 - 128.0) / 127.0 +
-         d.z * (texture(uView2, tc).rgb * 255.0 - 128.0) / 127.0;
+  return d.x * (textureLod(uView0, tc, 0.0).rgb * 255.0 - 128.0) / 127.0 +
+         d.y * (textureLod(uView1, tc, 0.0).rgb * 255.0 - 128.0) / 127.0 +
+         d.z * (textureLod(uView2, tc, 0.0).rgb * 255.0 - 128.0) / 127.0;
 }
 
 // The march's state, shared by the step functions and main's loops.
@@ -145,7 +146,7 @@ void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube) {
   ivec3 bo = ivec3(int(e & 1023u), int((e >> 10) & 1023u), int(e >> 20)) * 9;  // skipIndex packs it.
   vec3 l = clamp(u - vec3(b * kBlock), 0.0, 8.0);
   vec3 tc = (vec3(bo) + l + 0.5) * uInvAtlasDims;
-  vec4 s = texture(uAtlas, tc);
+  vec4 s = textureLod(uAtlas, tc, 0.0);
 #if VIEW_MODE == 1
   s.rgb += viewTerm(tc, d);
 #endif
