@@ -1,6 +1,8 @@
 #include "core/bake/skip_codes.h"
 
+#include <algorithm>
 #include <cstdint>
+#include <cstdlib>
 #include <vector>
 
 #include "core/bake/baked_march.h"
