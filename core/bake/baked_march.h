@@ -180,8 +180,9 @@ float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vec
       // An empty block, and every block within its distance D - 1 (cube of
       // blocks around it) is empty too: skipped at once. Where the cube lies
       // in model space unchanged (for unbounded scenes: clipped to the inner
-      // cube) by whole steps, so samples stay on t0 + (k + 1/2) step; in the
-      // contracted shell past where the ray leaves it (ShellEmptyRun).
+      // cube) by whole multiples of the tail's steps, so samples stay on
+      // t0 + (j + 1/2) step; in the contracted shell past where the ray
+      // leaves it (ShellEmptyRun).
       const float D = float(a.block_distance.empty() ? 1 : std::max<int>(1, a.block_distance[size_t(block)])) - 1.0f;
       Eigen::Vector3f lo, hi;
       for (int k = 0; k < 3; ++k) {
@@ -193,7 +194,10 @@ float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vec
           lo = lo.cwiseMax(-1.0f);
           hi = hi.cwiseMin(1.0f);
         }
-        t += std::max(1.0f, std::ceil((BakedExitT(o, d, inv_d, lo, hi) - t) * inv_step)) * step;
+        // By whole multiples of the tail's steps (BakedTailSteps), so that
+        // a code's jump over an empty block lands where this skip does.
+        const float k = float(BakedTailSteps(T));
+        t += k * std::max(1.0f, std::ceil((BakedExitT(o, d, inv_d, lo, hi) - t) * inv_step * (1.0f / k))) * step;
       } else {
         // In the shell the cube is one in contracted space: the ray is
         // inside it for ShellEmptyRun at least; the next sample is half a
@@ -207,7 +211,10 @@ float MarchBaked(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vec
     if (skip_codes && rgba[3] == 0.0f && (!a.contracted || r <= 1.0f)) {
       const int k = BakedTailSteps(T);
       int m = BakedCodeSteps(rgba[0], skip_scale, k);
-      if (a.contracted) m = std::min(m, k * std::max(1, int(std::ceil((cube_exit - t) * inv_step * (1.0f / float(k))))));
+      if (a.contracted) {
+        const float to_exit = std::ceil((cube_exit - t) * inv_step * (1.0f / float(k)));
+        m = std::min(m, k * int(std::clamp(to_exit, 1.0f, float(kBakedMaxSteps))));
+      }
       t += float(m) * step;
       continue;
     }

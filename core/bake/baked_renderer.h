@@ -19,7 +19,8 @@
 //     block empty, at chessboard distance D from the nearest occupied one:
 //       t advances past the cube of blocks within D - 1 of it: inside the
 //       model box (unbounded: the inner cube, the cube clipped to it) by
-//       whole steps, so samples stay on the lattice t0 + (k + 1/2) step;
+//       whole multiples of k steps (k below), so samples stay on the
+//       lattice t0 + (j + 1/2) step;
 //       in the shell to te + step * r(te)^2 / 2 (at least by dt), te where
 //       the contracted point leaves the cube (ShellEmptyRun; a lower bound
 //       off the ray from the centre)

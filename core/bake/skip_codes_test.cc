@@ -18,7 +18,9 @@ namespace {
 // dense lattice points (random colours and codes, some faint) with empty
 // points between them; each brick's copy of a shared face is filled on its
 // own, so copies may differ, as the fits may leave them.
-BakedAsset BlobAsset(bool contracted, int resolution, int blocks, int blobs, uint32_t seed) {
+// scatter: the occupied blocks picked at random in a cube of blocks around
+// the centre, with empty ones between them, rather than a connected walk.
+BakedAsset BlobAsset(bool contracted, int resolution, int blocks, int blobs, uint32_t seed, bool scatter = false) {
   std::mt19937 rng(seed);
   BakedAsset a;
   a.contracted = contracted;
@@ -31,13 +33,16 @@ BakedAsset BlobAsset(bool contracted, int resolution, int blocks, int blobs, uin
   std::vector<std::array<int, 3>> occupied;
   std::array<int, 3> b = {nb / 2, nb / 2, nb / 2};
   std::uniform_int_distribution<int> step(-1, 1);
+  std::uniform_int_distribution<int> around(nb / 2 - 3, nb / 2 + 2);
   while (int(occupied.size()) < blocks) {
     const size_t i = size_t(b[0]) + size_t(nb) * (size_t(b[1]) + size_t(nb) * size_t(b[2]));
     if (a.index[i] == 0) {
       occupied.push_back(b);
       a.index[i] = uint32_t(occupied.size());
     }
-    for (int k = 0; k < 3; ++k) b[size_t(k)] = std::clamp(b[size_t(k)] + step(rng), 0, nb - 1);
+    for (int k = 0; k < 3; ++k) {
+      b[size_t(k)] = scatter ? around(rng) : std::clamp(b[size_t(k)] + step(rng), 0, nb - 1);
+    }
   }
   a.bricks = {int(occupied.size()), 1, 1};
   const std::array<int, 3> t = a.atlas_texels();
@@ -141,9 +146,12 @@ TEST(SkipCodesTest, JumpsPassOnlySamplesWithinReach) {
 // inside an unbounded scene's inner cube: the codes shorten the march and
 // leave every pixel as it was (the same samples add to each ray; the
 // tail's 2- and 4-step samples included).
+// Scattered blocks: jumps pass the corners of empty blocks, whose skips
+// keep to the tail's steps too.
 TEST(SkipCodesTest, CodesChangeTheStepsNotThePixels) {
-  for (bool contracted : {false, true}) {
-    BakedAsset coded = BlobAsset(contracted, 128, 60, 1, 7);
+  for (int config = 0; config < 3; ++config) {
+    const bool contracted = config == 1, scatter = config == 2;
+    BakedAsset coded = BlobAsset(contracted, 128, scatter ? 90 : 60, scatter ? 3 : 1, 7, scatter);
     WriteSkipCodes(&coded);
     const BakedAsset plain = WithoutCodes(coded);
     std::mt19937 rng(11);
@@ -169,12 +177,65 @@ TEST(SkipCodesTest, CodesChangeTheStepsNotThePixels) {
     std::printf(
         "%s: %lld steps (%lld samples with density) with codes, %lld (%lld) without; %d rays reach the tail; "
         "largest difference %.2g\n",
-        contracted ? "unbounded" : "object", steps_coded, samples_coded, steps_plain, samples_plain, tail, worst);
+        contracted ? "unbounded" : scatter ? "scattered object" : "object", steps_coded, samples_coded, steps_plain, samples_plain, tail, worst);
     EXPECT_LT(worst, 1e-5f);
     EXPECT_EQ(samples_coded, samples_plain);  // The samples with density, composited.
     EXPECT_LT(double(steps_coded), 0.95 * double(steps_plain));
     EXPECT_GT(tail, 100);
   }
+}
+
+// Rays from haze deep enough for two-step samples (T < 0.3) towards a
+// diagonal neighbour, past the corners of the two empty blocks beside
+// both: a jump that passes through an empty block's corner lands where
+// that block's skip would have (the skip keeps to the tail's steps), so
+// the same samples of the far block add to every ray.
+TEST(SkipCodesTest, AJumpPastAnEmptyBlocksCornerKeepsTheSamples) {
+  BakedAsset a;
+  a.resolution = 32;
+  a.background = Eigen::Vector3f(1, 1, 1);
+  a.bricks = {2, 1, 1};
+  a.index.assign(4 * 4 * 4, 0);
+  a.index[1 + 4 * (1 + 4 * 1)] = 1;  // A = (1, 1, 1): haze in its near half.
+  a.index[2 + 4 * (2 + 4 * 1)] = 2;  // C = (2, 2, 1): dense in its far half.
+  const std::array<int, 3> t = a.atlas_texels();
+  a.atlas.assign(4 * size_t(t[0]) * t[1] * t[2], 0);
+  for (int z = 0; z < kBakeBrick; ++z) {
+    for (int y = 0; y < kBakeBrick; ++y) {
+      for (int x = 0; x < kBakeBrick; ++x) {
+        uint8_t* haze = a.atlas.data() + 4 * BrickTexel(a, 0, x, y, z);
+        uint8_t* dense = a.atlas.data() + 4 * BrickTexel(a, 1, x, y, z);
+        if (x + y <= 6) haze[0] = 80, haze[1] = 40, haze[2] = 120, haze[3] = 170;
+        if (x + y >= 8) dense[0] = 150, dense[1] = 100, dense[2] = 20, dense[3] = 200;
+      }
+    }
+  }
+  ComputeBlockDistances(&a);
+  BakedAsset coded = a;
+  WriteSkipCodes(&coded);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> u01(0.0f, 1.0f);
+  const float cell = a.cell();  // The grid spans [-1, 1]^3: cell c starts at -1 + c cell.
+  int tail = 0;
+  float worst = 0.0f;
+  long long steps_coded = 0, steps_plain = 0;
+  for (int i = 0; i < 20000; ++i) {
+    // From A's haze (cells 8.5-11) along (1, 1, small z) give or take.
+    const Eigen::Vector3f o(-1.0f + (8.5f + 2.5f * u01(rng)) * cell, -1.0f + (8.5f + 2.5f * u01(rng)) * cell,
+                            -1.0f + (10.0f + 4.0f * u01(rng)) * cell);
+    const Eigen::Vector3f d = Eigen::Vector3f(1.0f + 0.3f * (u01(rng) - 0.5f), 1.0f + 0.3f * (u01(rng) - 0.5f),
+                                              0.1f * (u01(rng) - 0.5f)).normalized();
+    const BakedRay x = RenderBakedRay(coded, o, d), y = RenderBakedRay(a, o, d);
+    worst = std::max({worst, (x.rgb - y.rgb).cwiseAbs().maxCoeff(), std::abs(x.opacity - y.opacity)});
+    tail += y.opacity > 0.7f;
+    steps_coded += x.steps;
+    steps_plain += y.steps;
+  }
+  std::printf("%d of 20000 rays reach the tail; %lld steps with codes, %lld without; largest difference %.2g\n", tail,
+              steps_coded, steps_plain, worst);
+  EXPECT_GT(tail, 1000);
+  EXPECT_LT(steps_coded, steps_plain);
+  EXPECT_LT(worst, 1e-5f);
 }
 
 }  // namespace
