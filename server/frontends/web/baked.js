@@ -136,13 +136,17 @@ vec3 C = vec3(0.0);
 vec3 tcMedian = vec3(-1.0);  // The median sample (format 3): where T first falls below 1/2.
 float codeMedian = 0.0;
 
+// The steps a sample at the ray's transmittance covers (BakedTailSteps).
+float tailSteps() { return T < kTail4 ? 4.0 : (T < kTail2 ? 2.0 : 1.0); }
+
 // Composites the sample at cell coordinates u of occupied block b (index
-// entry e), dt long, and moves t past it; below transmittance kTail2 the
-// sample covers 2 steps, below kTail4 4 (BakedTailSteps). cube: a step of
+// entry e), dt long, and moves t past it; the sample covers k steps
+// (tailSteps(): 2 below transmittance kTail2, 4 below kTail4; kInv = 1 /
+// k). cube: a step of
 // the grid's own cells (dt = stp), whose opacity with STEP_ONE (one-cell
 // steps) is the texel's own or its square's or fourth power's complement,
 // with no exp or log (a constant at each call).
-void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube) {
+void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube, float k, float kInv) {
   ivec3 bo = ivec3(int(e & 1023u), int((e >> 10) & 1023u), int(e >> 20)) * 9;  // skipIndex packs it.
   vec3 l = clamp(u - vec3(b * kBlock), 0.0, 8.0);
   vec3 tc = (vec3(bo) + l + 0.5) * uInvAtlasDims;
@@ -151,7 +155,6 @@ void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube) {
   s.rgb += viewTerm(tc, d);
 #endif
   float a0 = min(s.a * s.a, kMaxAlpha);
-  float k = T < kTail4 ? 4.0 : (T < kTail2 ? 2.0 : 1.0), kInv = T < kTail4 ? 0.25 : (T < kTail2 ? 0.5 : 1.0);
   float run = k * dt;
 #if STEP_ONE == 1
   float q = 1.0 - a0, q2 = q * q;
@@ -191,8 +194,9 @@ void cubeStep(vec3 x) {
   vec3 u = (x + uHalf) * toCells;
   ivec3 b = blockAt(u);
   uint e = texelFetch(uIndex, b, 0).r;
+  float k = tailSteps(), kInv = T < kTail4 ? 0.25 : (T < kTail2 ? 0.5 : 1.0);
   if (e < 0x80000000u) {
-    addSample(u, b, e, stp, true);
+    addSample(u, b, e, stp, true, k, kInv);
     return;
   }
   vec3 lo, hi;
@@ -202,7 +206,6 @@ void cubeStep(vec3 x) {
 #endif
   // By whole multiples of the tail's steps, so that a code's jump over an
   // empty block lands where this skip does.
-  float k = T < kTail4 ? 4.0 : (T < kTail2 ? 2.0 : 1.0), kInv = T < kTail4 ? 0.25 : (T < kTail2 ? 0.5 : 1.0);
   t += k * max(1.0, ceil((exitT(o, d, invD, lo, hi) - t) * invStp * kInv)) * stp;
 }
 
@@ -218,7 +221,7 @@ void shellStep(vec3 x, float r) {
   ivec3 b = blockAt(u);
   uint e = texelFetch(uIndex, b, 0).r;
   if (e < 0x80000000u) {
-    addSample(u, b, e, dt, false);
+    addSample(u, b, e, dt, false, tailSteps(), 1.0);
     return;
   }
   vec3 lo, hi;
