@@ -194,7 +194,7 @@ void cubeStep(vec3 x) {
   vec3 u = (x + uHalf) * toCells;
   ivec3 b = blockAt(u);
   uint e = texelFetch(uIndex, b, 0).r;
-  float k = tailSteps(), kInv = T < kTail4 ? 0.25 : (T < kTail2 ? 0.5 : 1.0);
+  float k = tailSteps(), kInv = k == 4.0 ? 0.25 : (k == 2.0 ? 0.5 : 1.0);  // 1 / k, exact.
   if (e < 0x80000000u) {
     addSample(u, b, e, stp, true, k, kInv);
     return;
