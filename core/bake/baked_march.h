@@ -26,15 +26,20 @@ inline constexpr float kBakedMaxAlpha = 0.9999f;
 inline constexpr int kBakedMaxSteps = 4096;
 // Where little light is left the steps are longer: a sample taken while
 // the transmittance is below kBakedTail2 covers two steps, below kBakedTail4
-// four (its opacity that of the longer run at its density). The light those
-// samples add is at most T, so their coarser quadrature costs nothing seen:
-// on session 76's assets fox_8, flower_4 and beer_2 scored within 0.01 dB
-// of one-step sampling on their test views with 20, 22 and 16 % fewer steps
-// per ray (docs/baking.md, session 77).
-inline constexpr float kBakedTail2 = 0.3f;
-inline constexpr float kBakedTail4 = 0.1f;
-// The steps a sample covers at transmittance T (1, 2 or 4).
-inline int BakedTailSteps(float T) { return T < kBakedTail4 ? 4 : T < kBakedTail2 ? 2 : 1; }
+// four, below kBakedTail8 eight (its opacity that of the longer run at its
+// density). The light those samples add is at most T, and the colour fit
+// is fitted through the same samples: on session 76's assets fox_8,
+// flower_4 and beer_2 scored within 0.01 dB of one-step sampling with 20,
+// 22 and 16 % fewer steps (2 below 0.3, 4 below 0.1; session 77), and since
+// session 79 (these thresholds) within 0.03 dB of that with another 8-10 %
+// fewer (docs/baking.md).
+inline constexpr float kBakedTail2 = 0.5f;
+inline constexpr float kBakedTail4 = 0.2f;
+inline constexpr float kBakedTail8 = 0.05f;
+// The steps a sample covers at transmittance T (1, 2, 4 or 8).
+inline int BakedTailSteps(float T) {
+  return T < kBakedTail8 ? 8 : T < kBakedTail4 ? 4 : T < kBakedTail2 ? 2 : 1;
+}
 
 // The model-space interval to march; false when the ray misses the grid.
 inline bool BakedRayInterval(const BakedAsset& a, const Eigen::Vector3f& o, const Eigen::Vector3f& d, float* t0,

@@ -31,7 +31,7 @@
 //         skip_codes.h; k if none), a multiple of k below, clipped to the
 //         first multiple of k at or past the inner cube's exit; the
 //         samples it passes have no density either
-//       run = dt * k, k = 4 while T < 0.1, 2 while T < 0.3, else 1
+//       run = dt * k, k = 8 while T < 0.05, 4 while T < 0.2, 2 while T < 0.5, else 1
 //         (BakedTailSteps: longer steps where little light is left)
 //       alpha = 1 - exp(-(-log(1 - min(a^2, kBakedMaxAlpha))) * run / cell)
 //       C += T alpha clamp(rgb / a) (the atlas's colour is premultiplied by a);

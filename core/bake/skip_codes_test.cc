@@ -123,7 +123,7 @@ TEST(SkipCodesTest, CodesAreTheChessboardDistanceToDensity) {
 // only samples within the code's reach (v - 2 cells along any axis) and
 // stops at the first beyond it.
 TEST(SkipCodesTest, JumpsPassOnlySamplesWithinReach) {
-  for (int k : {1, 2, 4}) {
+  for (int k : {1, 2, 4, 8}) {
     for (float step_cells : {0.5f, 1.0f, 1.25f, 2.0f}) {
       for (float d_inf : {1.0f, 0.8f, 0.5774f}) {
         const float scale = 1.0f / (step_cells * d_inf);
@@ -145,7 +145,7 @@ TEST(SkipCodesTest, JumpsPassOnlySamplesWithinReach) {
 // Rays through blobs with gaps between them, camera outside an object or
 // inside an unbounded scene's inner cube: the codes shorten the march and
 // leave every pixel as it was (the same samples add to each ray; the
-// tail's 2- and 4-step samples included).
+// tail's 2-, 4- and 8-step samples included).
 // Scattered blocks: jumps pass the corners of empty blocks, whose skips
 // keep to the tail's steps too.
 TEST(SkipCodesTest, CodesChangeTheStepsNotThePixels) {
@@ -185,7 +185,7 @@ TEST(SkipCodesTest, CodesChangeTheStepsNotThePixels) {
   }
 }
 
-// Rays from haze deep enough for two-step samples (T < 0.3) towards a
+// Rays from haze deep enough for two-step samples (T < 0.5) towards a
 // diagonal neighbour, past the corners of the two empty blocks beside
 // both: a jump that passes through an empty block's corner lands where
 // that block's skip would have (the skip keeps to the tail's steps), so

@@ -60,8 +60,9 @@ out vec4 outColor;
 const int kBlock = 8;
 const float kMinT = 1.0 / 255.0;
 const float kMaxAlpha = 0.9999;
-const float kTail2 = 0.3;  // kBakedTail2, kBakedTail4: longer steps where little light is left.
-const float kTail4 = 0.1;
+const float kTail2 = 0.5;  // kBakedTail2, 4, 8: longer steps where little light is left.
+const float kTail4 = 0.2;
+const float kTail8 = 0.05;
 const int kMaxSteps = 4096;
 
 float infNorm(vec3 x) { return max(abs(x.x), max(abs(x.y), abs(x.z))); }
@@ -137,14 +138,16 @@ vec3 tcMedian = vec3(-1.0);  // The median sample (format 3): where T first fall
 float codeMedian = 0.0;
 
 // The steps a sample at the ray's transmittance covers (BakedTailSteps).
-float tailSteps() { return T < kTail4 ? 4.0 : (T < kTail2 ? 2.0 : 1.0); }
+float tailSteps() { return T < kTail8 ? 8.0 : (T < kTail4 ? 4.0 : (T < kTail2 ? 2.0 : 1.0)); }
+// 1 / k for k = tailSteps(), exact.
+float tailInverse(float k) { return k == 8.0 ? 0.125 : (k == 4.0 ? 0.25 : (k == 2.0 ? 0.5 : 1.0)); }
 
 // Composites the sample at cell coordinates u of occupied block b (index
 // entry e), dt long, and moves t past it; the sample covers k steps
-// (tailSteps(): 2 below transmittance kTail2, 4 below kTail4; kInv = 1 /
+// (tailSteps(): 2 below transmittance kTail2, 4 below kTail4, 8 below kTail8; kInv = 1 /
 // k). cube: a step of
 // the grid's own cells (dt = stp), whose opacity with STEP_ONE (one-cell
-// steps) is the texel's own or its square's or fourth power's complement,
+// steps) is the complement of the texel's own or its 2nd, 4th or 8th power,
 // with no exp or log (a constant at each call).
 void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube, float k, float kInv) {
   ivec3 bo = ivec3(int(e & 1023u), int((e >> 10) & 1023u), int(e >> 20)) * 9;  // skipIndex packs it.
@@ -158,7 +161,8 @@ void addSample(vec3 u, ivec3 b, uint e, float dt, bool cube, float k, float kInv
   float run = k * dt;
 #if STEP_ONE == 1
   float q = 1.0 - a0, q2 = q * q;
-  float alpha = cube ? 1.0 - (k == 4.0 ? q2 * q2 : (k == 2.0 ? q2 : q)) : 1.0 - exp(log(q) * (run / cell));
+  float q4 = q2 * q2;
+  float alpha = cube ? 1.0 - (k == 8.0 ? q4 * q4 : (k == 4.0 ? q4 : (k == 2.0 ? q2 : q))) : 1.0 - exp(log(q) * (run / cell));
 #else
   float alpha = 1.0 - exp(log(1.0 - a0) * (run / cell));
 #endif
@@ -207,7 +211,7 @@ void cubeStep(vec3 x) {
   vec3 u = (x + uHalf) * toCells;
   ivec3 b = blockAt(u);
   uint e = texelFetch(uIndex, b, 0).r;
-  float k = tailSteps(), kInv = k == 4.0 ? 0.25 : (k == 2.0 ? 0.5 : 1.0);  // 1 / k, exact.
+  float k = tailSteps(), kInv = tailInverse(k);
   if (e < 0x80000000u) {
     addSample(u, b, e, stp, true, k, kInv);
     return;
@@ -231,7 +235,7 @@ void skipToOccupied(inout int it) {
     uint e = texelFetch(uIndex, b, 0).r;
     if (e < 0x80000000u) break;
     float k = tailSteps();
-    skipEmpty(b, e, k, k == 4.0 ? 0.25 : (k == 2.0 ? 0.5 : 1.0));
+    skipEmpty(b, e, k, tailInverse(k));
   }
 }
 
