@@ -192,8 +192,6 @@ void emptyCube(ivec3 b, uint e, out vec3 lo, out vec3 hi) {
   hi = (vec3(b) + D + 1.0) * blockSize - uHalf;
 }
 
-// One step at x, uncontracted (an object's grid, or the inner cube of an
-// unbounded scene's): a sample, or a skip past empty blocks by whole steps.
 // Past the empty block b (index entry e) and every block its entry says
 // is empty too, by whole multiples of the k steps (kInv = 1 / k) the
 // samples take, so that a code's jump over an empty block lands where this
@@ -207,6 +205,9 @@ void skipEmpty(ivec3 b, uint e, float k, float kInv) {
   t += k * max(1.0, ceil((exitT(o, d, invD, lo, hi) - t) * invStp * kInv)) * stp;
 }
 
+// One step at x, uncontracted (an object's grid, or the inner cube of an
+// unbounded scene's): a sample, or a skip past empty blocks by whole
+// multiples of the tail's steps.
 void cubeStep(vec3 x) {
   vec3 u = (x + uHalf) * toCells;
   ivec3 b = blockAt(u);
@@ -251,7 +252,7 @@ void shellStep(vec3 x, float r) {
   ivec3 b = blockAt(u);
   uint e = texelFetch(uIndex, b, 0).r;
   if (e < 0x80000000u) {
-    addSample(u, b, e, dt, false, tailSteps(), 1.0);
+    addSample(u, b, e, dt, false, tailSteps(), 1.0);  // kInv is read by cube samples only.
     return;
   }
   vec3 lo, hi;
